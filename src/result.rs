@@ -1,0 +1,123 @@
+//! The result file (JSON) and `roomcal detect`'s detections, exactly as DESIGN.md
+//! specifies them.
+
+use serde::{Deserialize, Serialize};
+
+use crate::geometry::{Camera, CameraModel};
+
+/// Whether the quality gate accepted the calibration.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Status {
+    Accepted,
+    Rejected,
+}
+
+/// The camera block of a result: model, size, intrinsics and distortion.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CameraResult {
+    pub model: CameraModel,
+    pub width: u32,
+    pub height: u32,
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+    /// 5 coefficients (pinhole-radtan) or 4 (fisheye).
+    pub distortion: Vec<f64>,
+}
+
+/// LiDAR → camera: `p_camera = rotation · p_lidar + translation`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Extrinsic {
+    pub rotation: [[f64; 3]; 3],
+    pub translation: [f64; 3],
+}
+
+/// One-sigma uncertainties of the main parameters.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Uncertainty {
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+    pub rotation_deg: f64,
+    pub translation_m: f64,
+}
+
+/// Residual figures of the solution.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Quality {
+    pub corner_rms_px: f64,
+    pub hole_rms_px: f64,
+    pub boards: u32,
+}
+
+/// One board's measurements: its camera corners and/or its LiDAR hole centres.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct BoardDetection {
+    /// Index of the image/cloud pair the board was seen in.
+    pub frame: u32,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub corners_px: Vec<[f64; 2]>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub holes_lidar: Vec<[f64; 3]>,
+}
+
+/// `roomcal detect`'s output.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Detections {
+    pub boards: Vec<BoardDetection>,
+}
+
+/// `roomcal calibrate`'s output (and, with `generation` and `time`, the store's record).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationResult {
+    pub status: Status,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reason: Option<String>,
+    pub camera: CameraResult,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lidar_to_camera: Option<Extrinsic>,
+    pub uncertainty: Uncertainty,
+    pub quality: Quality,
+    pub boards: Vec<BoardDetection>,
+}
+
+impl CameraResult {
+    /// The result block of a camera.
+    pub fn from_camera(camera: &Camera) -> Self {
+        let n = match camera.model {
+            CameraModel::PinholeRadtan => 5,
+            CameraModel::Fisheye => 4,
+        };
+        CameraResult {
+            model: camera.model,
+            width: camera.width,
+            height: camera.height,
+            fx: camera.fx,
+            fy: camera.fy,
+            cx: camera.cx,
+            cy: camera.cy,
+            distortion: camera.distortion[..n].to_vec(),
+        }
+    }
+
+    /// The camera this block describes (missing coefficients are zero).
+    pub fn to_camera(&self) -> Camera {
+        let mut distortion = [0.0; 5];
+        for (d, v) in distortion.iter_mut().zip(&self.distortion) {
+            *d = *v;
+        }
+        Camera {
+            model: self.model,
+            width: self.width,
+            height: self.height,
+            fx: self.fx,
+            fy: self.fy,
+            cx: self.cx,
+            cy: self.cy,
+            distortion,
+        }
+    }
+}

@@ -1,0 +1,41 @@
+//! Reading room files (TOML) with errors that name the file, the key and the problem.
+
+use std::path::{Path, PathBuf};
+
+use crate::target::{Room, RoomError};
+
+/// Why a room file could not be used.
+#[derive(Debug, thiserror::Error)]
+pub enum RoomFileError {
+    #[error("room file {path}: cannot read: {source}")]
+    Read { path: PathBuf, source: std::io::Error },
+    /// Syntax errors, unknown keys, missing fields and wrong types (toml names the key and line).
+    #[error("room file {path}: {message}")]
+    Parse { path: PathBuf, message: String },
+    #[error("room file {path}: {source}")]
+    Invalid { path: PathBuf, source: RoomError },
+}
+
+impl std::error::Error for RoomError {}
+
+/// Reads and validates a room file.
+pub fn load(path: &Path) -> Result<Room, RoomFileError> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|source| RoomFileError::Read { path: path.to_owned(), source })?;
+    parse(&text, path)
+}
+
+/// Parses and validates room-file text; `path` only names the source in errors.
+pub fn parse(text: &str, path: &Path) -> Result<Room, RoomFileError> {
+    let room: Room = toml::from_str(text).map_err(|e| RoomFileError::Parse {
+        path: path.to_owned(),
+        message: e.to_string().trim_end().replace('\n', "\n  "),
+    })?;
+    room.validate().map_err(|source| RoomFileError::Invalid { path: path.to_owned(), source })?;
+    Ok(room)
+}
+
+/// The room file as TOML (for fixtures and the simulator's output).
+pub fn to_toml(room: &Room) -> String {
+    toml::to_string_pretty(room).expect("a room always serialises to TOML")
+}

@@ -1,0 +1,1 @@
+//! Synthetic calibration room with ground truth (filled by the simulator work).
