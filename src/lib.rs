@@ -29,6 +29,7 @@
 #![deny(unsafe_code)]
 
 pub mod geometry;
+pub mod lidar;
 pub mod target;
 
 #[cfg(feature = "std")]
