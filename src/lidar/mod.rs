@@ -14,3 +14,9 @@ pub struct Point {
     /// Time of the return, seconds (packet timestamp plus the firing offset).
     pub time: f64,
 }
+
+pub mod lzf;
+#[cfg(feature = "std")]
+pub mod pcap;
+#[cfg(feature = "std")]
+pub mod pcd;
