@@ -240,11 +240,11 @@ fn se3_exp_log_compose_inverse_quaternion() {
 // ---------------------------------------------------------------- cameras
 
 fn radtan(w: u32, h: u32, hfov: f64, d: [f64; 5]) -> Camera {
-    Camera::from_fov(CameraModel::PinholeRadtan, w, h, hfov, d).expect("valid radtan camera")
+    Camera::try_from_fov(CameraModel::PinholeRadtan, w, h, hfov, d).expect("valid radtan camera")
 }
 
 fn fisheye(w: u32, h: u32, hfov: f64, k: [f64; 4]) -> Camera {
-    Camera::from_fov(CameraModel::Fisheye, w, h, hfov, [k[0], k[1], k[2], k[3], 0.0])
+    Camera::try_from_fov(CameraModel::Fisheye, w, h, hfov, [k[0], k[1], k[2], k[3], 0.0])
         .expect("valid fisheye camera")
 }
 
@@ -513,16 +513,16 @@ fn from_fov_puts_the_half_fov_ray_on_the_border() {
         (CameraModel::Fisheye, 120.0, [0.0; 5]),
         (CameraModel::Fisheye, 190.0, [0.03, -0.01, 0.001, 0.0, 0.0]),
     ] {
-        let cam = Camera::from_fov(model, 1920, 1080, hfov, d).unwrap();
+        let cam = Camera::try_from_fov(model, 1920, 1080, hfov, d).unwrap();
         assert_eq!((cam.cx, cam.cy, cam.fx), (959.5, 539.5, cam.fy));
         let ray = cam.unproject(&Vec2::new(-0.5, cam.cy)).unwrap();
         let angle = ray.z.acos().to_degrees();
         assert!((angle - hfov / 2.0).abs() < 1e-9, "{model:?} {hfov}: border at {angle}°");
     }
-    let plain = Camera::from_fov(CameraModel::Fisheye, 1000, 1000, 120.0, [0.0; 5]).unwrap();
+    let plain = Camera::try_from_fov(CameraModel::Fisheye, 1000, 1000, 120.0, [0.0; 5]).unwrap();
     assert!((plain.fx - 500.0 / (PI / 3.0)).abs() < 1e-9, "equidistant f");
-    assert!(Camera::from_fov(CameraModel::PinholeRadtan, 640, 480, 180.0, [0.0; 5]).is_none());
-    assert!(Camera::from_fov(
+    assert!(Camera::try_from_fov(CameraModel::PinholeRadtan, 640, 480, 180.0, [0.0; 5]).is_none());
+    assert!(Camera::try_from_fov(
         CameraModel::Fisheye,
         640,
         480,
@@ -530,12 +530,36 @@ fn from_fov_puts_the_half_fov_ray_on_the_border() {
         [0.0; 5]
     )
     .is_none());
-    assert!(Camera::from_fov(CameraModel::Fisheye, 0, 480, 90.0, [0.0; 5]).is_none());
+    assert!(Camera::try_from_fov(CameraModel::Fisheye, 0, 480, 90.0, [0.0; 5]).is_none());
     assert!(
-        Camera::from_fov(CameraModel::PinholeRadtan, 640, 480, 150.0, [-0.4, 0.0, 0.0, 0.0, 0.0])
-            .is_none(),
+        Camera::try_from_fov(
+            CameraModel::PinholeRadtan,
+            640,
+            480,
+            150.0,
+            [-0.4, 0.0, 0.0, 0.0, 0.0]
+        )
+        .is_none(),
         "past the fold"
     );
+    // The infallible form agrees where the fallible one succeeds, and otherwise still
+    // gives a usable camera.
+    let d = [-0.2, 0.05, 0.0, 0.0, 0.0];
+    assert_eq!(
+        Some(Camera::from_fov(CameraModel::PinholeRadtan, 640, 480, 90.0, d)),
+        Camera::try_from_fov(CameraModel::PinholeRadtan, 640, 480, 90.0, d)
+    );
+    for (model, hfov) in [
+        (CameraModel::PinholeRadtan, 200.0),
+        (CameraModel::Fisheye, 400.0),
+        (CameraModel::PinholeRadtan, f64::NAN),
+        (CameraModel::Fisheye, -5.0),
+    ] {
+        let cam = Camera::from_fov(model, 640, 480, hfov, [0.0; 5]);
+        assert!(cam.fx.is_finite() && cam.fx > 0.0, "{model:?} {hfov}: fx {}", cam.fx);
+        let centre = cam.project(&Vec3::new(0.0, 0.0, 1.0)).unwrap();
+        assert_eq!(centre, Vec2::new(319.5, 239.5));
+    }
 }
 
 #[test]

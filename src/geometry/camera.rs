@@ -72,9 +72,45 @@ impl Camera {
     /// pixels, and the focal length that puts the horizontal half-FOV ray exactly on the
     /// image's left/right border (`w/2` from the centre), distortion included (for a
     /// fisheye without distortion that is the equidistant `f = (w/2)/θ_half`).
-    /// `None` for an empty image, a FOV the model cannot see (radtan ≥ 180°, fisheye
-    /// > 2·[`FISHEYE_MAX_THETA`]) or one past the distortion's fold.
+    /// When [`Camera::try_from_fov`] refuses (empty image, a FOV the model cannot see,
+    /// or past the distortion's fold) the focal length ignores the distortion and the
+    /// half-FOV is clamped into the model's range, so this never fails or panics.
     pub fn from_fov(
+        model: CameraModel,
+        width: u32,
+        height: u32,
+        hfov_deg: f64,
+        distortion: [f64; 5],
+    ) -> Camera {
+        if let Some(cam) = Camera::try_from_fov(model, width, height, hfov_deg, distortion) {
+            return cam;
+        }
+        let half = 0.5 * hfov_deg.to_radians();
+        let half = if half.is_nan() { 1e-3 } else { half };
+        let edge = match model {
+            CameraModel::PinholeRadtan => libm::tan(half.clamp(1e-3, 1.55)),
+            CameraModel::Fisheye => half.clamp(1e-3, FISHEYE_MAX_THETA),
+        };
+        let f = 0.5 * f64::from(width.max(1)) / edge;
+        let mut distortion = distortion;
+        if model == CameraModel::Fisheye {
+            distortion[4] = 0.0;
+        }
+        Camera {
+            model,
+            width,
+            height,
+            fx: f,
+            fy: f,
+            cx: 0.5 * (f64::from(width) - 1.0),
+            cy: 0.5 * (f64::from(height) - 1.0),
+            distortion,
+        }
+    }
+
+    /// [`Camera::from_fov`], or `None` for an empty image, a FOV the model cannot see
+    /// (radtan ≥ 180°, fisheye > 2·[`FISHEYE_MAX_THETA`]) or one past the distortion's fold.
+    pub fn try_from_fov(
         model: CameraModel,
         width: u32,
         height: u32,
@@ -534,9 +570,10 @@ impl Camera {
                 if cand.norm_squared() < r2_max {
                     let cand_res = self.radtan_distort(&cand) - d;
                     if cand_res.norm() < res.norm() {
+                        // A step at rounding level means Newton has converged.
+                        accepted = (cand - xy).norm() > 1e-15 * (1.0 + xy.norm());
                         xy = cand;
                         res = cand_res;
-                        accepted = true;
                         break;
                     }
                 }
@@ -557,10 +594,11 @@ impl Camera {
     /// shift, the shift re-evaluated a few times (it is small and smooth).
     fn radtan_initial_guess(&self, d: &Vec2, r_max: f64) -> Option<Vec2> {
         let mut xy = *d;
-        for _ in 0..4 {
+        let (p1, p2) = (self.distortion[2], self.distortion[3]);
+        let passes = if p1 == 0.0 && p2 == 0.0 { 1 } else { 3 };
+        for _ in 0..passes {
             let (x, y) = (xy.x, xy.y);
             let r2 = x * x + y * y;
-            let (p1, p2) = (self.distortion[2], self.distortion[3]);
             let tangential = Vec2::new(
                 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
                 p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y,
@@ -651,7 +689,15 @@ fn increasing_up_to(c: &[f64; 5], deg: usize, s: f64) -> bool {
     if lower > 0.0 {
         return true;
     }
-    first_root(c, deg, s).is_none() && poly_eval(c, deg, s) > 0.0
+    // Exact test: positive at s and at every critical point inside (0, s) (between
+    // them the polynomial is monotonic). The critical points of the radtan cubic come in
+    // closed form; only the fisheye quartic needs bisection.
+    let mut dc = [0.0; 5];
+    for i in 1..=deg {
+        dc[i - 1] = c[i] * i as f64;
+    }
+    let (crit, n) = roots_in(&dc, deg - 1, 0.0, s);
+    poly_eval(c, deg, s) > 0.0 && crit[..n].iter().all(|&x| poly_eval(c, deg, x) > 0.0)
 }
 
 /// Smallest root of the polynomial in `(0, hi]`.
@@ -675,6 +721,10 @@ fn roots_in(c: &[f64; 5], deg: usize, lo: f64, hi: f64) -> ([f64; 4], usize) {
     if deg == 0 || hi.is_nan() || hi <= lo {
         return out;
     }
+    // Cauchy's bound: every root has |s| ≤ 1 + max |c_i / c_deg|; searching past it only
+    // costs iterations.
+    let bound = 1.0 + c[..deg].iter().fold(0.0, |m: f64, ci| m.max(libm::fabs(ci / c[deg])));
+    let hi = hi.min(bound);
     let push = |r: f64, out: &mut ([f64; 4], usize)| {
         if out.1 < 4 && (out.1 == 0 || r > out.0[out.1 - 1]) {
             out.0[out.1] = r;
@@ -685,6 +735,25 @@ fn roots_in(c: &[f64; 5], deg: usize, lo: f64, hi: f64) -> ([f64; 4], usize) {
         let r = -c[0] / c[1];
         if r > lo && r <= hi {
             push(r, &mut out);
+        }
+        return out;
+    }
+    if deg == 2 {
+        // Closed form, with the cancellation-free pair q/a and c/q.
+        let (a, b, c0) = (c[2], c[1], c[0]);
+        let disc = b * b - 4.0 * a * c0;
+        if disc < 0.0 {
+            return out;
+        }
+        let q = -0.5 * (b + libm::copysign(libm::sqrt(disc), b));
+        let (mut r1, mut r2) = (q / a, if q != 0.0 { c0 / q } else { q / a });
+        if r1 > r2 {
+            core::mem::swap(&mut r1, &mut r2);
+        }
+        for r in [r1, r2] {
+            if r > lo && r <= hi {
+                push(r, &mut out);
+            }
         }
         return out;
     }
@@ -708,18 +777,95 @@ fn roots_in(c: &[f64; 5], deg: usize, lo: f64, hi: f64) -> ([f64; 4], usize) {
     out
 }
 
+/// The root in `[a, b]` where the polynomial changes sign (monotonic there): Newton
+/// steps while they stay inside the shrinking bracket, bisection otherwise.
 fn bisect(c: &[f64; 5], deg: usize, mut a: f64, mut b: f64, fa: f64) -> f64 {
     let neg_a = fa < 0.0;
+    let mut x = 0.5 * (a + b);
     for _ in 0..200 {
-        let m = 0.5 * (a + b);
-        if m <= a || m >= b {
+        let (v, slope) = poly_eval_slope(c, deg, x);
+        if v == 0.0 {
+            return x;
+        }
+        if (v < 0.0) == neg_a {
+            a = x;
+        } else {
+            b = x;
+        }
+        let newton = x - v / slope;
+        let next = if newton > a && newton < b { newton } else { 0.5 * (a + b) };
+        if next == x || next <= a || next >= b {
             break;
         }
-        if (poly_eval(c, deg, m) < 0.0) == neg_a {
-            a = m;
-        } else {
-            b = m;
+        x = next;
+    }
+    x
+}
+
+/// Value and derivative of the polynomial (Horner).
+fn poly_eval_slope(c: &[f64; 5], deg: usize, s: f64) -> (f64, f64) {
+    c[..=deg].iter().rev().fold((0.0, 0.0), |(v, d), &ci| (v * s + ci, d * s + v))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// splitmix64, so failures reproduce.
+    fn next(state: &mut u64) -> f64 {
+        *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = *state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    #[test]
+    fn roots_of_known_polynomials() {
+        // (s − 1)(s − 2)(s − 3)(s − 4) = s⁴ − 10s³ + 35s² − 50s + 24.
+        let (r, n) = roots_in(&[24.0, -50.0, 35.0, -10.0, 1.0], 4, 0.0, 10.0);
+        assert_eq!(n, 4);
+        for (got, want) in r.iter().zip([1.0, 2.0, 3.0, 4.0]) {
+            assert!((got - want).abs() < 1e-12, "{r:?}");
+        }
+        // Only the roots in (lo, hi] count.
+        let (r, n) = roots_in(&[24.0, -50.0, 35.0, -10.0, 1.0], 4, 1.5, 3.0);
+        assert_eq!(n, 2);
+        assert!((r[0] - 2.0).abs() < 1e-12 && (r[1] - 3.0).abs() < 1e-12, "{r:?}");
+        // k1 = −0.4 alone: 1 − 1.2 s has its root at s = 1/1.2.
+        assert!(
+            (first_root(&[1.0, -1.2, 0.0, 0.0, 0.0], 3, 1e8).unwrap() - 1.0 / 1.2).abs() < 1e-15
+        );
+        // 1 − 1.2 s + 0.75 s² never vanishes (k1 = −0.4, k2 = 0.15).
+        assert_eq!(first_root(&[1.0, -1.2, 0.75, 0.0, 0.0], 3, 1e8), None);
+        assert_eq!(first_root(&[1.0, 0.0, 0.0, 0.0, 0.0], 4, 1e8), None);
+    }
+
+    #[test]
+    fn monotonic_test_agrees_with_dense_sampling() {
+        let mut st = 11u64;
+        for _ in 0..3000 {
+            let deg = 3 + usize::from(next(&mut st) < 0.5);
+            let mut c = [1.0, 0.0, 0.0, 0.0, 0.0];
+            for ci in c.iter_mut().take(deg + 1).skip(1) {
+                *ci = 4.0 * next(&mut st) - 2.0;
+            }
+            let s = 4.0 * next(&mut st);
+            let sampled_positive =
+                (0..=4000).all(|i| poly_eval(&c, deg, s * i as f64 / 4000.0) > 0.0);
+            let exact = increasing_up_to(&c, deg, s);
+            if exact {
+                assert!(sampled_positive, "{c:?} up to {s}: said positive, sampling disagrees");
+            } else if sampled_positive {
+                // Only a dip between two samples may escape the sampling.
+                let root = first_root(&c, deg, s).expect("a root when not positive");
+                assert!(poly_eval(&c, deg, root).abs() < 1e-9, "{c:?}: bogus root {root}");
+            }
+            if let Some(root) = first_root(&c, deg, s) {
+                let below =
+                    (0..1000).all(|i| poly_eval(&c, deg, root * i as f64 / 1000.0) > -1e-12);
+                assert!(below, "{c:?}: a root before {root}");
+            }
         }
     }
-    0.5 * (a + b)
 }
