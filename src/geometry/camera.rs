@@ -5,7 +5,9 @@
 //!   thin-prism terms). Accepted domain: `z > 1e-12·|p|` and a normalised radius
 //!   `r = |(x/z, y/z)|` below the first radius where the radial map `r(1 + k1 r² + k2 r⁴ +
 //!   k3 r⁶)` stops increasing ([`Camera::max_valid_radius`]; infinite when it never does).
-//!   Beyond it barrel distortion folds back and a pixel would have two rays.
+//!   Beyond it barrel distortion folds back and a pixel would have two rays. The 2×2
+//!   Jacobian of the distortion must also have a positive determinant at the point
+//!   (tangential terms move the fold a little off the radial one).
 //! * `fisheye`: OpenCV `fisheye::projectPoints` (Kannala–Brandt, skew 0) with
 //!   `θ = atan2(√(x²+y²), z)`, so points behind the image plane project too. Accepted
 //!   domain: `θ ≤ min(θ_fold, FISHEYE_MAX_THETA = 110°)` where `θ_fold` is the first angle at
@@ -91,21 +93,7 @@ impl Camera {
             CameraModel::PinholeRadtan => libm::tan(half.clamp(1e-3, 1.55)),
             CameraModel::Fisheye => half.clamp(1e-3, FISHEYE_MAX_THETA),
         };
-        let f = 0.5 * f64::from(width.max(1)) / edge;
-        let mut distortion = distortion;
-        if model == CameraModel::Fisheye {
-            distortion[4] = 0.0;
-        }
-        Camera {
-            model,
-            width,
-            height,
-            fx: f,
-            fy: f,
-            cx: 0.5 * (f64::from(width) - 1.0),
-            cy: 0.5 * (f64::from(height) - 1.0),
-            distortion,
-        }
+        Camera::centred(model, width, height, 0.5 * f64::from(width.max(1)) / edge, distortion)
     }
 
     /// [`Camera::from_fov`], or `None` for an empty image, a FOV the model cannot see
@@ -121,16 +109,7 @@ impl Camera {
         if width == 0 || height == 0 || half.is_nan() || half <= 0.0 {
             return None;
         }
-        let mut cam = Camera {
-            model,
-            width,
-            height,
-            fx: 1.0,
-            fy: 1.0,
-            cx: 0.5 * (f64::from(width) - 1.0),
-            cy: 0.5 * (f64::from(height) - 1.0),
-            distortion,
-        };
+        let mut cam = Camera::centred(model, width, height, 1.0, distortion);
         let edge = match model {
             CameraModel::PinholeRadtan => {
                 if half >= 0.5 * core::f64::consts::PI {
@@ -143,7 +122,6 @@ impl Camera {
                 r * cam.radtan_radial(r * r)
             }
             CameraModel::Fisheye => {
-                cam.distortion[4] = 0.0;
                 if half > cam.max_valid_radius() {
                     return None;
                 }
@@ -387,6 +365,25 @@ struct FisheyeAngles {
 type ModelJacobians = (Vec2, PointJacobian, SMatrix<f64, 2, 5>);
 
 impl Camera {
+    /// Square pixels, principal point at the image centre; fisheye's unused fifth
+    /// distortion slot zeroed.
+    fn centred(model: CameraModel, width: u32, height: u32, f: f64, d: [f64; 5]) -> Camera {
+        let mut distortion = d;
+        if model == CameraModel::Fisheye {
+            distortion[4] = 0.0;
+        }
+        Camera {
+            model,
+            width,
+            height,
+            fx: f,
+            fy: f,
+            cx: 0.5 * (f64::from(width) - 1.0),
+            cy: 0.5 * (f64::from(height) - 1.0),
+            distortion,
+        }
+    }
+
     fn radtan_radial(&self, r2: f64) -> f64 {
         let k = &self.distortion;
         let r4 = r2 * r2;
