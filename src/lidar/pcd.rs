@@ -292,7 +292,7 @@ impl Scalar {
     }
 
     /// Value at `at` in `bytes` (little-endian); NaN when out of range.
-    #[inline]
+    #[inline(always)]
     fn read(self, bytes: &[u8], at: usize) -> f64 {
         fn get<const N: usize>(bytes: &[u8], at: usize) -> Option<[u8; N]> {
             bytes.get(at..at.checked_add(N)?)?.try_into().ok()
@@ -544,7 +544,7 @@ struct Locator {
 }
 
 impl Locator {
-    #[inline]
+    #[inline(always)]
     fn read(&self, data: &[u8], i: usize) -> f64 {
         self.scalar.read(data, self.start + i * self.step)
     }
