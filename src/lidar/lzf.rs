@@ -60,7 +60,7 @@ pub fn decompress(input: &[u8], output: &mut [u8]) -> Result<usize, LzfError> {
             let len = ctrl + 1;
             let src = input.get(ip..ip + len).ok_or(LzfError::TruncatedInput)?;
             let dst = output.get_mut(op..op + len).ok_or(LzfError::OutputTooSmall)?;
-            dst.copy_from_slice(src);
+            copy_short(dst, src);
             ip += len;
             op += len;
         } else {
@@ -119,12 +119,22 @@ pub fn compress(input: &[u8], output: &mut [u8]) -> Result<usize, LzfError> {
 /// Copies `len` bytes from `from` to `to` (`from < to`), byte by byte where the ranges
 /// overlap, as LZF's run-length trick (offset 1 = repeat the last byte) needs.
 fn copy_back_reference(output: &mut [u8], from: usize, to: usize, len: usize) {
-    if to - from >= len {
+    if to - from >= len && len > 16 {
         output.copy_within(from..from + len, to);
     } else {
+        // Bounds checked once here, so the loop below needs no per-byte checks.
+        let window = &mut output[from..to + len];
         for k in 0..len {
-            output[to + k] = output[from + k];
+            window[to - from + k] = window[k];
         }
+    }
+}
+
+/// Copies a literal run (at most 32 bytes): a plain loop beats a `memcpy` call here.
+#[inline(always)]
+fn copy_short(dst: &mut [u8], src: &[u8]) {
+    for (d, s) in dst.iter_mut().zip(src) {
+        *d = *s;
     }
 }
 

@@ -14,9 +14,13 @@
 //! Headers are zero-copy views in smoltcp style: named field ranges, `new_checked`
 //! verifies the length once so every accessor is panic-free.
 //!
+//! [`PcapWriter`] writes classic pcap of UDP datagrams (Ethernet + IPv4 + UDP frames built
+//! by [`UdpFrameRepr::emit`]) for captures we produce.
+//!
 //! [`ReplayPacer`] turns capture timestamps into release delays for replay at the
 //! capture's own pace, without reading a clock.
 
+use std::io::{self, Write};
 use std::net::{Ipv4Addr, SocketAddrV4};
 use std::path::Path;
 use std::time::Duration;
@@ -249,6 +253,128 @@ impl ReplayPacer {
     pub fn wait(&self, ts_ns: u64, elapsed: Duration) -> Duration {
         self.delay_until(ts_ns).saturating_sub(elapsed)
     }
+}
+
+/// Writes classic pcap (little-endian, nanosecond timestamps, link type Ethernet) holding
+/// UDP datagrams, e.g. the packets the simulator produces; [`datagrams`] reads it back.
+#[derive(Debug)]
+pub struct PcapWriter<W: Write> {
+    out: W,
+    frame: Vec<u8>,
+}
+
+impl<W: Write> PcapWriter<W> {
+    /// Writes the file header to `out`.
+    pub fn new(mut out: W) -> io::Result<Self> {
+        let mut h = [0u8; 24];
+        h[0..4].copy_from_slice(&PCAP_MAGIC_NS.to_le_bytes());
+        h[4..6].copy_from_slice(&2u16.to_le_bytes());
+        h[6..8].copy_from_slice(&4u16.to_le_bytes());
+        h[16..20].copy_from_slice(&65535u32.to_le_bytes());
+        h[20..24].copy_from_slice(&u32::from(link::ETHERNET).to_le_bytes());
+        out.write_all(&h)?;
+        Ok(PcapWriter { out, frame: Vec::new() })
+    }
+
+    /// Appends one datagram as an Ethernet + IPv4 + UDP frame.
+    pub fn write_udp(&mut self, d: &UdpDatagram<'_>) -> io::Result<()> {
+        let repr = UdpFrameRepr { src: d.src, dst: d.dst, payload_len: d.payload.len() };
+        let len = repr.frame_len();
+        self.frame.clear();
+        self.frame.resize(len, 0);
+        repr.emit(&mut self.frame)
+            .map_err(|_| io::Error::new(io::ErrorKind::InvalidInput, "UDP payload too long"))?;
+        self.frame[UdpFrameRepr::HEADER_LEN..].copy_from_slice(d.payload);
+        let mut r = [0u8; 16];
+        r[0..4].copy_from_slice(&((d.timestamp_ns / 1_000_000_000) as u32).to_le_bytes());
+        r[4..8].copy_from_slice(&((d.timestamp_ns % 1_000_000_000) as u32).to_le_bytes());
+        r[8..12].copy_from_slice(&(len as u32).to_le_bytes());
+        r[12..16].copy_from_slice(&(len as u32).to_le_bytes());
+        self.out.write_all(&r)?;
+        self.out.write_all(&self.frame)
+    }
+
+    pub fn into_inner(self) -> W {
+        self.out
+    }
+}
+
+/// An Ethernet + IPv4 + UDP frame without options or VLAN tags, as a LiDAR sends it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct UdpFrameRepr {
+    pub src: SocketAddrV4,
+    pub dst: SocketAddrV4,
+    pub payload_len: usize,
+}
+
+impl UdpFrameRepr {
+    /// Ethernet (14) + IPv4 (20) + UDP (8) header bytes before the payload.
+    pub const HEADER_LEN: usize = EthernetFrame::<&[u8]>::LEN + 20 + UdpPacket::<&[u8]>::LEN;
+    /// Source MAC of emitted frames (locally administered).
+    pub const SRC_MAC: [u8; 6] = [0x02, 0, 0, 0, 0, 0x01];
+
+    /// Parses an Ethernet frame (VLAN tags allowed) down to the UDP payload.
+    pub fn parse(frame: &[u8]) -> Result<(UdpFrameRepr, &[u8]), ViewError> {
+        let (ethertype, l3) =
+            link_payload(link::ETHERNET, frame).map_err(|_| ViewError::Truncated)?;
+        let ip = Ipv4Packet::new_checked(l3)?;
+        let fragmented = ip.more_fragments() || ip.fragment_offset() != 0;
+        if ethertype != ETHERTYPE_IPV4 || ip.protocol() != IP_PROTO_UDP || fragmented {
+            return Err(ViewError::Malformed);
+        }
+        let udp = UdpPacket::new_checked(ip.payload())?;
+        let src = SocketAddrV4::new(ip.src_addr(), udp.src_port());
+        let dst = SocketAddrV4::new(ip.dst_addr(), udp.dst_port());
+        let payload = udp.into_payload();
+        Ok((UdpFrameRepr { src, dst, payload_len: payload.len() }, payload))
+    }
+
+    /// Length of the whole frame.
+    pub fn frame_len(&self) -> usize {
+        Self::HEADER_LEN + self.payload_len
+    }
+
+    /// Writes the headers into `buf[..HEADER_LEN]` (the payload goes after them; `buf`
+    /// must hold [`Self::frame_len`] bytes). The IPv4 header checksum is filled in, the
+    /// UDP checksum left 0 (allowed for IPv4).
+    pub fn emit(&self, buf: &mut [u8]) -> Result<(), ViewError> {
+        let ip_len = 20 + UdpPacket::<&[u8]>::LEN + self.payload_len;
+        let ip_total = u16::try_from(ip_len).map_err(|_| ViewError::Malformed)?;
+        let buf = buf.get_mut(..self.frame_len()).ok_or(ViewError::Truncated)?;
+        let dst_mac =
+            if self.dst.ip().is_broadcast() { [0xff; 6] } else { [0x02, 0, 0, 0, 0, 0x02] };
+        buf[0..6].copy_from_slice(&dst_mac);
+        buf[6..12].copy_from_slice(&Self::SRC_MAC);
+        buf[12..14].copy_from_slice(&ETHERTYPE_IPV4.to_be_bytes());
+        let ip = &mut buf[14..34];
+        ip[0] = 0x45;
+        ip[1] = 0;
+        ip[2..4].copy_from_slice(&ip_total.to_be_bytes());
+        ip[4..8].copy_from_slice(&[0, 0, 0x40, 0]); // ident 0, don't fragment
+        ip[8] = 64;
+        ip[9] = IP_PROTO_UDP;
+        ip[10..12].copy_from_slice(&[0, 0]);
+        ip[12..16].copy_from_slice(&self.src.ip().octets());
+        ip[16..20].copy_from_slice(&self.dst.ip().octets());
+        let sum = internet_checksum(ip);
+        ip[10..12].copy_from_slice(&sum.to_be_bytes());
+        let udp = &mut buf[34..42];
+        udp[0..2].copy_from_slice(&self.src.port().to_be_bytes());
+        udp[2..4].copy_from_slice(&self.dst.port().to_be_bytes());
+        udp[4..6].copy_from_slice(&((ip_len - 20) as u16).to_be_bytes());
+        udp[6..8].copy_from_slice(&[0, 0]);
+        Ok(())
+    }
+}
+
+/// RFC 1071 checksum of `bytes` (an odd last byte is padded with zero).
+fn internet_checksum(bytes: &[u8]) -> u16 {
+    let word = |c: &[u8]| u32::from(u16::from_be_bytes([c[0], c.get(1).copied().unwrap_or(0)]));
+    let mut sum: u32 = bytes.chunks(2).map(word).sum();
+    while sum > 0xffff {
+        sum = (sum & 0xffff) + (sum >> 16);
+    }
+    !(sum as u16)
 }
 
 // ---------------------------------------------------------------------------------------
@@ -580,6 +706,13 @@ impl<T: AsRef<[u8]>> Ipv4Packet<T> {
 
     pub fn total_len(&self) -> u16 {
         be16(self.buffer.as_ref(), Self::TOTAL_LEN)
+    }
+
+    /// Whether the header checksum is right (captures with checksum offload often
+    /// carry wrong ones, so the reader does not insist).
+    pub fn checksum_valid(&self) -> bool {
+        let b = self.buffer.as_ref();
+        internet_checksum(&b[..self.header_len()]) == 0
     }
 
     pub fn ident(&self) -> u16 {

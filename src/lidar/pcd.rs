@@ -292,7 +292,7 @@ impl Scalar {
     }
 
     /// Value at `at` in `bytes` (little-endian); NaN when out of range.
-    #[inline]
+    #[inline(always)]
     fn read(self, bytes: &[u8], at: usize) -> f64 {
         fn get<const N: usize>(bytes: &[u8], at: usize) -> Option<[u8; N]> {
             bytes.get(at..at.checked_add(N)?)?.try_into().ok()
@@ -544,7 +544,7 @@ struct Locator {
 }
 
 impl Locator {
-    #[inline]
+    #[inline(always)]
     fn read(&self, data: &[u8], i: usize) -> f64 {
         self.scalar.read(data, self.start + i * self.step)
     }
@@ -735,8 +735,8 @@ fn read_ascii(
         for (k, word) in text.split_ascii_whitespace().enumerate() {
             found = k + 1;
             for (slot, value) in wanted.iter().zip(v.iter_mut()) {
-                if slot.is_some_and(|s| s.value_index == k) {
-                    *value = parse_value(word)
+                if let Some(s) = slot.filter(|s| s.value_index == k) {
+                    *value = parse_value(word, s.scalar)
                         .ok_or_else(|| err(format!("`{}` is not a number", truncate(word))))?;
                 }
             }
@@ -761,9 +761,14 @@ fn read_ascii(
     Ok(skipped)
 }
 
-/// Parses an ascii value; `nan`, `inf` in any case are numbers too.
-fn parse_value(word: &str) -> Option<f64> {
-    word.parse::<f64>().ok()
+/// Parses an ascii value of a field of type `scalar`; `nan`, `inf` in any case are
+/// numbers too. F4 values are parsed as `f32` directly: going through `f64` could round
+/// twice and miss the written value by one ulp.
+fn parse_value(word: &str, scalar: Scalar) -> Option<f64> {
+    match scalar {
+        Scalar::F4 => word.parse::<f32>().ok().map(f64::from),
+        _ => word.parse::<f64>().ok(),
+    }
 }
 
 // ---------------------------------------------------------------------------------------
