@@ -198,7 +198,8 @@ pub struct SimReturn {
     pub intensity: u8,
 }
 
-/// Encodes `returns` (sorted by azimuth; each distinct azimuth is one firing) as single-return
+/// Encodes `returns` (in firing order; consecutive returns with the same azimuth are one
+/// firing, i.e. one block) as single-return
 /// data packets of `calibration.model`, handing each packet to `out`; returns the packet count.
 /// `start_time` stamps the first packet: seconds past the hour for Velodyne models (the
 /// packet field), Unix seconds for Hesai models. Decoding the packets gives the returns back

@@ -23,8 +23,10 @@ pub mod velodyne;
 
 pub use calibration::Calibration;
 pub use decoder::{
-    decode_into, decode_packet, encode_sweep, DecodeError, Model, Return, SimReturn,
+    decode_into, decode_packet, encode_sweep, DecodeError, Model, PacketSummary, Return,
+    ReturnMode, SimReturn,
 };
+pub use sweep::{Sweep, SweepAssembler, SweepConfig, SweepStats};
 
 /// Decodes every return of every data payload (zero-range returns and identical dual echoes
 /// dropped), in order; payloads that are not valid data packets of the calibration's model

@@ -509,11 +509,17 @@ pub fn encode_sweep(
         }
         slot += 1;
         if slot == field::BLOCKS * firings_per_block || i == returns.len() {
-            // Pad a partial last packet by repeating the last azimuth with no returns.
+            // Pad a partial last packet with empty blocks continuing the rotation, so the
+            // last real block still interpolates over the right advance.
             let used = slot.div_ceil(firings_per_block);
-            let last = repr.blocks[used - 1].azimuth;
-            for block in repr.blocks.iter_mut().skip(used) {
-                *block = BlockRepr { azimuth: last, ..BlockRepr::default() };
+            let last = u32::from(repr.blocks[used - 1].azimuth);
+            let step = match used {
+                1 => 0,
+                _ => (36000 + last - u32::from(repr.blocks[used - 2].azimuth)) % 36000,
+            };
+            for (k, block) in repr.blocks.iter_mut().enumerate().skip(used) {
+                let azimuth = ((last + step * (k + 1 - used) as u32) % 36000) as u16;
+                *block = BlockRepr { azimuth, ..BlockRepr::default() };
             }
             repr.timestamp_us = (f64::from(start_us) + packets as f64 * period_us) as u32;
             repr.emit(&mut Packet::new_unchecked(&mut buf[..]))?;
