@@ -34,6 +34,35 @@ pub enum PcdFormat {
     BinaryCompressed,
 }
 
+impl PcdFormat {
+    /// The name used on the header's `DATA` line.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            PcdFormat::Ascii => "ascii",
+            PcdFormat::Binary => "binary",
+            PcdFormat::BinaryCompressed => "binary_compressed",
+        }
+    }
+}
+
+impl core::fmt::Display for PcdFormat {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl core::str::FromStr for PcdFormat {
+    type Err = String;
+
+    /// Parses a `DATA` name (any case), e.g. for a command-line option.
+    fn from_str(s: &str) -> Result<Self, String> {
+        [PcdFormat::Ascii, PcdFormat::Binary, PcdFormat::BinaryCompressed]
+            .into_iter()
+            .find(|f| f.as_str().eq_ignore_ascii_case(s))
+            .ok_or_else(|| format!("unknown PCD format `{s}` (ascii, binary, binary_compressed)"))
+    }
+}
+
 /// What a successful read found besides the points.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PcdInfo {
@@ -104,11 +133,7 @@ pub fn write(path: impl AsRef<Path>, points: &[Point], format: PcdFormat) -> Res
 
 /// Appends the PCD encoding of `points` (fields `x y z intensity ring`) to `out`.
 pub fn encode(points: &[Point], format: PcdFormat, out: &mut Vec<u8>) {
-    let data = match format {
-        PcdFormat::Ascii => "ascii",
-        PcdFormat::Binary => "binary",
-        PcdFormat::BinaryCompressed => "binary_compressed",
-    };
+    let data = format.as_str();
     let n = points.len();
     let header = format!(
         "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z intensity ring\n\
@@ -267,6 +292,12 @@ enum Scalar {
 
 impl Scalar {
     fn new(kind: &str, size: usize) -> Option<Scalar> {
+        let kind = match kind {
+            "f" | "F" => "F",
+            "i" | "I" => "I",
+            "u" | "U" => "U",
+            _ => return None,
+        };
         Some(match (kind, size) {
             ("F", 4) => Scalar::F4,
             ("F", 8) => Scalar::F8,
@@ -399,14 +430,11 @@ impl Header {
             } else if is("POINTS") {
                 raw.points = Some(single(words).ok_or_else(|| bad("POINTS"))?);
             } else if is("DATA") {
-                let format = words.next().unwrap_or_default();
-                let format = if format.eq_ignore_ascii_case("ascii") {
-                    PcdFormat::Ascii
-                } else if format.eq_ignore_ascii_case("binary") {
-                    PcdFormat::Binary
-                } else if format.eq_ignore_ascii_case("binary_compressed") {
-                    PcdFormat::BinaryCompressed
-                } else {
+                let word = words.next().unwrap_or_default();
+                let formats = [PcdFormat::Ascii, PcdFormat::Binary, PcdFormat::BinaryCompressed];
+                let Some(format) =
+                    formats.into_iter().find(|f| f.as_str().eq_ignore_ascii_case(word))
+                else {
                     return Err(bad("unknown DATA format"));
                 };
                 return raw.finish(format, pos).map_err(|p| (line_no, p));
