@@ -6,7 +6,9 @@
 
 use std::time::Duration;
 
-use roomcal::service::client::{query, ClientError, ClientTiming, QueryCommand, QueryOptions, UdsClient};
+use roomcal::service::client::{
+    query, ClientError, ClientTiming, QueryCommand, QueryOptions, UdsClient,
+};
 use roomcal::service::driver::{serve, OsRandom};
 use roomcal::service::fake::FakeBackend;
 use roomcal::service::isotp::Config;
@@ -20,12 +22,15 @@ use tokio::sync::oneshot;
 const SECRET: &[u8] = b"e2e vehicle secret";
 
 /// Starts the server on 127.0.0.1:0; returns its address and a stop handle.
-async fn start_server(backend: FakeBackend) -> (String, oneshot::Sender<()>, tokio::task::JoinHandle<FakeBackend>) {
+async fn start_server(
+    backend: FakeBackend,
+) -> (String, oneshot::Sender<()>, tokio::task::JoinHandle<FakeBackend>) {
     let mut transport = SocketcandServer::bind("127.0.0.1:0", "can0").await.unwrap();
     let addr = transport.local_addr().to_string();
     let (stop, stopped) = oneshot::channel::<()>();
     let task = tokio::spawn(async move {
-        let mut server = Server::new(backend, OsRandom::open().unwrap(), SECRET, ServerConfig::default());
+        let mut server =
+            Server::new(backend, OsRandom::open().unwrap(), SECRET, ServerConfig::default());
         let cfg = Config::new(DEFAULT_RESPONSE_ID, DEFAULT_REQUEST_ID);
         serve(&mut transport, &mut server, cfg, async {
             let _ = stopped.await;
@@ -73,7 +78,10 @@ async fn client_reads_every_did_unlocks_starts_and_rolls_back() {
     let took = t0.elapsed();
     assert_eq!(outcome.state, DaemonState::Accepted);
     assert_eq!(outcome.generation, expected.state.generation + 1);
-    assert!(took >= Duration::from_millis(1400), "final answer came before the run ended: {took:?}");
+    assert!(
+        took >= Duration::from_millis(1400),
+        "final answer came before the run ended: {took:?}"
+    );
     assert_eq!(c.calibration_results().await.unwrap(), outcome);
     assert_eq!(c.rollback().await.unwrap(), expected.state.generation);
     c.tester_present().await.unwrap();
@@ -106,7 +114,10 @@ async fn query_pieces_print_every_did() {
         println!("{text}\n");
     }
     // start/rollback need the secret.
-    assert!(matches!(query(&opts, QueryCommand::Rollback).await, Err(ClientError::NeedsSecret("rollback"))));
+    assert!(matches!(
+        query(&opts, QueryCommand::Rollback).await,
+        Err(ClientError::NeedsSecret("rollback"))
+    ));
     opts.secret_file = Some(dir.join("missing"));
     let err = query(&opts, QueryCommand::Start).await.unwrap_err();
     assert!(err.to_string().contains("missing"), "{err}");
@@ -127,7 +138,10 @@ async fn socketcand_handshake_is_what_python_can_expects() {
     // python-can reads each greeting with one recv() and compares it exactly.
     async fn reply(tcp: &mut tokio::net::TcpStream) -> String {
         let mut buf = [0u8; 256];
-        let n = tokio::time::timeout(Duration::from_secs(2), tcp.read(&mut buf)).await.unwrap().unwrap();
+        let n = tokio::time::timeout(Duration::from_secs(2), tcp.read(&mut buf))
+            .await
+            .unwrap()
+            .unwrap();
         String::from_utf8(buf[..n].to_vec()).unwrap()
     }
     assert_eq!(reply(&mut tcp).await, "< hi >");
@@ -140,7 +154,10 @@ async fn socketcand_handshake_is_what_python_can_expects() {
     // python-can's send format: hex length, bytes without leading zeros.
     tcp.write_all(b"< send 7A0 8 2 10 3 cc cc cc cc cc >").await.unwrap();
     let f = tokio::time::timeout(Duration::from_secs(2), server.recv()).await.unwrap().unwrap();
-    assert_eq!(f, CanFrame::new_standard(0x7A0, &[2, 0x10, 3, 0xCC, 0xCC, 0xCC, 0xCC, 0xCC]).unwrap());
+    assert_eq!(
+        f,
+        CanFrame::new_standard(0x7A0, &[2, 0x10, 3, 0xCC, 0xCC, 0xCC, 0xCC, 0xCC]).unwrap()
+    );
     server.send(&CanFrame::new_standard(0x7A8, &[0x02, 0x7E, 0x00]).unwrap()).await.unwrap();
     let text = reply(&mut tcp).await;
     assert!(text.starts_with("< frame 7A8 ") && text.ends_with(" 027E00 >"), "{text}");
@@ -151,12 +168,20 @@ async fn client_reports_timeouts_and_bad_endpoints() {
     // A socketcand bus with nobody answering 0x7A0.
     let server = SocketcandServer::bind("127.0.0.1:0", "can0").await.unwrap();
     let t = SocketcandClient::connect(&server.local_addr().to_string(), "can0").await.unwrap();
-    let timing = ClientTiming { p2: Duration::from_millis(100), p2_star: Duration::from_millis(100) };
+    let timing =
+        ClientTiming { p2: Duration::from_millis(100), p2_star: Duration::from_millis(100) };
     let mut c = UdsClient::new(t, Config::new(DEFAULT_REQUEST_ID, DEFAULT_RESPONSE_ID), timing);
     let err = c.status().await.unwrap_err();
     assert!(matches!(err, ClientError::Timeout { service: 0x22, .. }), "{err}");
 
-    for bad in ["can0", "socketcand:", "socketcand:host", "socketcand:h:99999", "socketcan:", "tcp:1.2.3.4:5"] {
+    for bad in [
+        "can0",
+        "socketcand:",
+        "socketcand:host",
+        "socketcand:h:99999",
+        "socketcan:",
+        "tcp:1.2.3.4:5",
+    ] {
         assert!(matches!(Endpoint::parse(bad), Err(TransportError::BadEndpoint(_))), "{bad}");
     }
     assert_eq!(

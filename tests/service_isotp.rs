@@ -4,9 +4,7 @@
 use core::time::Duration;
 
 use proptest::prelude::*;
-use roomcal::service::isotp::{
-    Config, Event, FlowStatus, IsoTp, PduRepr, RxError, StMin, TxError,
-};
+use roomcal::service::isotp::{Config, Event, FlowStatus, IsoTp, PduRepr, RxError, StMin, TxError};
 use roomcal::service::{CanFrame, Instant};
 
 const TX: u32 = 0x7A8;
@@ -224,15 +222,15 @@ fn wrong_sequence_number_aborts_reception() {
 fn unexpected_and_malformed_frames_are_ignored() {
     let mut tp: IsoTp = IsoTp::new(Config::new(TX, RX));
     let junk: [&[u8]; 9] = [
-        &[],                              // empty
-        &[0x21, 1, 2, 3],                 // CF while idle
-        &[0x30, 0, 0],                    // FC while not sending
-        &[0x00, 1, 2],                    // SF_DL 0 (CAN FD escape)
-        &[0x08, 1, 2, 3, 4, 5, 6, 7],     // SF_DL 8 on classic CAN
-        &[0x05, 1, 2],                    // SF_DL beyond the frame
-        &[0x10, 20, 1, 2, 3],             // short first frame
-        &[0x10, 0x05, 1, 2, 3, 4, 5, 6],  // FF_DL fits a single frame
-        &[0x45, 1, 2, 3, 4, 5, 6, 7],     // unknown frame type
+        &[],                             // empty
+        &[0x21, 1, 2, 3],                // CF while idle
+        &[0x30, 0, 0],                   // FC while not sending
+        &[0x00, 1, 2],                   // SF_DL 0 (CAN FD escape)
+        &[0x08, 1, 2, 3, 4, 5, 6, 7],    // SF_DL 8 on classic CAN
+        &[0x05, 1, 2],                   // SF_DL beyond the frame
+        &[0x10, 20, 1, 2, 3],            // short first frame
+        &[0x10, 0x05, 1, 2, 3, 4, 5, 6], // FF_DL fits a single frame
+        &[0x45, 1, 2, 3, 4, 5, 6, 7],    // unknown frame type
     ];
     for j in junk {
         assert_eq!(tp.on_frame(&frame(RX, j), ms(0)), None, "{j:02X?}");
@@ -340,11 +338,9 @@ fn max_length_message_between_endpoints() {
     rx_cfg.padding = None;
     let (got, t) = exchange(Config::new(0x7A0, 0x7A8), rx_cfg, &msg);
     assert_eq!(got, msg);
-    // 585 consecutive frames in blocks of 8; STmin (200 µs) separates the frames
-    // inside a block, a block's first frame follows its flow control at once.
-    let cfs = 585u64;
-    let gaps = cfs - cfs.div_ceil(8);
-    assert_eq!(t, Instant::from_micros(gaps * 200), "STmin not honoured");
+    // 585 consecutive frames in blocks of 8, every two 200 µs apart (also across a
+    // block's flow control, which here comes back at once).
+    assert_eq!(t, Instant::from_micros(584 * 200), "STmin not honoured");
 }
 
 proptest! {

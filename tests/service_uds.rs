@@ -259,7 +259,10 @@ fn calibration_answers_pending_then_final() {
     assert_eq!(final_response, [0x71, 0x01, 0xC1, 0x00, 0x04, 0, 0, 0, 8]);
     assert!(s.is_unlocked());
     let r = ask(&mut s, &[0x31, 0x03, 0xC1, 0x00], now).unwrap();
-    assert_eq!(Outcome::parse(&r[4..]).unwrap(), Outcome { state: DaemonState::Accepted, generation: 8 });
+    assert_eq!(
+        Outcome::parse(&r[4..]).unwrap(),
+        Outcome { state: DaemonState::Accepted, generation: 8 }
+    );
     // Suppressed start: the 0x78 cancels the suppression, the final answer comes.
     assert_eq!(ask(&mut s, &[0x31, 0x81, 0xC1, 0x00], now).unwrap(), [0x7F, 0x31, 0x78]);
     let mut t = now;
@@ -273,7 +276,10 @@ fn calibration_answers_pending_then_final() {
     };
     assert_eq!(r[..5], [0x71, 0x01, 0xC1, 0x00, 0x04]);
     // Roll back: 9 → 8; suppressed variant answers nothing but acts.
-    assert_eq!(ask(&mut s, &[0x31, 0x01, 0xC1, 0x01], t).unwrap(), [0x71, 0x01, 0xC1, 0x01, 0, 0, 0, 8]);
+    assert_eq!(
+        ask(&mut s, &[0x31, 0x01, 0xC1, 0x01], t).unwrap(),
+        [0x71, 0x01, 0xC1, 0x01, 0, 0, 0, 8]
+    );
     assert_eq!(ask(&mut s, &[0x31, 0x81, 0xC1, 0x01], t), None);
     assert_eq!(s.backend().state.generation, 7);
 }
@@ -362,8 +368,12 @@ impl Bench {
 #[test]
 fn flood_of_requests_through_isotp_and_server() {
     let mut bench = Bench::new();
-    let requests: [&[u8]; 4] =
-        [&[0x22, 0xC0, 0x02], &[0x3E, 0x00], &[0x22, 0xC0, 0x01, 0xC0, 0x03, 0xC0, 0x04], &[0x22, 0xF1, 0x90]];
+    let requests: [&[u8]; 4] = [
+        &[0x22, 0xC0, 0x02],
+        &[0x3E, 0x00],
+        &[0x22, 0xC0, 0x01, 0xC0, 0x03, 0xC0, 0x04],
+        &[0x22, 0xF1, 0x90],
+    ];
     let start = std::time::Instant::now();
     let mut bytes = 0usize;
     for i in 0..10_000 {

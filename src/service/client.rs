@@ -34,7 +34,9 @@ pub enum ClientError {
     EmptySecret(PathBuf),
     #[error("`{0}` needs --secret-file")]
     NeedsSecret(&'static str),
-    #[error("unknown query `{0}`: expected status, intrinsics, extrinsic, quality, start or rollback")]
+    #[error(
+        "unknown query `{0}`: expected status, intrinsics, extrinsic, quality, start or rollback"
+    )]
     UnknownQuery(String),
     #[error("cannot start the async runtime: {0}")]
     Runtime(std::io::Error),
@@ -73,12 +75,21 @@ pub struct UdsClient<T: CanTransport> {
 impl<T: CanTransport> UdsClient<T> {
     /// A client whose ISO-TP endpoint is `cfg` (tx = request ID, rx = response ID).
     pub fn new(transport: T, cfg: isotp::Config, timing: ClientTiming) -> Self {
-        UdsClient { transport, tp: Box::new(IsoTp::new(cfg)), epoch: tokio::time::Instant::now(), timing }
+        UdsClient {
+            transport,
+            tp: Box::new(IsoTp::new(cfg)),
+            epoch: tokio::time::Instant::now(),
+            timing,
+        }
     }
 
     /// A client with the default IDs (0x7A0 → 0x7A8) and timing.
     pub fn with_defaults(transport: T) -> Self {
-        Self::new(transport, isotp::Config::new(DEFAULT_REQUEST_ID, DEFAULT_RESPONSE_ID), ClientTiming::default())
+        Self::new(
+            transport,
+            isotp::Config::new(DEFAULT_REQUEST_ID, DEFAULT_RESPONSE_ID),
+            ClientTiming::default(),
+        )
     }
 
     fn now(&self) -> Instant {
@@ -103,7 +114,9 @@ impl<T: CanTransport> UdsClient<T> {
                     }
                     return Err(ClientError::Negative { service, nrc });
                 }
-                Some(ResponseRepr::Positive { service: s, .. }) if s == service => return Ok(response),
+                Some(ResponseRepr::Positive { service: s, .. }) if s == service => {
+                    return Ok(response)
+                }
                 _ => return Err(ClientError::Unexpected { service, bytes: response }),
             }
         }
@@ -168,13 +181,15 @@ impl<T: CanTransport> UdsClient<T> {
     /// DID 0xC002.
     pub async fn intrinsics(&mut self) -> Result<IntrinsicsRecord, ClientError> {
         let b = self.read_did(did::INTRINSICS).await?;
-        IntrinsicsRecord::parse(&b).map_err(|error| ClientError::Decode { did: did::INTRINSICS, error })
+        IntrinsicsRecord::parse(&b)
+            .map_err(|error| ClientError::Decode { did: did::INTRINSICS, error })
     }
 
     /// DID 0xC003.
     pub async fn extrinsic(&mut self) -> Result<ExtrinsicRecord, ClientError> {
         let b = self.read_did(did::EXTRINSIC).await?;
-        ExtrinsicRecord::parse(&b).map_err(|error| ClientError::Decode { did: did::EXTRINSIC, error })
+        ExtrinsicRecord::parse(&b)
+            .map_err(|error| ClientError::Decode { did: did::EXTRINSIC, error })
     }
 
     /// DID 0xC004.
@@ -191,7 +206,9 @@ impl<T: CanTransport> UdsClient<T> {
                 Duration::from_millis(u64::from(u16::from_be_bytes([a, b]))),
                 Duration::from_millis(10 * u64::from(u16::from_be_bytes([c, d]))),
             )),
-            _ => Err(ClientError::Unexpected { service: sid::DIAGNOSTIC_SESSION_CONTROL, bytes: r }),
+            _ => {
+                Err(ClientError::Unexpected { service: sid::DIAGNOSTIC_SESSION_CONTROL, bytes: r })
+            }
         }
     }
 
@@ -218,13 +235,15 @@ impl<T: CanTransport> UdsClient<T> {
     /// RoutineControl 0xC100 start: runs a calibration and waits for its outcome.
     pub async fn start_calibration(&mut self) -> Result<Outcome, ClientError> {
         let r = self.routine(0x01, rid::START_CALIBRATION).await?;
-        Outcome::parse(&r).map_err(|error| ClientError::Decode { did: rid::START_CALIBRATION, error })
+        Outcome::parse(&r)
+            .map_err(|error| ClientError::Decode { did: rid::START_CALIBRATION, error })
     }
 
     /// RoutineControl 0xC100 results: the last run's outcome.
     pub async fn calibration_results(&mut self) -> Result<Outcome, ClientError> {
         let r = self.routine(0x03, rid::START_CALIBRATION).await?;
-        Outcome::parse(&r).map_err(|error| ClientError::Decode { did: rid::START_CALIBRATION, error })
+        Outcome::parse(&r)
+            .map_err(|error| ClientError::Decode { did: rid::START_CALIBRATION, error })
     }
 
     /// RoutineControl 0xC101 start: roll back; returns the generation now in force.

@@ -3,8 +3,8 @@
 //! through the generations.
 
 use super::uds::{
-    Backend, CameraModel, DaemonState, ExtrinsicRecord, IntrinsicsRecord, Outcome,
-    QualityRecord, Refusal, StateRecord,
+    Backend, CameraModel, DaemonState, ExtrinsicRecord, IntrinsicsRecord, Outcome, QualityRecord,
+    Refusal, StateRecord,
 };
 
 /// A backend with a calibration in force (or none), answering from memory.

@@ -444,8 +444,23 @@ enum Tx {
     Idle,
     Single,
     First,
-    WaitFc { offset: usize, sn: u8, deadline: Option<Instant>, waits: u8 },
-    Consecutive { offset: usize, sn: u8, block_left: u8, unlimited: bool, st_min: Duration, next_at: Instant },
+    /// `last_cf`: when the previous block's last consecutive frame went out; STmin
+    /// also separates it from the next block's first.
+    WaitFc {
+        offset: usize,
+        sn: u8,
+        deadline: Option<Instant>,
+        waits: u8,
+        last_cf: Option<Instant>,
+    },
+    Consecutive {
+        offset: usize,
+        sn: u8,
+        block_left: u8,
+        unlimited: bool,
+        st_min: Duration,
+        next_at: Instant,
+    },
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -523,7 +538,7 @@ impl<const N: usize> IsoTp<N> {
         }
         self.tx_buf[..msg.len()].copy_from_slice(msg);
         self.tx_len = msg.len();
-        self.tx = if msg.len() <= CAN_DATA_LEN - 1 { Tx::Single } else { Tx::First };
+        self.tx = if msg.len() < CAN_DATA_LEN { Tx::Single } else { Tx::First };
         Ok(())
     }
 
@@ -540,9 +555,7 @@ impl<const N: usize> IsoTp<N> {
             Ok(PduRepr::FlowControl { status, block_size, st_min }) => {
                 self.on_flow_control(Ok(status), block_size, st_min, now)
             }
-            Err(ParseError::BadFlowStatus(s)) => {
-                self.on_flow_control(Err(s), 0, StMin(0), now)
-            }
+            Err(ParseError::BadFlowStatus(s)) => self.on_flow_control(Err(s), 0, StMin(0), now),
             Err(_) => None,
         }
     }
@@ -586,10 +599,12 @@ impl<const N: usize> IsoTp<N> {
                     next_at,
                 };
                 self.in_flight = Some(InFlight::TxConsecutive { deadline, last, block_done });
-                Some(self.frame(&PduRepr::Consecutive {
-                    sequence: sn,
-                    data: &self.tx_buf[offset..end],
-                }))
+                Some(
+                    self.frame(&PduRepr::Consecutive {
+                        sequence: sn,
+                        data: &self.tx_buf[offset..end],
+                    }),
+                )
             }
             Tx::Idle | Tx::WaitFc { .. } => None,
         }
@@ -604,7 +619,8 @@ impl<const N: usize> IsoTp<N> {
             }
             InFlight::TxFirst(_) => {
                 let deadline = Some(now + self.cfg.n_bs);
-                self.tx = Tx::WaitFc { offset: CAN_DATA_LEN - 2, sn: 1, deadline, waits: 0 };
+                let offset = CAN_DATA_LEN - 2;
+                self.tx = Tx::WaitFc { offset, sn: 1, deadline, waits: 0, last_cf: None };
                 None
             }
             InFlight::TxConsecutive { last, block_done, .. } => {
@@ -615,7 +631,8 @@ impl<const N: usize> IsoTp<N> {
                 if let Tx::Consecutive { offset, sn, st_min, ref mut next_at, .. } = self.tx {
                     if block_done {
                         let deadline = Some(now + self.cfg.n_bs);
-                        self.tx = Tx::WaitFc { offset, sn, deadline, waits: 0 };
+                        let last_cf = Some(now);
+                        self.tx = Tx::WaitFc { offset, sn, deadline, waits: 0, last_cf };
                     } else {
                         *next_at = now + st_min;
                     }
@@ -774,18 +791,19 @@ impl<const N: usize> IsoTp<N> {
         now: Instant,
     ) -> Option<Event> {
         // Flow control is only expected while waiting for it.
-        let Tx::WaitFc { offset, sn, waits, .. } = self.tx else {
+        let Tx::WaitFc { offset, sn, waits, last_cf, .. } = self.tx else {
             return None;
         };
         match status {
             Ok(FlowStatus::ContinueToSend) => {
+                let st_min = st_min.duration();
                 self.tx = Tx::Consecutive {
                     offset,
                     sn,
                     block_left: block_size,
                     unlimited: block_size == 0,
-                    st_min: st_min.duration(),
-                    next_at: now,
+                    st_min,
+                    next_at: last_cf.map_or(now, |t| (t + st_min).max(now)),
                 };
                 None
             }
@@ -795,7 +813,7 @@ impl<const N: usize> IsoTp<N> {
                     return Some(Event::TxAborted(TxError::TooManyWaits));
                 }
                 let deadline = Some(now + self.cfg.n_bs);
-                self.tx = Tx::WaitFc { offset, sn, deadline, waits: waits + 1 };
+                self.tx = Tx::WaitFc { offset, sn, deadline, waits: waits + 1, last_cf };
                 None
             }
             Ok(FlowStatus::Overflow) => {

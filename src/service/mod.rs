@@ -127,7 +127,9 @@ impl CanFrame {
             return None;
         }
         match frame.id() {
-            embedded_can::Id::Standard(id) => Self::new_standard(u32::from(id.as_raw()), frame.data()),
+            embedded_can::Id::Standard(id) => {
+                Self::new_standard(u32::from(id.as_raw()), frame.data())
+            }
             embedded_can::Id::Extended(id) => Self::new_extended(id.as_raw(), frame.data()),
         }
     }
@@ -171,7 +173,10 @@ impl embedded_can::Frame for CanFrame {
     fn id(&self) -> embedded_can::Id {
         // Constructors keep the ID in range; fall back to the masked value otherwise.
         self.embedded_id().unwrap_or_else(|| {
-            embedded_can::Id::Extended(embedded_can::ExtendedId::new(self.id & MAX_EXTENDED_ID).unwrap_or(embedded_can::ExtendedId::ZERO))
+            embedded_can::Id::Extended(
+                embedded_can::ExtendedId::new(self.id & MAX_EXTENDED_ID)
+                    .unwrap_or(embedded_can::ExtendedId::ZERO),
+            )
         })
     }
 

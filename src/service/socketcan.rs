@@ -15,10 +15,8 @@ pub struct SocketCan {
 impl SocketCan {
     /// Opens `interface` (e.g. `can0`); the error names the interface.
     pub fn open(interface: &str) -> Result<Self, TransportError> {
-        let socket = CanSocket::open(interface).map_err(|source| TransportError::Open {
-            interface: interface.to_string(),
-            source,
-        })?;
+        let socket = CanSocket::open(interface)
+            .map_err(|source| TransportError::Open { interface: interface.to_string(), source })?;
         Ok(SocketCan { socket, interface: interface.to_string() })
     }
 

@@ -173,7 +173,9 @@ impl Conn {
             let mut chunk = [0u8; 1024];
             let n = self.stream.read(&mut chunk).await.map_err(|source| self.io(source))?;
             if n == 0 {
-                return Err(TransportError::Closed { endpoint: format!("socketcand {}", self.peer) });
+                return Err(TransportError::Closed {
+                    endpoint: format!("socketcand {}", self.peer),
+                });
             }
             self.split.buf.extend_from_slice(&chunk[..n]);
         }
@@ -260,7 +262,8 @@ impl SocketcandServer {
         let local_addr = listener.local_addr().map_err(bind_err)?;
         let (in_tx, from_clients) = mpsc::channel(1024);
         let (to_clients, _) = broadcast::channel(1024);
-        let accept = tokio::spawn(accept_loop(listener, channel.to_string(), in_tx, to_clients.clone()));
+        let accept =
+            tokio::spawn(accept_loop(listener, channel.to_string(), in_tx, to_clients.clone()));
         Ok(SocketcandServer { local_addr, from_clients, to_clients, accept })
     }
 

@@ -38,7 +38,8 @@ pub enum TransportError {
 /// drivers can `select!` it against timers.
 pub trait CanTransport: Send {
     /// Puts one frame on the bus; resolves once the bus (or the socket) took it.
-    fn send(&mut self, frame: &CanFrame) -> impl Future<Output = Result<(), TransportError>> + Send;
+    fn send(&mut self, frame: &CanFrame)
+        -> impl Future<Output = Result<(), TransportError>> + Send;
     /// The next frame from the bus.
     fn recv(&mut self) -> impl Future<Output = Result<CanFrame, TransportError>> + Send;
 }
@@ -62,7 +63,10 @@ impl Endpoint {
             if host.is_empty() || port.parse::<u16>().is_err() || channel.is_empty() {
                 return Err(bad());
             }
-            return Ok(Endpoint::Socketcand { addr: addr.to_string(), channel: channel.to_string() });
+            return Ok(Endpoint::Socketcand {
+                addr: addr.to_string(),
+                channel: channel.to_string(),
+            });
         }
         if let Some(interface) = s.strip_prefix("socketcan:") {
             if interface.is_empty() || interface.len() > 15 {
@@ -79,7 +83,9 @@ impl Endpoint {
             Endpoint::Socketcand { addr, channel } => {
                 AnyTransport::Socketcand(SocketcandClient::connect(addr, channel).await?)
             }
-            Endpoint::Socketcan { interface } => AnyTransport::Socketcan(SocketCan::open(interface)?),
+            Endpoint::Socketcan { interface } => {
+                AnyTransport::Socketcan(SocketCan::open(interface)?)
+            }
         })
     }
 }

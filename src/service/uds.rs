@@ -773,8 +773,7 @@ impl<B: Backend, R: SeedSource> Server<B, R> {
 
     /// When [`Server::poll`] next has something to do.
     pub fn poll_at(&self) -> Option<Instant> {
-        let pending =
-            self.pending.map(|p| p.next_check.min(p.next_pending_response));
+        let pending = self.pending.map(|p| p.next_check.min(p.next_pending_response));
         // S3 is stopped while a routine runs (ISO 14229-2: S3 restarts after the response).
         let s3 = if self.pending.is_some() { None } else { self.s3_deadline };
         [pending, s3, self.locked_until].into_iter().flatten().min()
