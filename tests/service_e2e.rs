@@ -86,6 +86,17 @@ async fn client_reads_every_did_unlocks_starts_and_rolls_back() {
     assert_eq!(c.rollback().await.unwrap(), expected.state.generation);
     c.tester_present().await.unwrap();
     println!("calibration round trip over socketcand took {took:?}");
+    // Round-trip rate over loopback TCP (single and multi-frame responses).
+    let t0 = std::time::Instant::now();
+    for _ in 0..500 {
+        assert_eq!(c.status().await.unwrap().generation, expected.state.generation);
+        assert_eq!(Some(c.intrinsics().await.unwrap()), expected.intrinsics);
+    }
+    let dt = t0.elapsed();
+    println!(
+        "1000 ReadDataByIdentifier round trips over socketcand: {:.1} µs each",
+        dt.as_secs_f64() * 1e6 / 1000.0
+    );
 
     stop.send(()).unwrap();
     let backend = task.await.unwrap();
