@@ -14,7 +14,7 @@ use roomcal::service::fake::FakeBackend;
 use roomcal::service::isotp::Config;
 use roomcal::service::socketcand::{SocketcandClient, SocketcandServer};
 use roomcal::service::transport::{CanTransport, Endpoint, TransportError};
-use roomcal::service::uds::{DaemonState, Server, ServerConfig};
+use roomcal::service::uds::{DaemonState, Server, ServerConfig, Session};
 use roomcal::service::{CanFrame, DEFAULT_REQUEST_ID, DEFAULT_RESPONSE_ID};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::oneshot;
@@ -62,7 +62,7 @@ async fn client_reads_every_did_unlocks_starts_and_rolls_back() {
         Err(ClientError::Negative { service: 0x31, nrc: 0x7F }) => {}
         other => panic!("expected 0x7F, got {other:?}"),
     }
-    let (p2, p2_star) = c.session(0x03).await.unwrap();
+    let (p2, p2_star) = c.session(Session::Extended).await.unwrap();
     assert_eq!((p2, p2_star), (Duration::from_millis(50), Duration::from_millis(5000)));
     match c.rollback().await {
         Err(ClientError::Negative { service: 0x31, nrc: 0x33 }) => {}

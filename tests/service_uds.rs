@@ -8,7 +8,7 @@ use roomcal::service::fake::FakeBackend;
 use roomcal::service::isotp::{Config, Event, IsoTp};
 use roomcal::service::uds::{
     security_key, DaemonState, ExtrinsicRecord, IntrinsicsRecord, Nrc, Outcome, QualityRecord,
-    ResponseRepr, Server, ServerConfig, StateRecord, SEED_LEN,
+    RequestRepr, ResponseRepr, Server, ServerConfig, Session, StateRecord, SEED_LEN,
 };
 use roomcal::service::Instant;
 
@@ -299,6 +299,41 @@ fn response_repr_parses_both_kinds() {
     assert_eq!(ResponseRepr::parse(&[]), None);
     assert_eq!(Nrc::from_u8(0x36), Some(Nrc::ExceededNumberOfAttempts));
     assert_eq!(Nrc::InvalidKey.to_string(), "invalidKey (0x35)");
+}
+
+#[test]
+fn request_repr_both_ways() {
+    let dids = heapless::Vec::from_slice(&[0xC001, 0xC004]).unwrap();
+    let cases: [(RequestRepr, &[u8]); 6] = [
+        (RequestRepr::SessionControl { session: Session::Extended, suppress: true }, &[0x10, 0x83]),
+        (RequestRepr::TesterPresent { suppress: false }, &[0x3E, 0x00]),
+        (RequestRepr::RequestSeed { suppress: false }, &[0x27, 0x01]),
+        (RequestRepr::ReadData { dids }, &[0x22, 0xC0, 0x01, 0xC0, 0x04]),
+        (
+            RequestRepr::RoutineControl { sub: 0x01, routine: 0xC101, suppress: false },
+            &[0x31, 0x01, 0xC1, 0x01],
+        ),
+        (
+            RequestRepr::SendKey { key: [7; 16], suppress: false },
+            &[0x27, 0x02, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7],
+        ),
+    ];
+    for (repr, bytes) in cases {
+        let mut buf = [0u8; 32];
+        let n = repr.emit(&mut buf).unwrap();
+        assert_eq!(&buf[..n], bytes);
+        assert_eq!(n, repr.buffer_len());
+        assert_eq!(RequestRepr::parse(bytes), Ok(repr));
+    }
+    assert_eq!(RequestRepr::parse(&[]), Err(Nrc::IncorrectMessageLengthOrInvalidFormat));
+    assert_eq!(RequestRepr::parse(&[0x11, 0x01]), Err(Nrc::ServiceNotSupported));
+    assert_eq!(RequestRepr::parse(&[0x10, 0x02]), Err(Nrc::SubFunctionNotSupported));
+    assert_eq!(RequestRepr::parse(&[0x22, 0xC0]), Err(Nrc::IncorrectMessageLengthOrInvalidFormat));
+    assert_eq!(
+        RequestRepr::parse(&[0x31, 0x01, 0xC1]),
+        Err(Nrc::IncorrectMessageLengthOrInvalidFormat)
+    );
+    assert!(RequestRepr::SendKey { key: [0; 16], suppress: false }.emit(&mut [0u8; 17]).is_none());
 }
 
 #[test]

@@ -6,8 +6,8 @@
 use libfuzzer_sys::fuzz_target;
 use roomcal::service::fake::FakeBackend;
 use roomcal::service::uds::{
-    ExtrinsicRecord, IntrinsicsRecord, Outcome, QualityRecord, ResponseRepr, Server, ServerConfig,
-    StateRecord, SEED_LEN,
+    ExtrinsicRecord, IntrinsicsRecord, Outcome, QualityRecord, RequestRepr, ResponseRepr, Server,
+    ServerConfig, StateRecord, SEED_LEN,
 };
 use roomcal::service::Instant;
 
@@ -18,6 +18,12 @@ fuzz_target!(|data: &[u8]| {
     let _ = QualityRecord::parse(data);
     let _ = Outcome::parse(data);
     let _ = ResponseRepr::parse(data);
+    // Requests that parse emit back to the same bytes.
+    if let Ok(req) = RequestRepr::parse(data) {
+        let mut buf = [0u8; 64];
+        let n = req.emit(&mut buf).expect("fits");
+        assert_eq!(&buf[..n], data);
+    }
 
     let seeds = |s: &mut [u8; SEED_LEN]| *s = [0xA5; SEED_LEN];
     let mut server =

@@ -9,7 +9,7 @@ use super::isotp::{self, Event, IsoTp};
 use super::transport::{CanTransport, Endpoint, TransportError};
 use super::uds::{
     did, rid, security_key, sid, DecodeError, ExtrinsicRecord, IntrinsicsRecord, Nrc, Outcome,
-    QualityRecord, ResponseRepr, StateRecord, SEED_LEN,
+    QualityRecord, RequestRepr, ResponseRepr, Session, StateRecord, SEED_LEN,
 };
 use super::{Instant, DEFAULT_REQUEST_ID, DEFAULT_RESPONSE_ID};
 
@@ -162,10 +162,18 @@ impl<T: CanTransport> UdsClient<T> {
         }
     }
 
+    /// Sends a request built from its representation; returns the positive response.
+    pub async fn request_repr(&mut self, request: &RequestRepr) -> Result<Vec<u8>, ClientError> {
+        let mut buf = [0u8; 64];
+        let n = request.emit(&mut buf).unwrap_or(0);
+        self.request(&buf[..n]).await
+    }
+
     /// ReadDataByIdentifier for one DID; returns the record bytes.
     pub async fn read_did(&mut self, id: u16) -> Result<Vec<u8>, ClientError> {
         let [hi, lo] = id.to_be_bytes();
-        let r = self.request(&[sid::READ_DATA_BY_IDENTIFIER, hi, lo]).await?;
+        let dids = heapless::Vec::from_slice(&[id]).unwrap_or_default();
+        let r = self.request_repr(&RequestRepr::ReadData { dids }).await?;
         match r.get(1..3) {
             Some(echo) if echo == [hi, lo] => Ok(r[3..].to_vec()),
             _ => Err(ClientError::Unexpected { service: sid::READ_DATA_BY_IDENTIFIER, bytes: r }),
@@ -199,10 +207,11 @@ impl<T: CanTransport> UdsClient<T> {
     }
 
     /// DiagnosticSessionControl; returns the server's (P2, P2*) timing.
-    pub async fn session(&mut self, session: u8) -> Result<(Duration, Duration), ClientError> {
-        let r = self.request(&[sid::DIAGNOSTIC_SESSION_CONTROL, session]).await?;
+    pub async fn session(&mut self, session: Session) -> Result<(Duration, Duration), ClientError> {
+        let r =
+            self.request_repr(&RequestRepr::SessionControl { session, suppress: false }).await?;
         match r[..] {
-            [_, s, a, b, c, d] if s == session => Ok((
+            [_, s, a, b, c, d] if s == session as u8 => Ok((
                 Duration::from_millis(u64::from(u16::from_be_bytes([a, b]))),
                 Duration::from_millis(10 * u64::from(u16::from_be_bytes([c, d]))),
             )),
@@ -214,12 +223,12 @@ impl<T: CanTransport> UdsClient<T> {
 
     /// TesterPresent (with a response).
     pub async fn tester_present(&mut self) -> Result<(), ClientError> {
-        self.request(&[sid::TESTER_PRESENT, 0x00]).await.map(drop)
+        self.request_repr(&RequestRepr::TesterPresent { suppress: false }).await.map(drop)
     }
 
     /// SecurityAccess: seed, then key = HMAC-SHA256(secret, seed)[..16].
     pub async fn unlock(&mut self, secret: &[u8]) -> Result<(), ClientError> {
-        let r = self.request(&[sid::SECURITY_ACCESS, 0x01]).await?;
+        let r = self.request_repr(&RequestRepr::RequestSeed { suppress: false }).await?;
         let Some(seed) = r.get(2..2 + SEED_LEN).filter(|_| r.len() == 2 + SEED_LEN) else {
             return Err(ClientError::Unexpected { service: sid::SECURITY_ACCESS, bytes: r });
         };
@@ -227,9 +236,8 @@ impl<T: CanTransport> UdsClient<T> {
         if seed.iter().all(|&b| b == 0) {
             return Ok(());
         }
-        let mut req = vec![sid::SECURITY_ACCESS, 0x02];
-        req.extend_from_slice(&security_key(secret, seed));
-        self.request(&req).await.map(drop)
+        let key = security_key(secret, seed);
+        self.request_repr(&RequestRepr::SendKey { key, suppress: false }).await.map(drop)
     }
 
     /// RoutineControl 0xC100 start: runs a calibration and waits for its outcome.
@@ -258,7 +266,8 @@ impl<T: CanTransport> UdsClient<T> {
     /// RoutineControl; returns the status record after the echoed sub-function and RID.
     async fn routine(&mut self, sub: u8, routine: u16) -> Result<Vec<u8>, ClientError> {
         let [hi, lo] = routine.to_be_bytes();
-        let r = self.request(&[sid::ROUTINE_CONTROL, sub, hi, lo]).await?;
+        let repr = RequestRepr::RoutineControl { sub, routine, suppress: false };
+        let r = self.request_repr(&repr).await?;
         match r.get(1..4) {
             Some(echo) if echo == [sub, hi, lo] => Ok(r[4..].to_vec()),
             _ => Err(ClientError::Unexpected { service: sid::ROUTINE_CONTROL, bytes: r }),
@@ -352,7 +361,7 @@ pub async fn query(opts: &QueryOptions, cmd: QueryCommand) -> Result<String, Cli
         QueryCommand::Extrinsic => client.extrinsic().await?.to_string(),
         QueryCommand::Quality => client.quality().await?.to_string(),
         QueryCommand::Start | QueryCommand::Rollback => {
-            client.session(0x03).await?;
+            client.session(Session::Extended).await?;
             client.unlock(secret.as_deref().unwrap_or_default()).await?;
             if cmd == QueryCommand::Start {
                 client.start_calibration().await?.to_string()
