@@ -163,6 +163,14 @@ def run(port):
             client.read_data_by_identifier(0xC001)
         dt = time.perf_counter() - t0
         print(f"INFO {n} ReadDataByIdentifier round trips: {dt / n * 1e3:.2f} ms each")
+
+        # A session change relocks; three wrong keys lock SecurityAccess for 10 s.
+        client.change_session(3)
+        client.config["security_algo_params"] = b"wrong"
+        expect_nrc("wrong key 1 -> 0x35", lambda: client.unlock_security_access(1), 0x35)
+        expect_nrc("wrong key 2 -> 0x35", lambda: client.unlock_security_access(1), 0x35)
+        expect_nrc("wrong key 3 -> 0x36", lambda: client.unlock_security_access(1), 0x36)
+        expect_nrc("seed while locked -> 0x37", lambda: client.request_seed(1), 0x37)
     bus.shutdown()
 
 
