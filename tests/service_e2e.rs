@@ -13,7 +13,7 @@ use roomcal::service::driver::{serve, OsRandom};
 use roomcal::service::fake::FakeBackend;
 use roomcal::service::isotp::Config;
 use roomcal::service::socketcand::{SocketcandClient, SocketcandServer};
-use roomcal::service::transport::{CanTransport, Endpoint, TransportError};
+use roomcal::service::transport::{memory_pair, CanTransport, Endpoint, TransportError};
 use roomcal::service::uds::{DaemonState, Server, ServerConfig, Session};
 use roomcal::service::{CanFrame, DEFAULT_REQUEST_ID, DEFAULT_RESPONSE_ID};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -212,4 +212,37 @@ async fn missing_socketcan_interface_is_named() {
     assert!(matches!(err, TransportError::Open { .. }), "{text}");
     assert!(text.contains("rcnocan7"), "{text}");
     println!("{text}");
+}
+
+#[tokio::test]
+async fn server_on_memory_bus_times_out_the_session() {
+    let (mut bus, client_end) = memory_pair();
+    let (stop, stopped) = oneshot::channel::<()>();
+    let task = tokio::spawn(async move {
+        let cfg = ServerConfig { s3: Duration::from_millis(200), ..ServerConfig::default() };
+        let mut server =
+            Server::new(FakeBackend::calibrated(), OsRandom::open().unwrap(), SECRET, cfg);
+        let tp = Config::new(DEFAULT_RESPONSE_ID, DEFAULT_REQUEST_ID);
+        serve(&mut bus, &mut server, tp, async {
+            let _ = stopped.await;
+        })
+        .await
+        .unwrap();
+    });
+    let mut c = UdsClient::with_defaults(client_end);
+    c.session(Session::Extended).await.unwrap();
+    c.unlock(SECRET).await.unwrap();
+    // TesterPresent keeps the session; silence beyond S3 drops it (and the unlock).
+    for _ in 0..4 {
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        c.tester_present().await.unwrap();
+    }
+    assert_eq!(c.rollback().await.unwrap(), 6, "still extended and unlocked");
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    match c.rollback().await {
+        Err(ClientError::Negative { service: 0x31, nrc: 0x7F }) => {}
+        other => panic!("expected 0x7F after S3, got {other:?}"),
+    }
+    stop.send(()).unwrap();
+    task.await.unwrap();
 }
