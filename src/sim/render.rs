@@ -9,7 +9,7 @@ use super::world::{Surface, World};
 /// How the camera image is degraded.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ImageNoise {
-    /// Sub-samples per pixel along each axis.
+    /// Sub-samples per pixel: `supersample²`, on a rank-1 lattice.
     pub supersample: u32,
     /// Gaussian blur σ (px); 0 turns it off.
     pub blur_px: f64,
@@ -80,7 +80,9 @@ impl Tracer<'_> {
     fn shade_rows(&self, first_row: usize, out: &mut [f32]) {
         let w = self.camera.width as usize;
         let lattice_row = |y: usize| -> Vec<Option<Vec3>> {
-            (0..=w).map(|x| self.camera.unproject(&Vec2::new(x as f64 - 0.5, y as f64 - 0.5))).collect()
+            (0..=w)
+                .map(|x| self.camera.unproject(&Vec2::new(x as f64 - 0.5, y as f64 - 0.5)))
+                .collect()
         };
         let mut top = lattice_row(first_row);
         for (r, row_out) in out.chunks_mut(w).enumerate() {
@@ -97,21 +99,27 @@ impl Tracer<'_> {
     /// Mean grey level over the pixel's sub-samples (pixel centres at integer
     /// coordinates, as OpenCV has them), with the light falling on it.
     fn shade_pixel(&self, x: usize, y: usize, corners: [Option<Vec3>; 4]) -> f64 {
-        let s = self.noise.supersample.max(1);
+        let n = self.noise.supersample.max(1).pow(2);
+        let generator = lattice_generator(n);
         let mut sum = 0.0;
-        for j in 0..s {
-            for i in 0..s {
-                let (fx, fy) = ((i as f64 + 0.5) / s as f64, (j as f64 + 0.5) / s as f64);
-                let ray = match corners {
-                    [Some(a), Some(b), Some(c), Some(d)] => {
-                        Some((a * (1.0 - fx) * (1.0 - fy) + b * fx * (1.0 - fy) + c * (1.0 - fx) * fy + d * fx * fy).normalize())
-                    }
-                    _ => self.camera.unproject(&Vec2::new(x as f64 - 0.5 + fx, y as f64 - 0.5 + fy)),
-                };
-                sum += ray.map_or(0.0, |ray| self.albedo_seen(&ray));
-            }
+        for k in 0..n {
+            // A rank-1 lattice: every row and column of the pixel holds one sample, so an
+            // edge along either axis is resolved in 1/n px steps rather than 1/√n.
+            let fx = (k as f64 + 0.5) / n as f64;
+            let fy = ((k * generator) % n) as f64 / n as f64 + 0.5 / n as f64;
+            let ray = match corners {
+                [Some(a), Some(b), Some(c), Some(d)] => Some(
+                    (a * (1.0 - fx) * (1.0 - fy)
+                        + b * fx * (1.0 - fy)
+                        + c * (1.0 - fx) * fy
+                        + d * fx * fy)
+                        .normalize(),
+                ),
+                _ => self.camera.unproject(&Vec2::new(x as f64 - 0.5 + fx, y as f64 - 0.5 + fy)),
+            };
+            sum += ray.map_or(0.0, |ray| self.albedo_seen(&ray));
         }
-        let albedo = sum / (s * s) as f64;
+        let albedo = sum / n as f64;
         255.0 * albedo * illumination(self.camera, self.noise, x as f64, y as f64)
     }
 
@@ -125,6 +133,24 @@ impl Tracer<'_> {
             },
             None => 0.0,
         }
+    }
+}
+
+/// The generator of a rank-1 lattice of `n` points: the integer coprime with `n`
+/// nearest to n/φ (the golden ratio spreads the points most evenly).
+fn lattice_generator(n: u32) -> u32 {
+    let ideal = (n as f64 / 1.618_033_988_75).round() as u32;
+    (0..n)
+        .flat_map(|d| [ideal.saturating_sub(d), ideal + d])
+        .find(|&g| g > 0 && gcd(g, n) == 1)
+        .unwrap_or(1)
+}
+
+fn gcd(a: u32, b: u32) -> u32 {
+    if b == 0 {
+        a
+    } else {
+        gcd(b, a % b)
     }
 }
 

@@ -9,6 +9,8 @@ use super::rng::{texture, Rng};
 
 /// Where the LiDAR's origin stands above the floor (m).
 pub const LIDAR_HEIGHT: f64 = 2.0;
+/// Where the ceiling is above the LiDAR's origin (m).
+pub const CEILING_Z: f64 = 3.2;
 /// Radius of the pole each board stands or hangs on (m).
 const POLE_RADIUS: f64 = 0.03;
 /// Albedo of the board's white (paper) and black (print).
@@ -75,7 +77,7 @@ impl World {
             texture_seed,
             crates,
             floor_z: -LIDAR_HEIGHT,
-            ceiling_z: 3.2,
+            ceiling_z: CEILING_Z,
             front_x: 10.0,
             back_x: -8.0,
             side_y: 7.0,
@@ -177,7 +179,8 @@ impl World {
         }
         (lo <= hi && lo > 1e-6).then(|| {
             let p = origin + dir * lo;
-            let albedo = 0.2 + 0.5 * texture(self.texture_seed ^ 0xC, p.x * 3.0 + p.z, p.y * 3.0 + p.z);
+            let albedo =
+                0.2 + 0.5 * texture(self.texture_seed ^ 0xC, p.x * 3.0 + p.z, p.y * 3.0 + p.z);
             Hit { distance: lo, surface: Surface::Background { albedo } }
         })
     }
