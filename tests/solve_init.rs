@@ -161,7 +161,6 @@ fn pose_from_homography_is_exact() {
 }
 
 #[test]
-#[ignore = "needs the geometry core (so3_exp); enabled once merged"]
 fn board_pose_with_distortion_and_refinement() {
     let cam = truth_camera();
     let s = scene(6, 0.0, 0.0, 1);

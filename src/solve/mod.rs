@@ -23,7 +23,7 @@ use core::fmt;
 
 use nalgebra::SMatrix;
 
-use crate::geometry::{Vec2, Vec3};
+use crate::geometry::{Camera, Vec2, Vec3};
 
 pub use covariance::{covariance, SharedCovariance, Uncertainty};
 pub use init::{
@@ -62,6 +62,27 @@ pub trait Projector {
     /// Pixel of a camera-frame point.
     fn project(&self, p: &Vec3) -> Option<Vec2> {
         self.project_with_jacobians(p).map(|(px, _, _)| px)
+    }
+}
+
+impl Projector for Camera {
+    fn num_params(&self) -> usize {
+        Camera::num_params(self)
+    }
+    fn params(&self) -> [f64; INTRINSICS] {
+        Camera::params(self)
+    }
+    fn set_params(&mut self, params: &[f64; INTRINSICS]) {
+        Camera::set_params(self, params)
+    }
+    fn project_with_jacobians(&self, p: &Vec3) -> Option<Projection> {
+        Camera::project_with_jacobians(self, p)
+    }
+    fn unproject(&self, px: &Vec2) -> Option<Vec3> {
+        Camera::unproject(self, px)
+    }
+    fn project(&self, p: &Vec3) -> Option<Vec2> {
+        Camera::project(self, p)
     }
 }
 

@@ -182,8 +182,8 @@ pub fn truth_board_poses(n: usize) -> Vec<Se3> {
 }
 
 /// A synthetic room: measurements with noise plus the truth they came from.
-pub struct Scene {
-    pub camera: RadtanCam,
+pub struct Scene<C = RadtanCam> {
+    pub camera: C,
     pub extrinsic: Se3,
     pub poses: Vec<Se3>,
     pub object: Vec<Vec3>,
@@ -193,7 +193,17 @@ pub struct Scene {
 }
 
 pub fn scene(n: usize, pixel_sigma: f64, lidar_sigma_m: f64, seed: u64) -> Scene {
-    let camera = truth_camera();
+    scene_with(truth_camera(), n, pixel_sigma, lidar_sigma_m, seed)
+}
+
+/// [`scene`] seen through any camera model.
+pub fn scene_with<C: Projector>(
+    camera: C,
+    n: usize,
+    pixel_sigma: f64,
+    lidar_sigma_m: f64,
+    seed: u64,
+) -> Scene<C> {
     let extrinsic = truth_extrinsic();
     let poses = truth_board_poses(n);
     let object = board_corners();
