@@ -8,8 +8,8 @@ use nalgebra::SVector;
 use roomcal::geometry::{Camera, CameraModel, Vec2, Vec3};
 use roomcal::solve::lm::{apply_step, Step};
 use roomcal::solve::{
-    board_pose, covariance, BoardObservation, JointParams, JointProblem, LmOptions, Loss,
-    ParamMask, SHARED,
+    board_pose, covariance, initialise, BoardObservation, IntrinsicsSeed, JointParams,
+    JointProblem, LmOptions, Loss, ParamMask, Termination, SHARED,
 };
 use solve_common::*;
 
@@ -177,4 +177,27 @@ fn joint_lm_converges_for_both_models() {
             assert_eq!(cov.sigma(8), 0.0);
         }
     }
+}
+
+#[test]
+fn fisheye_from_a_nominal_fov_camera_converges() {
+    let truth = cameras()[1];
+    let s = scene_with(truth, 6, 0.3, 0.01, 12);
+    let p = problem(&s);
+    // What the room file gives: the model, the size and a rough field of view.
+    let hfov = 2.0 * (0.5 * 1920.0 / truth.fx).to_degrees() * 1.05;
+    let nominal = Camera::from_fov(CameraModel::Fisheye, 1920, 1200, hfov, [0.0; 5]);
+    let (mut params, init) = initialise(&p, nominal, IntrinsicsSeed::Given).unwrap();
+    assert!(init.zhang.is_none() && init.zhang_error.is_none());
+    let report = p.solve(&mut params, &LmOptions::default()).unwrap();
+    let cov = covariance(&p, &params, ParamMask::free()).unwrap();
+    let (est, tru) = (params.camera.params(), truth.params());
+    println!("fisheye from FOV {hfov:.1}°: pose rms {:.2} px; {report:?}", init.pose_rms_px);
+    for i in 0..4 {
+        let e = (est[i] - tru[i]).abs();
+        println!("  param {i}: error {e:.3} σ {:.3}", cov.sigma(i));
+        assert!(e < 4.0 * cov.sigma(i), "param {i}: {} vs {}", est[i], tru[i]);
+    }
+    assert!(report.corner_rms_px < 0.6, "{report:?}");
+    assert_ne!(report.termination, Termination::MaxIterations);
 }

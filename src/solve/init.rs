@@ -6,6 +6,7 @@
 use nalgebra::{SMatrix, SVector, SymmetricEigen};
 
 use super::linalg::{nearest_rotation, Cholesky};
+use super::problem::{JointParams, JointProblem};
 use super::{Projector, SolveError};
 use crate::geometry::se3::{skew, so3_exp};
 use crate::geometry::{Mat3, Se3, Vec2, Vec3};
@@ -277,14 +278,24 @@ pub fn kabsch(from: &[Vec3], to: &[Vec3]) -> Result<Se3, SolveError> {
     if from.len() != to.len() {
         return Err(SolveError::LengthMismatch { left: from.len(), right: to.len() });
     }
-    let n = from.len();
+    kabsch_from_pairs(from.iter().copied().zip(to.iter().copied()))
+}
+
+/// [`kabsch`] over any re-iterable sequence of `(from, to)` pairs (two passes: centroids,
+/// then the cross-covariance), so callers need no buffer.
+pub fn kabsch_from_pairs<I>(pairs: I) -> Result<Se3, SolveError>
+where
+    I: Iterator<Item = (Vec3, Vec3)> + Clone,
+{
+    let n = pairs.clone().count();
     if n < 3 {
         return Err(SolveError::TooFewPoints { needed: 3, got: n });
     }
-    let cf = from.iter().fold(Vec3::zeros(), |a, p| a + p) / n as f64;
-    let ct = to.iter().fold(Vec3::zeros(), |a, p| a + p) / n as f64;
+    let (sf, st) =
+        pairs.clone().fold((Vec3::zeros(), Vec3::zeros()), |(a, b), (f, t)| (a + f, b + t));
+    let (cf, ct) = (sf / n as f64, st / n as f64);
     let mut cov = Mat3::zeros();
-    for (f, t) in from.iter().zip(to) {
+    for (f, t) in pairs {
         cov.ger(1.0, &(t - ct), &(f - cf), 1.0);
     }
     let svd =
@@ -297,6 +308,94 @@ pub fn kabsch(from: &[Vec3], to: &[Vec3]) -> Result<Se3, SolveError> {
     }
     let rotation = nearest_rotation(&cov).ok_or(SolveError::NonFinite)?;
     Ok(Se3 { rotation, translation: ct - rotation * cf })
+}
+
+/// How [`initialise`] seeds the intrinsics.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum IntrinsicsSeed {
+    /// Keep the camera's intrinsics as given (nominal, or `Camera::from_fov`).
+    Given,
+    /// Zhang's closed form from the boards' pixel homographies when it is well
+    /// conditioned (≥ 2 tilted boards); the given intrinsics otherwise. Distortion is
+    /// kept as given. Meant for pinhole cameras with moderate distortion.
+    Zhang { width: u32, height: u32 },
+}
+
+/// What [`initialise`] did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InitReport {
+    /// Zhang's result when it was tried and succeeded.
+    pub zhang: Option<ZhangIntrinsics>,
+    /// Why Zhang was not used, when it was tried and failed.
+    pub zhang_error: Option<SolveError>,
+    /// RMS pixel error of the corners after the per-board pose refinement.
+    pub pose_rms_px: f64,
+}
+
+/// The whole closed-form start for a [`JointProblem`]: intrinsics (see
+/// [`IntrinsicsSeed`]), every board pose from its pixels ([`board_pose`]), and the
+/// LiDAR→camera extrinsic by Kabsch over all holes (board holes carried into the camera
+/// by their board's pose, against the LiDAR's). Without holes the extrinsic is the
+/// identity (and the solver leaves it alone).
+pub fn initialise<C: Projector, const B: usize>(
+    problem: &JointProblem<'_, B>,
+    mut camera: C,
+    seed: IntrinsicsSeed,
+) -> Result<(JointParams<C, B>, InitReport), SolveError> {
+    let mut report = InitReport { zhang: None, zhang_error: None, pose_rms_px: 0.0 };
+    if let IntrinsicsSeed::Zhang { width, height } = seed {
+        match zhang_for(problem, width, height) {
+            Ok(z) => {
+                let mut k = camera.params();
+                k[..4].copy_from_slice(&[z.fx, z.fy, z.cx, z.cy]);
+                camera.set_params(&k);
+                report.zhang = Some(z);
+            }
+            Err(e) => report.zhang_error = Some(e),
+        }
+    }
+    let mut board_poses = heapless::Vec::<Se3, B>::new();
+    let (mut sq, mut n) = (0.0, 0usize);
+    for (b, obs) in problem.boards().iter().enumerate() {
+        let mut pose = board_pose(&camera, obs.object, obs.corners).map_err(|e| match e {
+            SolveError::NotProjectable { .. } => SolveError::NotProjectable { board: b },
+            other => other,
+        })?;
+        let rms = refine_pose(&camera, obs.object, obs.corners, &mut pose, 0)?;
+        sq += rms * rms * obs.corners.len() as f64;
+        n += obs.corners.len();
+        // Capacity is the problem's, so this cannot overflow.
+        let _ = board_poses.push(pose);
+    }
+    report.pose_rms_px = if n > 0 { libm::sqrt(sq / n as f64) } else { 0.0 };
+    let lidar_to_camera = if problem.has_holes() {
+        let pairs = problem.boards().iter().zip(board_poses.iter()).flat_map(|(obs, pose)| {
+            obs.holes_lidar
+                .iter()
+                .zip(obs.holes_board)
+                .map(move |(l, h)| (*l, pose.rotation * h + pose.translation))
+        });
+        kabsch_from_pairs(pairs)?
+    } else {
+        Se3::identity()
+    };
+    Ok((JointParams { camera, lidar_to_camera, board_poses }, report))
+}
+
+/// Zhang over the pixel homographies of every board with at least 4 corners.
+fn zhang_for<const B: usize>(
+    problem: &JointProblem<'_, B>,
+    width: u32,
+    height: u32,
+) -> Result<ZhangIntrinsics, SolveError> {
+    let mut hs = heapless::Vec::<Mat3, B>::new();
+    for obs in problem.boards() {
+        let pairs = obs.object.iter().map(|o| o.xy()).zip(obs.corners.iter().copied());
+        if let Ok(h) = homography_from_pairs(pairs) {
+            let _ = hs.push(h);
+        }
+    }
+    zhang_intrinsics(&hs, width, height)
 }
 
 /// `(R, t) ← (exp(δω) R, t + δt)`: the solver's left perturbation.

@@ -39,8 +39,10 @@ impl Default for LmOptions {
     fn default() -> Self {
         LmOptions {
             max_iterations: 100,
-            cost_tolerance: 1e-10,
-            step_tolerance: 1e-10,
+            // Ceres' defaults: below 1e-6 the cost change is far inside the noise, and a
+            // robust loss switching blocks between its regimes can crawl for a long time.
+            cost_tolerance: 1e-6,
+            step_tolerance: 1e-8,
             gradient_tolerance: 1e-10,
             initial_lambda: 1e-4,
             mask: ParamMask::free(),

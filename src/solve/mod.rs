@@ -27,8 +27,8 @@ use crate::geometry::{Camera, Vec2, Vec3};
 
 pub use covariance::{covariance, SharedCovariance, Uncertainty};
 pub use init::{
-    board_pose, homography, kabsch, pose_from_homography, refine_pose, zhang_intrinsics,
-    ZhangIntrinsics,
+    board_pose, homography, initialise, kabsch, pose_from_homography, refine_pose,
+    zhang_intrinsics, InitReport, IntrinsicsSeed, ZhangIntrinsics,
 };
 pub use lm::{solve, LmOptions, SolveReport, Termination};
 pub use problem::{BoardObservation, JointParams, JointProblem, Loss, ParamMask};
