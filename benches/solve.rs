@@ -95,10 +95,16 @@ fn main() {
     let residuals = p.residual_count();
     println!("6-board room, {residuals} scalar residuals, {} iterations", report.iterations);
     println!("  full solve            {:>10.3?}", solve);
-    println!("  accumulate JᵀJ        {:>10.3?} ({:.1} ns per residual block)", build,
-        build.as_nanos() as f64 / (residuals / 2) as f64);
-    println!("  Schur step            {:>10.3?} (step / accumulate = {:.2})", step,
-        step.as_secs_f64() / build.as_secs_f64());
+    println!(
+        "  accumulate JᵀJ        {:>10.3?} ({:.1} ns per residual block)",
+        build,
+        build.as_nanos() as f64 / (residuals / 2) as f64
+    );
+    println!(
+        "  Schur step            {:>10.3?} (step / accumulate = {:.2})",
+        step,
+        step.as_secs_f64() / build.as_secs_f64()
+    );
     println!("  covariance            {:>10.3?}", cov);
     println!("  solve / iteration     {:>10.3?}", solve / report.iterations as u32);
     println!(
@@ -114,7 +120,10 @@ fn main() {
             let ne = NormalEquations::build(&p, &q).unwrap();
             black_box(ne.step(1e-3, ParamMask::free()).unwrap());
         });
-        println!("  {n:>2} boards: accumulate + step {:>10.3?} ({:.2}× the 6-board accumulation)",
-            t, t.as_secs_f64() / base);
+        println!(
+            "  {n:>2} boards: accumulate + step {:>10.3?} ({:.2}× the 6-board accumulation)",
+            t,
+            t.as_secs_f64() / base
+        );
     }
 }
