@@ -52,6 +52,7 @@ fn problem(s: &Scene<Camera>) -> JointProblem<'_, B> {
             corners,
             holes_board: &s.holes,
             holes_lidar: lidar,
+            hole_sigma_px: None,
         };
         p.add_board(obs).unwrap();
     }

@@ -61,6 +61,7 @@ fn joint_solve_makes_no_heap_allocation() {
             corners,
             holes_board: &s.holes,
             holes_lidar: lidar,
+            hole_sigma_px: None,
         };
         p.add_board(obs).unwrap();
     }

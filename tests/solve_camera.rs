@@ -8,8 +8,8 @@ use nalgebra::SVector;
 use roomcal::geometry::{Camera, CameraModel, Vec2, Vec3};
 use roomcal::solve::lm::{apply_step, Step};
 use roomcal::solve::{
-    board_pose, covariance, initialise, BoardObservation, IntrinsicsSeed, JointParams,
-    JointProblem, LmOptions, Loss, ParamMask, Termination, SHARED,
+    board_pose, covariance, hole_sigma_px, initialise, BoardObservation, IntrinsicsSeed,
+    JointParams, JointProblem, LmOptions, Loss, ParamMask, Termination, SHARED,
 };
 use solve_common::*;
 
@@ -42,12 +42,15 @@ fn cameras() -> [Camera; 2] {
 fn problem<'a>(s: &'a Scene<Camera>) -> JointProblem<'a, B> {
     let hole_sigma = s.camera.fx * 0.01 / 3.3;
     let mut p = JointProblem::new(0.3, hole_sigma, Loss::Huber(3.0));
-    for (corners, lidar) in s.corners.iter().zip(&s.holes_lidar) {
+    for ((corners, lidar), pose) in s.corners.iter().zip(&s.holes_lidar).zip(&s.poses) {
+        // Per-board σ from the depth (1 cm LiDAR hole centres), as a caller would.
+        let sigma = hole_sigma_px(s.camera.fx, 0.01, pose.translation.z);
         let obs = BoardObservation {
             object: &s.object,
             corners,
             holes_board: &s.holes,
             holes_lidar: lidar,
+            hole_sigma_px: Some(sigma),
         };
         p.add_board(obs).unwrap();
     }

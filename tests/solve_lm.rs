@@ -33,6 +33,7 @@ fn problem<'a>(s: &'a Scene, loss: Loss, with_holes: bool) -> JointProblem<'a, B
             corners,
             holes_board: hb,
             holes_lidar: hl,
+            hole_sigma_px: None,
         })
         .unwrap();
     }

@@ -31,7 +31,7 @@ pub use init::{
     zhang_intrinsics, InitReport, IntrinsicsSeed, ZhangIntrinsics,
 };
 pub use lm::{solve, LmOptions, SolveReport, Termination};
-pub use problem::{BoardObservation, JointParams, JointProblem, Loss, ParamMask};
+pub use problem::{hole_sigma_px, BoardObservation, JointParams, JointProblem, Loss, ParamMask};
 
 /// Intrinsic parameters the solver handles: fx fy cx cy + up to 5 distortion terms.
 pub const INTRINSICS: usize = 9;

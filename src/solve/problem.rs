@@ -30,6 +30,16 @@ pub struct BoardObservation<'a> {
     pub holes_board: &'a [Vec3],
     /// The same holes measured in the LiDAR frame (m), paired with `holes_board`.
     pub holes_lidar: &'a [Vec3],
+    /// This board's hole-term σ (px), when it differs from the problem's: a LiDAR
+    /// hole-centre error of `σ_m` at depth `z` shows as about `fx · σ_m / z` pixels, so
+    /// far boards deserve a smaller σ ([`hole_sigma_px`] computes it).
+    pub hole_sigma_px: Option<f64>,
+}
+
+/// The pixel σ of a LiDAR hole centre known to `lidar_sigma_m` at `depth_m` in front of
+/// a camera of focal length `fx` (px): `fx · σ / z`.
+pub fn hole_sigma_px(fx: f64, lidar_sigma_m: f64, depth_m: f64) -> f64 {
+    fx * lidar_sigma_m / depth_m.max(1e-3)
 }
 
 /// Robust loss on the squared whitened norm `s` of a residual block; the scale is in
@@ -162,7 +172,8 @@ pub struct JointProblem<'a, const B: usize> {
     boards: heapless::Vec<BoardObservation<'a>, B>,
     /// Corner measurement σ (px).
     pub corner_sigma_px: f64,
-    /// Hole-term σ (px): the LiDAR hole centres' uncertainty seen in the image.
+    /// Hole-term σ (px): the LiDAR hole centres' uncertainty seen in the image (boards
+    /// may override it, see [`BoardObservation::hole_sigma_px`]).
     pub hole_sigma_px: f64,
     /// Robust loss applied to every whitened block.
     pub loss: Loss,
@@ -228,8 +239,9 @@ impl<'a, const B: usize> JointProblem<'a, B> {
         self.check_params(params)?;
         let cam = &params.camera;
         let ext = &params.lidar_to_camera;
-        let (ws, wh) = (1.0 / self.corner_sigma_px, 1.0 / self.hole_sigma_px);
+        let ws = 1.0 / self.corner_sigma_px;
         for (b, (obs, pose)) in self.boards.iter().zip(params.board_poses.iter()).enumerate() {
+            let wh = 1.0 / obs.hole_sigma_px.unwrap_or(self.hole_sigma_px);
             let fail = SolveError::NotProjectable { board: b };
             for (i, (x, meas)) in obs.object.iter().zip(obs.corners).enumerate() {
                 let rx = pose.rotation * x;
@@ -295,10 +307,15 @@ impl<'a, const B: usize> JointProblem<'a, B> {
 
     /// Robust cost `½ Σ ρ(|r/σ|²)`.
     pub fn cost<C: Projector>(&self, params: &JointParams<C, B>) -> Result<f64, SolveError> {
-        let (ws, wh) = (1.0 / self.corner_sigma_px, 1.0 / self.hole_sigma_px);
+        let ws = 1.0 / self.corner_sigma_px;
         let mut cost = 0.0;
-        self.for_each_error(params, |_, kind, e| {
-            let w = if matches!(kind, ResidualKind::Corner(_)) { ws } else { wh };
+        self.for_each_error(params, |b, kind, e| {
+            let w = match kind {
+                ResidualKind::Corner(_) => ws,
+                ResidualKind::Hole(_) => {
+                    1.0 / self.boards[b].hole_sigma_px.unwrap_or(self.hole_sigma_px)
+                }
+            };
             cost += 0.5 * self.loss.eval((e * w).norm_squared()).0;
         })?;
         if cost.is_finite() {
