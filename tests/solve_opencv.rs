@@ -91,14 +91,9 @@ fn matches_opencv_calibrate_camera_on_real_corners() {
         expect_rms
     );
     // OpenCV's standard deviations come from the same JᵀJ and residual variance.
-    for i in 0..4 {
-        let ratio = sigma.sigma(i) / expect_sigma[i];
-        assert!(
-            (ratio - 1.0).abs() < 0.02,
-            "σ {i}: {} vs OpenCV {}",
-            sigma.sigma(i),
-            expect_sigma[i]
-        );
+    for (i, opencv) in expect_sigma.iter().enumerate() {
+        let ratio = sigma.sigma(i) / opencv;
+        assert!((ratio - 1.0).abs() < 0.02, "σ {i}: {} vs OpenCV {opencv}", sigma.sigma(i));
     }
     // Zhang ignores distortion but must already be within a few per cent.
     assert!((z.fx / expect[0] - 1.0).abs() < 0.05 && (z.fy / expect[1] - 1.0).abs() < 0.05);
