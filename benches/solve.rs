@@ -9,10 +9,11 @@ mod solve_common;
 use std::hint::black_box;
 use std::time::{Duration, Instant};
 
+use nalgebra::{DMatrix, DVector};
 use roomcal::geometry::{Camera, CameraModel, Vec3};
 use roomcal::solve::lm::NormalEquations;
 use roomcal::solve::{
-    covariance, BoardObservation, JointParams, JointProblem, LmOptions, Loss, ParamMask,
+    covariance, BoardObservation, JointParams, JointProblem, LmOptions, Loss, ParamMask, SHARED,
 };
 use solve_common::*;
 
@@ -70,6 +71,40 @@ fn start(s: &Scene<Camera>) -> JointParams<Camera, B> {
     JointParams { camera, lidar_to_camera: ext, board_poses: s.poses.iter().copied().collect() }
 }
 
+/// The same damped step done densely: the full Jacobian (heap), `JᵀJ`, Cholesky.
+fn dense_step(
+    p: &JointProblem<'_, B>,
+    params: &JointParams<Camera, B>,
+    lambda: f64,
+) -> DVector<f64> {
+    let n = SHARED + 6 * params.board_poses.len();
+    let m = p.residual_count();
+    let mut j = DMatrix::<f64>::zeros(m, n);
+    let mut r = DVector::<f64>::zeros(m);
+    let mut row = 0;
+    p.for_each_residual(params, |res| {
+        let w = p.loss.eval(res.r.norm_squared()).1.sqrt();
+        for k in 0..2 {
+            r[row + k] = w * res.r[k];
+            for c in 0..SHARED {
+                j[(row + k, c)] = w * res.j_shared[(k, c)];
+            }
+            for c in 0..6 {
+                j[(row + k, SHARED + 6 * res.board + c)] = w * res.j_board[(k, c)];
+            }
+        }
+        row += 2;
+    })
+    .unwrap();
+    // Fisheye-style unused columns would be singular; this bench's camera uses all 9.
+    let mut a = j.transpose() * &j;
+    for i in 0..n {
+        a[(i, i)] += lambda * a[(i, i)].max(1e-9);
+    }
+    let g = j.transpose() * r;
+    a.cholesky().unwrap().solve(&(-g))
+}
+
 fn main() {
     let s = scene_with(camera(), 6, 0.3, 0.01, 1);
     let p = problem(&s);
@@ -90,6 +125,9 @@ fn main() {
     let step = median(201, || {
         black_box(ne.step(1e-3, ParamMask::free()).unwrap());
     });
+    let dense = median(51, || {
+        black_box(dense_step(&p, &p0, 1e-3));
+    });
     let cov = median(101, || {
         black_box(covariance(&p, &p0, ParamMask::free()).unwrap());
     });
@@ -105,6 +143,11 @@ fn main() {
         "  Schur step            {:>10.3?} (step / accumulate = {:.2})",
         step,
         step.as_secs_f64() / build.as_secs_f64()
+    );
+    println!(
+        "  dense J, JᵀJ, Cholesky {:>10.3?} ({:.1}× accumulate + Schur step)",
+        dense,
+        dense.as_secs_f64() / (build + step).as_secs_f64()
     );
     println!("  covariance            {:>10.3?}", cov);
     println!("  solve / iteration     {:>10.3?}", solve / report.iterations as u32);
