@@ -92,6 +92,10 @@ fn homography_is_exact_on_exact_data_and_refuses_collinear_points() {
     let line: Vec<Vec2> = (0..6).map(|i| Vec2::new(i as f64, 2.0 * i as f64)).collect();
     let img: Vec<Vec2> = (0..6).map(|i| Vec2::new(3.0 * i as f64, 1.0)).collect();
     assert!(matches!(homography(&line, &img), Err(SolveError::Degenerate(_))));
+    // Good plane points, collinear image points: the fit would be singular.
+    let grid: Vec<Vec2> = board_corners().iter().map(|p| p.xy()).collect();
+    let flat: Vec<Vec2> = (0..grid.len()).map(|i| Vec2::new(10.0 * i as f64, 5.0)).collect();
+    assert!(matches!(homography(&grid, &flat), Err(SolveError::Degenerate(_))));
     assert_eq!(
         homography(&line[..3], &img[..3]),
         Err(SolveError::TooFewPoints { needed: 4, got: 3 })

@@ -354,6 +354,29 @@ fn closed_form_start_then_lm_reaches_truth() {
     assert_eq!(q.camera, s.camera);
     assert_eq!(q.lidar_to_camera, Se3::identity());
     assert!(init.pose_rms_px < 1e-6);
+
+    // A board with too few corners cannot be posed: the error names it.
+    let mut bad = problem(&flat, Loss::Squared, false);
+    let few = BoardObservation {
+        object: &s.object[..3],
+        corners: &s.corners[0][..3],
+        ..Default::default()
+    };
+    bad.add_board(few).unwrap();
+    let err = initialise(&bad, s.camera, IntrinsicsSeed::Given).unwrap_err();
+    assert!(matches!(err, SolveError::BadBoard { board: 3, .. }), "{err}");
+    assert_eq!(err.to_string(), "board 3: too few correspondences");
+    // A wrong detection (corners shuffled along a line) stands out as the worst board.
+    let line: Vec<Vec2> =
+        (0..35).map(|i| Vec2::new(100.0 + 10.0 * i as f64, 300.0 + i as f64)).collect();
+    let mut odd = problem(&flat, Loss::Squared, false);
+    odd.add_board(BoardObservation { object: &s.object, corners: &line, ..Default::default() })
+        .unwrap();
+    if let Ok((_, init)) = initialise(&odd, s.camera, IntrinsicsSeed::Given) {
+        let (b, rms) = init.worst_board.unwrap();
+        assert_eq!(b, 3);
+        assert!(rms > 1.0, "{rms}");
+    }
 }
 
 #[test]

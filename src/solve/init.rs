@@ -66,6 +66,11 @@ where
         return Err(SolveError::Degenerate("homography: points collinear or repeated"));
     }
     let hn = Mat3::new(h[0], h[1], h[2], h[3], h[4], h[5], h[6], h[7], h[8]);
+    // A homography is invertible; a singular fit maps the plane onto a line (the image
+    // points are collinear), which the null-space test above cannot see.
+    if hn.determinant().abs() <= 1e-9 {
+        return Err(SolveError::Degenerate("homography: image points collinear"));
+    }
     let inv_image = t_image.try_inverse().ok_or(SolveError::NonFinite)?;
     let hm = inv_image * hn * t_plane;
     let s = if hm[(2, 2)].abs() > 1e-12 * hm.norm() { hm[(2, 2)] } else { hm.norm() };
@@ -330,19 +335,25 @@ pub struct InitReport {
     pub zhang_error: Option<SolveError>,
     /// RMS pixel error of the corners after the per-board pose refinement.
     pub pose_rms_px: f64,
+    /// The board with the largest RMS after its pose refinement, and that RMS: a board
+    /// far above the others is likely a wrong detection.
+    pub worst_board: Option<(usize, f64)>,
 }
 
 /// The whole closed-form start for a [`JointProblem`]: intrinsics (see
 /// [`IntrinsicsSeed`]), every board pose from its pixels ([`board_pose`]), and the
 /// LiDAR→camera extrinsic by Kabsch over all holes (board holes carried into the camera
 /// by their board's pose, against the LiDAR's). Without holes the extrinsic is the
-/// identity (and the solver leaves it alone).
+/// identity (and the solver leaves it alone). A board whose pose cannot be found fails
+/// the call with [`SolveError::BadBoard`] (or `NotProjectable`) naming it, so the caller
+/// can drop it and retry.
 pub fn initialise<C: Projector, const B: usize>(
     problem: &JointProblem<'_, B>,
     mut camera: C,
     seed: IntrinsicsSeed,
 ) -> Result<(JointParams<C, B>, InitReport), SolveError> {
-    let mut report = InitReport { zhang: None, zhang_error: None, pose_rms_px: 0.0 };
+    let mut report =
+        InitReport { zhang: None, zhang_error: None, pose_rms_px: 0.0, worst_board: None };
     if let IntrinsicsSeed::Zhang { width, height } = seed {
         match zhang_for(problem, width, height) {
             Ok(z) => {
@@ -357,11 +368,15 @@ pub fn initialise<C: Projector, const B: usize>(
     let mut board_poses = heapless::Vec::<Se3, B>::new();
     let (mut sq, mut n) = (0.0, 0usize);
     for (b, obs) in problem.boards().iter().enumerate() {
-        let mut pose = board_pose(&camera, obs.object, obs.corners).map_err(|e| match e {
+        let in_board = |e: SolveError| match e {
             SolveError::NotProjectable { .. } => SolveError::NotProjectable { board: b },
-            other => other,
-        })?;
-        let rms = refine_pose(&camera, obs.object, obs.corners, &mut pose, 0)?;
+            other => SolveError::BadBoard { board: b, what: other.what() },
+        };
+        let mut pose = board_pose(&camera, obs.object, obs.corners).map_err(in_board)?;
+        let rms = refine_pose(&camera, obs.object, obs.corners, &mut pose, 0).map_err(in_board)?;
+        if report.worst_board.map_or(true, |(_, worst)| rms > worst) {
+            report.worst_board = Some((b, rms));
+        }
         sq += rms * rms * obs.corners.len() as f64;
         n += obs.corners.len();
         // Capacity is the problem's, so this cannot overflow.

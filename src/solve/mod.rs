@@ -143,6 +143,24 @@ pub enum SolveError {
     TooManyBoards { capacity: usize },
     /// A number became NaN or infinite.
     NonFinite,
+    /// Board observation `board` could not be used (its pose could not be found).
+    BadBoard { board: usize, what: &'static str },
+}
+
+impl SolveError {
+    /// A short description without numbers (for [`SolveError::BadBoard`]).
+    pub fn what(&self) -> &'static str {
+        match self {
+            SolveError::TooFewPoints { .. } => "too few correspondences",
+            SolveError::LengthMismatch { .. } => "paired inputs differ in length",
+            SolveError::Degenerate(what) => what,
+            SolveError::NotPositiveDefinite { .. } => "normal matrix not positive definite",
+            SolveError::NotProjectable { .. } => "a point does not project into the camera",
+            SolveError::TooManyBoards { .. } => "more boards than the solver's capacity",
+            SolveError::NonFinite => "a value became NaN or infinite",
+            SolveError::BadBoard { what, .. } => what,
+        }
+    }
 }
 
 impl fmt::Display for SolveError {
@@ -165,6 +183,7 @@ impl fmt::Display for SolveError {
                 write!(f, "more boards than the solver's capacity of {capacity}")
             }
             SolveError::NonFinite => write!(f, "a value became NaN or infinite"),
+            SolveError::BadBoard { board, what } => write!(f, "board {board}: {what}"),
         }
     }
 }
