@@ -32,7 +32,7 @@ pub fn lay_out(
         let pose = (0..ATTEMPTS)
             .find_map(|attempt| {
                 let shrink = attempt as f64 / ATTEMPTS as f64;
-                let candidate = propose(spec, camera, (cols, rows), (cell_col, cell_row), i, shrink, rng)?;
+                let candidate = propose(camera, (cols, rows), (cell_col, cell_row), i, shrink, rng)?;
                 let bbox = image_box(spec, camera, &candidate)?;
                 let clear = placed.iter().all(|(_, other)| !boxes_overlap(&bbox, other));
                 (clear && floor_ok(&candidate)).then_some((candidate, bbox))
@@ -69,7 +69,6 @@ fn pick_cells(cols: usize, rows: usize, count: usize) -> Vec<(usize, usize)> {
 /// `shrink` (0→1 over the attempts) draws the aim towards the cell centre and the board
 /// farther away, so that crowded layouts still fit.
 fn propose(
-    spec: &BoardSpec,
     camera: &Camera,
     (cols, rows): (usize, usize),
     (col, row): (usize, usize),

@@ -112,6 +112,9 @@ pub struct BoardTruth {
     /// LiDAR returns on the board.
     #[serde(default)]
     pub lidar_points: usize,
+    /// Inner corners hidden from the camera by something in front (0 for a clear view).
+    #[serde(default)]
+    pub occluded_corners: usize,
     /// Per hole: how many scan lines (rings) passed through it.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub hole_scan_lines: Vec<usize>,
@@ -163,7 +166,10 @@ pub fn simulate(room: &Room, options: &SimOptions) -> Result<Scene, SimError> {
         .zip(&in_lidar)
         .enumerate()
         .map(|(i, (to_camera, to_lidar))| {
-            board_truth(&room, &camera, to_camera, to_lidar, sweep_truth.as_ref().map(|t| (t, i)))
+            let mut truth =
+                board_truth(&room, &camera, to_camera, to_lidar, sweep_truth.as_ref().map(|t| (t, i)));
+            truth.occluded_corners = occluded_corners(&world, i, &camera_in_lidar);
+            truth
         })
         .collect();
     let truth = Truth {
@@ -275,6 +281,22 @@ fn stands_clear_of_floor(room: &Room, camera_in_lidar: &Se3, board_to_camera: &S
     })
 }
 
+/// How many of board `index`'s inner corners something else hides from the camera.
+fn occluded_corners(world: &World, index: usize, camera_in_lidar: &Se3) -> usize {
+    let spec = &world.board;
+    let origin = camera_in_lidar.translation;
+    (0..spec.corner_count())
+        .filter(|&c| {
+            let corner = world.boards[index].act(&spec.corner(c));
+            let (dir, distance) = ((corner - origin).normalize(), (corner - origin).norm());
+            !world.cast(&origin, &dir).is_some_and(|hit| {
+                matches!(hit.surface, world::Surface::Board { index: i, .. } if i == index)
+                    && (hit.distance - distance).abs() < 1e-6
+            })
+        })
+        .count()
+}
+
 fn board_truth(
     room: &Room,
     camera: &Camera,
@@ -296,6 +318,7 @@ fn board_truth(
             Some(_) => holes().map(|h| to_lidar.act(&h).into()).collect(),
             None => Vec::new(),
         },
+        occluded_corners: 0,
         lidar_points: sweep.map_or(0, |(t, i)| t.board_points[i]),
         hole_scan_lines: sweep.map_or(Vec::new(), |(t, i)| t.hole_rings[i].clone()),
     }
