@@ -452,6 +452,16 @@ fn bad_inputs_are_reported() {
         p.solve(&mut params, &LmOptions::default()).unwrap_err(),
         SolveError::NotProjectable { board: 1 }
     );
+    let mut zero_sigma = problem(&s, Loss::Huber(0.0), true);
+    let mut params = truth_params(&s);
+    let err = zero_sigma.solve(&mut params, &LmOptions::default()).unwrap_err();
+    assert_eq!(err, SolveError::BadSetting("robust loss scale must be positive"));
+    zero_sigma.loss = Loss::Squared;
+    zero_sigma.corner_sigma_px = 0.0;
+    assert!(matches!(
+        zero_sigma.solve(&mut params, &LmOptions::default()),
+        Err(SolveError::BadSetting(_))
+    ));
     let mut small: JointProblem<'_, 1> = JointProblem::new(1.0, 1.0, Loss::Squared);
     let obs = BoardObservation { object: &s.object, corners: &s.corners[0], ..Default::default() };
     small.add_board(obs).unwrap();

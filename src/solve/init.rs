@@ -8,7 +8,7 @@ use nalgebra::{SMatrix, SVector, SymmetricEigen};
 use super::linalg::{nearest_rotation, Cholesky};
 use super::problem::{JointParams, JointProblem};
 use super::{Projector, SolveError};
-use crate::geometry::se3::{skew, so3_exp};
+use crate::geometry::se3::skew;
 use crate::geometry::{Mat3, Se3, Vec2, Vec3};
 
 /// Intrinsics from Zhang's closed form, with how well the homographies determined them.
@@ -415,9 +415,7 @@ fn zhang_for<const B: usize>(
 
 /// `(R, t) ← (exp(δω) R, t + δt)`: the solver's left perturbation.
 pub(crate) fn perturb(pose: &Se3, delta: &SVector<f64, 6>) -> Se3 {
-    let dw = Vec3::new(delta[0], delta[1], delta[2]);
-    let dt = Vec3::new(delta[3], delta[4], delta[5]);
-    Se3 { rotation: so3_exp(&dw) * pose.rotation, translation: pose.translation + dt }
+    pose.perturb_left(delta)
 }
 
 /// `∂(R p + t)/∂[δω; δt]` for the left perturbation: `[−[R p]×  I]`.

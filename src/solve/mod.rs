@@ -145,6 +145,8 @@ pub enum SolveError {
     NonFinite,
     /// Board observation `board` could not be used (its pose could not be found).
     BadBoard { board: usize, what: &'static str },
+    /// A setting (σ, loss scale, tolerance) is not a positive finite number.
+    BadSetting(&'static str),
 }
 
 impl SolveError {
@@ -159,6 +161,7 @@ impl SolveError {
             SolveError::TooManyBoards { .. } => "more boards than the solver's capacity",
             SolveError::NonFinite => "a value became NaN or infinite",
             SolveError::BadBoard { what, .. } => what,
+            SolveError::BadSetting(what) => what,
         }
     }
 }
@@ -184,6 +187,7 @@ impl fmt::Display for SolveError {
             }
             SolveError::NonFinite => write!(f, "a value became NaN or infinite"),
             SolveError::BadBoard { board, what } => write!(f, "board {board}: {what}"),
+            SolveError::BadSetting(what) => write!(f, "bad solver setting: {what}"),
         }
     }
 }

@@ -218,8 +218,22 @@ impl<'a, const B: usize> JointProblem<'a, B> {
         self.boards.iter().map(|b| 2 * (b.corners.len() + b.holes_lidar.len())).sum()
     }
 
-    /// Checks that `params` has one pose per board.
+    /// Checks the settings (positive finite σ and loss scale) and that `params` has one
+    /// pose per board.
     pub fn check_params<C>(&self, params: &JointParams<C, B>) -> Result<(), SolveError> {
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        if !positive(self.corner_sigma_px) {
+            return Err(SolveError::BadSetting("corner σ must be positive"));
+        }
+        let board_sigmas = self.boards.iter().filter_map(|b| b.hole_sigma_px);
+        if !positive(self.hole_sigma_px) || !board_sigmas.clone().all(positive) {
+            return Err(SolveError::BadSetting("hole σ must be positive"));
+        }
+        if let Loss::Huber(c) | Loss::Cauchy(c) = self.loss {
+            if !positive(c) {
+                return Err(SolveError::BadSetting("robust loss scale must be positive"));
+            }
+        }
         if params.board_poses.len() != self.boards.len() {
             return Err(SolveError::LengthMismatch {
                 left: self.boards.len(),
