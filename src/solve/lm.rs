@@ -12,7 +12,7 @@ use nalgebra::{SMatrix, SVector};
 
 use super::init::perturb;
 use super::linalg::Cholesky;
-use super::problem::{JointParams, JointProblem, ParamMask};
+use super::problem::{JointParams, JointProblem, ParamMask, ResidualKind};
 use super::{Projector, SolveError, EXT_ROTATION, EXT_TRANSLATION, INTRINSICS, SHARED};
 
 /// Smallest diagonal used for Marquardt scaling, so unconstrained directions still damp.
@@ -136,10 +136,23 @@ impl<const B: usize> NormalEquations<B> {
             ne.residuals += 2;
             let b = res.board;
             ne.u[b].gemm_tr(weight, &res.j_board, &res.j_board, 1.0);
-            ne.w[b].gemm_tr(weight, &res.j_shared, &res.j_board, 1.0);
             ne.g_board[b].gemv_tr(weight, &res.j_board, &res.r, 1.0);
-            ne.v.gemm_tr(weight, &res.j_shared, &res.j_shared, 1.0);
-            ne.g_shared.gemv_tr(weight, &res.j_shared, &res.r, 1.0);
+            if matches!(res.kind, ResidualKind::Corner(_)) {
+                // Corners do not see the extrinsic: touch only the intrinsic rows.
+                let jk = res.j_shared.fixed_view::<2, INTRINSICS>(0, 0);
+                ne.w[b].fixed_view_mut::<INTRINSICS, 6>(0, 0).gemm_tr(
+                    weight,
+                    &jk,
+                    &res.j_board,
+                    1.0,
+                );
+                ne.v.fixed_view_mut::<INTRINSICS, INTRINSICS>(0, 0).gemm_tr(weight, &jk, &jk, 1.0);
+                ne.g_shared.fixed_rows_mut::<INTRINSICS>(0).gemv_tr(weight, &jk, &res.r, 1.0);
+            } else {
+                ne.w[b].gemm_tr(weight, &res.j_shared, &res.j_board, 1.0);
+                ne.v.gemm_tr(weight, &res.j_shared, &res.j_shared, 1.0);
+                ne.g_shared.gemv_tr(weight, &res.j_shared, &res.r, 1.0);
+            }
         })?;
         if ne.cost.is_finite() {
             Ok(ne)
