@@ -220,3 +220,48 @@ fn zhang_with_noise_is_close_enough_to_start_lm() {
     assert!((z.fx / t[0] - 1.0).abs() < 0.08 && (z.fy / t[1] - 1.0).abs() < 0.08, "{z:?}");
     assert!((z.cx - t[2]).abs() < 60.0 && (z.cy - t[3]).abs() < 80.0, "{z:?}");
 }
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+
+    /// Any rigid motion is recovered exactly from ≥ 3 random non-collinear points.
+    #[test]
+    fn kabsch_recovers_random_motions(
+        w in proptest::array::uniform3(-3.0f64..3.0),
+        t in proptest::array::uniform3(-5.0f64..5.0),
+        seed in 1u64..u64::MAX,
+        n in 3usize..30,
+    ) {
+        let truth = Se3 { rotation: rot(&Vec3::from(w)), translation: Vec3::from(t) };
+        let mut rng = Rng(seed);
+        let from: Vec<Vec3> = (0..n).map(|_| rng.vec3(1.0)).collect();
+        let to: Vec<Vec3> = from.iter().map(|p| truth.rotation * p + truth.translation).collect();
+        match kabsch(&from, &to) {
+            Ok(got) => {
+                proptest::prop_assert!((got.rotation - truth.rotation).norm() < 1e-8);
+                proptest::prop_assert!((got.translation - truth.translation).norm() < 1e-8);
+            }
+            // Only nearly collinear random draws may be refused.
+            Err(e) => proptest::prop_assert!(matches!(e, SolveError::Degenerate(_)) && n == 3),
+        }
+    }
+
+    /// A board seen from random poses in front of the camera: the homography maps every
+    /// plane point onto its pixel.
+    #[test]
+    fn homography_maps_random_views(
+        w in proptest::array::uniform3(-0.8f64..0.8),
+        x in -1.0f64..1.0,
+        y in -1.0f64..1.0,
+        z in 2.0f64..8.0,
+    ) {
+        let cam = pinhole(&truth_camera());
+        let pose = Se3 { rotation: rot(&Vec3::from(w)), translation: Vec3::new(x, y, z) };
+        let (plane, px) = &exact_views(&cam, &[pose])[0];
+        let h = homography(plane, px).unwrap();
+        for (p, u) in plane.iter().zip(px) {
+            let m = h * p.push(1.0);
+            proptest::prop_assert!((m.xy() / m.z - u).norm() < 1e-6);
+        }
+    }
+}
