@@ -128,15 +128,3 @@ pub fn max_eigenvalue3(m: &Mat3) -> f64 {
     let e = nalgebra::SymmetricEigen::new(*m);
     e.eigenvalues.iter().copied().fold(f64::NEG_INFINITY, f64::max)
 }
-
-/// Adds `w · aᵀ b` to `acc` (`a`: R×N, `b`: R×M) without forming a temporary product
-/// type per call site; the building block of normal-equation accumulation.
-#[inline]
-pub fn add_at_b<const R: usize, const N: usize, const M: usize>(
-    acc: &mut SMatrix<f64, N, M>,
-    a: &SMatrix<f64, R, N>,
-    b: &SMatrix<f64, R, M>,
-    w: f64,
-) {
-    acc.gemm_tr(w, a, b, 1.0);
-}
