@@ -31,6 +31,7 @@
 pub mod geometry;
 pub mod lidar;
 pub mod service;
+pub mod solve;
 pub mod target;
 
 #[cfg(feature = "std")]
