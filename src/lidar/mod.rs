@@ -1,5 +1,12 @@
 //! LiDAR input: no_std packet views and decoders per vendor, sweep assembly, and (std)
 //! pcap/pcapng and PCD readers and writers.
+//!
+//! Decoding: [`Calibration::nominal`] (or `calibration::load` for a unit's Hesai CSV /
+//! Velodyne YAML) and [`decode_packet`] per UDP payload, or [`SweepAssembler`] for whole
+//! turns, or (std) [`decode_payloads`] for a capture. Units of `Point::time`: seconds past
+//! the top of the hour on the sensor clock for Velodyne, Unix seconds for Hesai, each plus
+//! the firing offset within the packet. `Point::ring` is the vendor's laser number;
+//! `Calibration::rings` maps it to the bottom-up ring index.
 
 /// One LiDAR return in the sensor frame (x forward, y left, z up), metres.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
