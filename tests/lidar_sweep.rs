@@ -126,7 +126,7 @@ fn malformed_payloads_are_counted_and_dropped() {
         bad_azimuth[az_at..az_at + 2].copy_from_slice(&36500u16.to_le_bytes());
         insert(bad_azimuth, 2368);
         insert(vec![0u8; 512], 8308); // Velodyne position port
-        insert(vec![0u8; 512], 10110); // Hesai GPS port
+        insert(vec![0u8; 64], 10110); // Hesai GPS port
         insert(good.clone(), 9999); // unknown port
                                     // A valid packet of another model of the same vendor on the data port: the same length
                                     // (VLP-16) is recognised as another model, another length (Pandar40P) is oversized.

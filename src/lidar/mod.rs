@@ -37,7 +37,7 @@ pub use sweep::{Sweep, SweepAssembler, SweepConfig, SweepStats};
 
 /// Decodes every return of every data payload (zero-range returns and identical dual echoes
 /// dropped), in order; payloads that are not valid data packets of the calibration's model
-/// (position packets, truncated, corrupted...) are skipped and counted in the stats.
+/// (512-byte position packets, truncated, corrupted...) are skipped and counted in the stats.
 #[cfg(feature = "std")]
 pub fn decode_payloads<'a, I>(
     calibration: &Calibration,
@@ -53,6 +53,9 @@ where
             Ok(s) => {
                 stats.packets += 1;
                 stats.points += s.returns as u64;
+            }
+            Err(_) if velodyne::PositionPacket::new_checked(payload).is_ok() => {
+                stats.position += 1;
             }
             Err(e) => stats.count_error(e),
         }
