@@ -511,10 +511,13 @@ pub fn decode(
     for group in (0..l.blocks).step_by(n) {
         let az = p.azimuth(group);
         let az_rad = f32::from(az) * (PI / 18000.0);
+        // One sine and cosine per block; each channel's offset is added by the angle-sum rule.
+        let (sin_block, cos_block) = (libm::sinf(az_rad), libm::cosf(az_rad));
         for c in 0..l.lasers {
             let corr = &cal.lasers[c];
-            let angle = az_rad + corr.azimuth_offset;
-            let (sin_az, cos_az) = (libm::sinf(angle), libm::cosf(angle));
+            let (so, co) = (corr.sin_azimuth_offset, corr.cos_azimuth_offset);
+            let (sin_az, cos_az) =
+                (sin_block * co + cos_block * so, cos_block * co - sin_block * so);
             for k in 0..n {
                 let b = group + k;
                 let raw = p.distance(b, c);
