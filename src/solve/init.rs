@@ -374,7 +374,7 @@ pub fn initialise<C: Projector, const B: usize>(
         };
         let mut pose = board_pose(&camera, obs.object, obs.corners).map_err(in_board)?;
         let rms = refine_pose(&camera, obs.object, obs.corners, &mut pose, 0).map_err(in_board)?;
-        if report.worst_board.map_or(true, |(_, worst)| rms > worst) {
+        if report.worst_board.is_none_or(|(_, worst)| rms > worst) {
             report.worst_board = Some((b, rms));
         }
         sq += rms * rms * obs.corners.len() as f64;
