@@ -26,6 +26,52 @@ struct Cli {
 enum Command {
     /// Render a synthetic calibration room with ground truth (image.png, cloud.pcd, truth.json).
     Simulate(SimulateArgs),
+    /// Decode a LiDAR packet capture (pcap/pcapng) into a PCD cloud (x y z intensity ring).
+    Decode(DecodeArgs),
+    /// Ask the daemon over CAN (UDS on ISO-TP): status, results, start a run, roll back.
+    Query(QueryArgs),
+}
+
+#[derive(Args)]
+struct DecodeArgs {
+    /// LiDAR model: pandar64, pandar40p, vlp16, vlp32c, hdl32e.
+    #[arg(long)]
+    lidar: String,
+    /// The unit's angle corrections (Hesai CSV or Velodyne YAML); default: nominal table.
+    #[arg(long)]
+    calibration: Option<PathBuf>,
+    /// The capture.
+    capture: PathBuf,
+    /// Output PCD (binary).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(Args)]
+struct QueryArgs {
+    /// `socketcand:HOST:PORT[/CHANNEL]` or `socketcan:IFACE`.
+    #[arg(long)]
+    endpoint: String,
+    /// status, intrinsics, extrinsic, quality, start or rollback.
+    #[arg(default_value = "status")]
+    command: String,
+    /// The vehicle secret (needed for start and rollback).
+    #[arg(long)]
+    secret_file: Option<PathBuf>,
+    /// CAN ID of requests (hex with 0x, or decimal).
+    #[arg(long, default_value = "0x7A0", value_parser = parse_can_id)]
+    request_id: u32,
+    /// CAN ID of responses.
+    #[arg(long, default_value = "0x7A8", value_parser = parse_can_id)]
+    response_id: u32,
+}
+
+fn parse_can_id(text: &str) -> Result<u32, String> {
+    let parsed = match text.strip_prefix("0x").or_else(|| text.strip_prefix("0X")) {
+        Some(hex) => u32::from_str_radix(hex, 16),
+        None => text.parse(),
+    };
+    parsed.ok().filter(|&id| id < (1 << 29)).ok_or_else(|| format!("`{text}` is not a CAN ID"))
 }
 
 #[derive(Args)]
@@ -98,6 +144,8 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let outcome = match cli.command {
         Command::Simulate(args) => simulate(args),
+        Command::Decode(args) => decode(args),
+        Command::Query(args) => query(args),
     };
     match outcome {
         Ok(()) => ExitCode::SUCCESS,
@@ -154,5 +202,47 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
         scene.cloud.as_ref().map_or(String::new(), |c| format!(", {} LiDAR points", c.len())),
         args.out.display()
     );
+    Ok(())
+}
+
+fn decode(args: DecodeArgs) -> Result<(), Failure> {
+    let model = roomcal::lidar::Model::from_name(&args.lidar).ok_or_else(|| {
+        bad_input(anyhow::anyhow!(
+            "--lidar {}: unknown model (pandar64, pandar40p, vlp16, vlp32c, hdl32e)",
+            args.lidar
+        ))
+    })?;
+    let (points, stats, capture) =
+        roomcal::lidar::decode_capture(model, args.calibration.as_deref(), &args.capture)
+            .map_err(bad_input)?;
+    roomcal::lidar::pcd::write(&args.out, &points, roomcal::lidar::pcd::PcdFormat::Binary)
+        .map_err(bad_input)?;
+    println!(
+        "{}: {} points from {} packets ({} position, {} dropped; {} UDP datagrams, {} other records) -> {}",
+        args.capture.display(),
+        points.len(),
+        stats.packets,
+        stats.position,
+        stats.unknown + stats.truncated + stats.oversized + stats.corrupted,
+        capture.udp,
+        capture.records.saturating_sub(capture.udp),
+        args.out.display()
+    );
+    Ok(())
+}
+
+fn query(args: QueryArgs) -> Result<(), Failure> {
+    use roomcal::service::client::{query_blocking, QueryCommand, QueryOptions};
+    let command: QueryCommand = args.command.parse().map_err(bad_input)?;
+    let options = QueryOptions {
+        request_id: args.request_id,
+        response_id: args.response_id,
+        secret_file: args.secret_file,
+        ..QueryOptions::new(&args.endpoint)
+    };
+    let answer = query_blocking(&options, command)
+        .with_context(|| format!("query {} over {}", args.command, args.endpoint))
+        .map_err(|error| Failure { code: 1, error })?;
+    println!("{answer}");
     Ok(())
 }

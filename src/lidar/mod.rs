@@ -67,3 +67,66 @@ where
     }
     (points, stats)
 }
+
+/// Why a capture or cloud file could not be turned into points.
+#[cfg(feature = "std")]
+#[derive(Debug, thiserror::Error)]
+pub enum CloudFileError {
+    #[error(transparent)]
+    Calibration(#[from] calibration::CalibrationFileError),
+    #[error(transparent)]
+    Capture(#[from] pcap::PcapError),
+    #[error(transparent)]
+    Pcd(#[from] pcd::PcdError),
+    #[error("{path}: no {model:?} data packets in the capture ({packets} UDP datagrams, {rejected} not valid for this model)")]
+    NoData { path: std::path::PathBuf, model: Model, packets: usize, rejected: u64 },
+    #[error("{path}: a capture needs the LiDAR model (the room's `lidar.model` is \"pcd\")")]
+    NoModel { path: std::path::PathBuf },
+}
+
+/// Every return of every data packet in a pcap/pcapng capture, decoded with the unit's
+/// calibration file if given (Hesai CSV / Velodyne YAML), else the model's nominal table.
+#[cfg(feature = "std")]
+pub fn decode_capture(
+    model: Model,
+    calibration_file: Option<&std::path::Path>,
+    capture: &std::path::Path,
+) -> Result<(Vec<Point>, SweepStats, pcap::PcapStats), CloudFileError> {
+    let calibration = match calibration_file {
+        Some(path) => calibration::load(model, path)?,
+        None => Calibration::nominal(model),
+    };
+    let (datagrams, capture_stats) = pcap::read_udp(capture)?;
+    let (points, stats) =
+        decode_payloads(&calibration, datagrams.iter().map(|d| d.payload.as_slice()));
+    if stats.packets == 0 {
+        return Err(CloudFileError::NoData {
+            path: capture.to_owned(),
+            model,
+            packets: datagrams.len(),
+            rejected: stats.unknown + stats.truncated + stats.oversized + stats.corrupted,
+        });
+    }
+    Ok((points, stats, capture_stats))
+}
+
+/// The points of a cloud file: PCD as it is, or a pcap/pcapng capture decoded as `model`
+/// (told apart by their first bytes, not their names).
+#[cfg(feature = "std")]
+pub fn read_cloud(
+    path: &std::path::Path,
+    model: Option<Model>,
+) -> Result<Vec<Point>, CloudFileError> {
+    let is_capture = std::fs::File::open(path)
+        .and_then(|mut f| {
+            let mut magic = [0u8; 4];
+            std::io::Read::read_exact(&mut f, &mut magic)?;
+            Ok(pcap::is_capture_magic(&magic))
+        })
+        .unwrap_or(false);
+    if !is_capture {
+        return Ok(pcd::read(path)?);
+    }
+    let model = model.ok_or_else(|| CloudFileError::NoModel { path: path.to_owned() })?;
+    Ok(decode_capture(model, None, path)?.0)
+}

@@ -113,6 +113,13 @@ impl Capture {
     }
 }
 
+/// Whether a file's first four bytes are a pcap or pcapng magic number.
+pub fn is_capture_magic(first: &[u8; 4]) -> bool {
+    let magic = u32::from_le_bytes(*first);
+    let known = [PCAP_MAGIC_US, PCAP_MAGIC_NS];
+    magic == ng::SHB_TYPE || known.contains(&magic) || known.contains(&magic.swap_bytes())
+}
+
 /// The UDP datagrams of capture contents `bytes`; `name` is used in errors. Fails only if
 /// the file header is missing or wrong.
 pub fn datagrams<'a>(bytes: &'a [u8], name: &'a str) -> Result<Datagrams<'a>, PcapError> {
