@@ -267,9 +267,14 @@ fn true_camera(room: &Room, options: &SimOptions) -> Result<Camera, SimError> {
 }
 
 /// The true LiDAR → camera motion: the room's nominal mounting, off by a little, as a
-/// real vehicle's is (identity without a LiDAR).
+/// real vehicle's is. Without a LiDAR the room's frame is still a level one (x forward,
+/// z up) and the camera looks straight ahead along its x axis.
 fn true_extrinsic(room: &Room, rng: &mut Rng) -> Se3 {
-    let Some(lidar) = &room.lidar else { return Se3::identity() };
+    let Some(lidar) = &room.lidar else {
+        let looking_forward =
+            crate::geometry::Mat3::new(0.0, -1.0, 0.0, 0.0, 0.0, -1.0, 1.0, 0.0, 0.0);
+        return Se3 { rotation: looking_forward, translation: Vec3::zeros() };
+    };
     let (deg, m) = MOUNTING_ERROR;
     let error = Vec3::new(rng.range(-deg, deg), rng.range(-deg, deg), rng.range(-deg, deg))
         .map(f64::to_radians);
