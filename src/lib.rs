@@ -33,6 +33,8 @@ pub mod lidar;
 pub mod target;
 
 #[cfg(feature = "std")]
+pub mod detect;
+#[cfg(feature = "std")]
 pub mod result;
 #[cfg(feature = "std")]
 pub mod room;
