@@ -121,3 +121,29 @@ impl CameraResult {
         }
     }
 }
+
+impl Extrinsic {
+    /// The record of a rigid motion.
+    pub fn from_se3(motion: &crate::geometry::Se3) -> Self {
+        let r = &motion.rotation;
+        Extrinsic {
+            rotation: [
+                [r[(0, 0)], r[(0, 1)], r[(0, 2)]],
+                [r[(1, 0)], r[(1, 1)], r[(1, 2)]],
+                [r[(2, 0)], r[(2, 1)], r[(2, 2)]],
+            ],
+            translation: motion.translation.into(),
+        }
+    }
+
+    /// The rigid motion this record describes.
+    pub fn to_se3(&self) -> crate::geometry::Se3 {
+        let r = &self.rotation;
+        crate::geometry::Se3 {
+            rotation: crate::geometry::Mat3::new(
+                r[0][0], r[0][1], r[0][2], r[1][0], r[1][1], r[1][2], r[2][0], r[2][1], r[2][2],
+            ),
+            translation: self.translation.into(),
+        }
+    }
+}

@@ -14,3 +14,46 @@ pub struct Point {
     /// Time of the return, seconds (packet timestamp plus the firing offset).
     pub time: f64,
 }
+
+pub mod calibration;
+pub mod decoder;
+pub mod hesai;
+pub mod lzf;
+#[cfg(feature = "std")]
+pub mod pcap;
+#[cfg(feature = "std")]
+pub mod pcd;
+pub mod sweep;
+pub mod velodyne;
+
+pub use calibration::Calibration;
+pub use decoder::{
+    decode_into, decode_packet, encode_sweep, DecodeError, Model, PacketSummary, Return,
+    ReturnMode, SimReturn,
+};
+pub use sweep::{Sweep, SweepAssembler, SweepConfig, SweepStats};
+
+/// Decodes every return of every data payload (zero-range returns and identical dual echoes
+/// dropped), in order; payloads that are not valid data packets of the calibration's model
+/// (position packets, truncated, corrupted...) are skipped and counted in the stats.
+#[cfg(feature = "std")]
+pub fn decode_payloads<'a, I>(
+    calibration: &Calibration,
+    payloads: I,
+) -> (Vec<Point>, sweep::SweepStats)
+where
+    I: IntoIterator<Item = &'a [u8]>,
+{
+    let mut points = Vec::new();
+    let mut stats = sweep::SweepStats::default();
+    for payload in payloads {
+        match decode_packet(calibration, payload, &mut |r: Return| points.push(r.point)) {
+            Ok(s) => {
+                stats.packets += 1;
+                stats.points += s.returns as u64;
+            }
+            Err(e) => stats.count_error(e),
+        }
+    }
+    (points, stats)
+}

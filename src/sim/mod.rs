@@ -1,1 +1,302 @@
-//! Synthetic calibration room with ground truth (filled by the simulator work).
+//! The simulator: a synthetic calibration room with ground truth.
+//!
+//! [`simulate`] lays the room's boards out in front of the camera (covering the image,
+//! corners included, tilted 15–35° in different directions, 3–6 m away), renders the
+//! camera frame through the exact inverse of the camera model, ray-casts one LiDAR sweep
+//! through the same geometry (holes let the beams through to the wall behind), and
+//! records the truth: intrinsics, distortion, LiDAR→camera, board poses, the projected
+//! inner corners in the detector's order and the hole centres in the LiDAR frame.
+//! Everything is deterministic for a seed.
+
+pub mod layout;
+pub mod raycast;
+pub mod render;
+pub mod rng;
+pub mod world;
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::geometry::{se3::so3_exp, Camera, CameraModel, Se3, Vec3};
+use crate::lidar::Point;
+use crate::result::{CameraResult, Extrinsic};
+use crate::target::{LidarModel, Room};
+
+pub use render::ImageNoise;
+use rng::Rng;
+use world::World;
+
+/// Horizontal field of view when neither the options nor the room give intrinsics.
+pub const DEFAULT_HFOV_DEG: f64 = 70.0;
+/// Range noise σ of the simulated LiDAR (m).
+pub const DEFAULT_RANGE_NOISE_M: f64 = 0.02;
+/// How far the true extrinsic strays from the room's nominal one (deg, m, per axis).
+const MOUNTING_ERROR: (f64, f64) = (1.5, 0.04);
+
+/// What to simulate beyond the room file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SimOptions {
+    pub seed: u64,
+    /// Boards to place (default: the room's `board.count`).
+    pub boards: Option<usize>,
+    /// Camera model (default: the room's).
+    pub camera_model: Option<CameraModel>,
+    /// Horizontal field of view (default: from the room's fx, else [`DEFAULT_HFOV_DEG`]).
+    pub hfov_deg: Option<f64>,
+    /// Distortion coefficients (default: the room's, else a typical lens of the model).
+    pub distortion: Option<Vec<f64>>,
+    /// LiDAR model (default: the room's).
+    pub lidar: Option<LidarModel>,
+    pub range_noise_m: f64,
+    pub image: ImageNoise,
+}
+
+impl Default for SimOptions {
+    fn default() -> Self {
+        SimOptions {
+            seed: 1,
+            boards: None,
+            camera_model: None,
+            hfov_deg: None,
+            distortion: None,
+            lidar: None,
+            range_noise_m: DEFAULT_RANGE_NOISE_M,
+            image: ImageNoise::default(),
+        }
+    }
+}
+
+/// Why a scene could not be simulated or written.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    #[error("cannot lay out {count} boards without overlap or leaving the image (board {board} did not fit); use fewer boards or a wider field of view")]
+    Layout { count: usize, board: usize },
+    #[error("the simulator has no beam table for LiDAR model {0:?} (use pandar64, vlp32c or vlp16)")]
+    NoBeamTable(LidarModel),
+    #[error("distortion needs {expected} coefficients for this camera model, got {got}")]
+    Distortion { expected: usize, got: usize },
+    #[error("field of view {0}° is out of range (10–170°)")]
+    FieldOfView(f64),
+    #[error("{path}: {message}")]
+    Write { path: PathBuf, message: String },
+}
+
+/// The ground truth of one scene (`truth.json`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Truth {
+    pub seed: u64,
+    pub camera: CameraResult,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lidar_model: Option<LidarModel>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lidar_to_camera: Option<Extrinsic>,
+    pub range_noise_m: f64,
+    pub image_noise_grey: f64,
+    pub image_blur_px: f64,
+    pub boards: Vec<BoardTruth>,
+}
+
+/// The truth about one board.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BoardTruth {
+    /// Board → camera: `p_camera = rotation · p_board + translation`.
+    pub board_to_camera: Extrinsic,
+    /// Every inner corner projected into the image, row-major (the detector's order).
+    pub corners_px: Vec<[f64; 2]>,
+    /// Hole centres projected into the image.
+    pub holes_px: Vec<[f64; 2]>,
+    /// Hole centres in the LiDAR frame (m); empty without a LiDAR.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub holes_lidar: Vec<[f64; 3]>,
+    /// LiDAR returns on the board.
+    #[serde(default)]
+    pub lidar_points: usize,
+    /// Per hole: how many scan lines (rings) passed through it.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub hole_scan_lines: Vec<usize>,
+}
+
+/// One simulated scene.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    /// The room as simulated (with the options' overrides applied).
+    pub room: Room,
+    /// Grey frame, row-major.
+    pub image: Vec<u8>,
+    /// The LiDAR sweep (absent for an intrinsics-only room).
+    pub cloud: Option<Vec<Point>>,
+    pub truth: Truth,
+}
+
+/// Simulates one scene of `room`.
+pub fn simulate(room: &Room, options: &SimOptions) -> Result<Scene, SimError> {
+    let mut room = room.clone();
+    if let Some(model) = options.camera_model {
+        room.camera.model = model;
+    }
+    if let (Some(model), Some(lidar)) = (options.lidar, room.lidar.as_mut()) {
+        lidar.model = model;
+    }
+    let mut rng = Rng::new(options.seed);
+    let camera = true_camera(&room, options)?;
+    let lidar_to_camera = true_extrinsic(&room, &mut rng.fork(1));
+    let camera_in_lidar = lidar_to_camera.inverse();
+    let count = options.boards.unwrap_or(room.board.count as usize);
+    let floor_ok = |board_to_camera: &Se3| stands_clear_of_floor(&room, &camera_in_lidar, board_to_camera);
+    let poses = layout::lay_out(&room.board, &camera, count, &mut rng.fork(2), &floor_ok)?;
+    let in_lidar: Vec<Se3> = poses.iter().map(|p| camera_in_lidar.compose(p)).collect();
+    let world = World::new(&room.board, in_lidar.clone(), &mut rng.fork(3));
+    let image = render::render(&world, &camera, &camera_in_lidar, &options.image, &mut rng.fork(4));
+    let (cloud, sweep_truth) = match &room.lidar {
+        Some(lidar) => {
+            let elevations =
+                raycast::beam_elevations(lidar.model).ok_or(SimError::NoBeamTable(lidar.model))?;
+            let (points, truth) =
+                raycast::sweep(&world, elevations, options.range_noise_m, &mut rng.fork(5));
+            (Some(points), Some(truth))
+        }
+        None => (None, None),
+    };
+    let boards = poses
+        .iter()
+        .zip(&in_lidar)
+        .enumerate()
+        .map(|(i, (to_camera, to_lidar))| {
+            board_truth(&room, &camera, to_camera, to_lidar, sweep_truth.as_ref().map(|t| (t, i)))
+        })
+        .collect();
+    let truth = Truth {
+        seed: options.seed,
+        camera: CameraResult::from_camera(&camera),
+        lidar_model: room.lidar.as_ref().map(|l| l.model),
+        lidar_to_camera: room.lidar.as_ref().map(|_| Extrinsic::from_se3(&lidar_to_camera)),
+        range_noise_m: options.range_noise_m,
+        image_noise_grey: options.image.noise_grey,
+        image_blur_px: options.image.blur_px,
+        boards,
+    };
+    Ok(Scene { room, image, cloud, truth })
+}
+
+/// Writes `image.png`, `cloud.pcd` (binary), `truth.json` and the `room.toml` it came from.
+pub fn write_scene(scene: &Scene, dir: &Path) -> Result<(), SimError> {
+    let fail = |path: &Path, e: &dyn std::fmt::Display| SimError::Write {
+        path: path.to_owned(),
+        message: e.to_string(),
+    };
+    std::fs::create_dir_all(dir).map_err(|e| fail(dir, &e))?;
+    let image_path = dir.join("image.png");
+    let camera = &scene.truth.camera;
+    image::GrayImage::from_raw(camera.width, camera.height, scene.image.clone())
+        .expect("the renderer makes width × height pixels")
+        .save(&image_path)
+        .map_err(|e| fail(&image_path, &e))?;
+    if let Some(cloud) = &scene.cloud {
+        let cloud_path = dir.join("cloud.pcd");
+        crate::lidar::pcd::write(&cloud_path, cloud, crate::lidar::pcd::PcdFormat::Binary)
+            .map_err(|e| fail(&cloud_path, &e))?;
+    }
+    let truth_path = dir.join("truth.json");
+    let json = serde_json::to_string_pretty(&scene.truth).expect("truth serialises");
+    std::fs::write(&truth_path, json + "\n").map_err(|e| fail(&truth_path, &e))?;
+    let room_path = dir.join("room.toml");
+    std::fs::write(&room_path, crate::room::to_toml(&scene.room)).map_err(|e| fail(&room_path, &e))?;
+    Ok(())
+}
+
+/// The simulated camera: the room's nominal intrinsics where given, otherwise a lens of
+/// the requested field of view whose principal point and aspect are slightly off, as
+/// real ones are.
+fn true_camera(room: &Room, options: &SimOptions) -> Result<Camera, SimError> {
+    let spec = &room.camera;
+    let expected = match spec.model {
+        CameraModel::PinholeRadtan => 5,
+        CameraModel::Fisheye => 4,
+    };
+    let distortion: Vec<f64> = match (&options.distortion, &spec.distortion) {
+        (Some(d), _) => d.clone(),
+        (None, Some(d)) => d.iter().copied().collect(),
+        (None, None) => match spec.model {
+            CameraModel::PinholeRadtan => vec![-0.18, 0.06, 0.0004, -0.0003, -0.008],
+            CameraModel::Fisheye => vec![0.05, -0.01, 0.004, -0.001],
+        },
+    };
+    if distortion.len() != expected {
+        return Err(SimError::Distortion { expected, got: distortion.len() });
+    }
+    let mut d = [0.0; 5];
+    d[..expected].copy_from_slice(&distortion);
+    let nominal = options.hfov_deg.is_none() && spec.fx.is_some();
+    if nominal {
+        let fx = spec.fx.unwrap_or_default();
+        return Ok(Camera {
+            model: spec.model,
+            width: spec.width,
+            height: spec.height,
+            fx,
+            fy: spec.fy.unwrap_or(fx),
+            cx: spec.cx.unwrap_or((spec.width as f64 - 1.0) / 2.0),
+            cy: spec.cy.unwrap_or((spec.height as f64 - 1.0) / 2.0),
+            distortion: d,
+        });
+    }
+    let hfov = options.hfov_deg.unwrap_or(DEFAULT_HFOV_DEG);
+    if !(10.0..=170.0).contains(&hfov) {
+        return Err(SimError::FieldOfView(hfov));
+    }
+    let mut camera = Camera::from_fov(spec.model, spec.width, spec.height, hfov, d);
+    camera.fy *= 1.0008;
+    camera.cx += 6.5;
+    camera.cy -= 4.25;
+    Ok(camera)
+}
+
+/// The true LiDAR → camera motion: the room's nominal mounting, off by a little, as a
+/// real vehicle's is (identity without a LiDAR).
+fn true_extrinsic(room: &Room, rng: &mut Rng) -> Se3 {
+    let Some(lidar) = &room.lidar else { return Se3::identity() };
+    let (deg, m) = MOUNTING_ERROR;
+    let error = Vec3::new(rng.range(-deg, deg), rng.range(-deg, deg), rng.range(-deg, deg))
+        .map(f64::to_radians);
+    let shift = Vec3::new(rng.range(-m, m), rng.range(-m, m), rng.range(-m, m));
+    Se3 {
+        rotation: so3_exp(&error) * lidar.rotation_matrix(),
+        translation: lidar.translation_vector() + shift,
+    }
+}
+
+/// Whether the whole board outline is at least 10 cm above the floor.
+fn stands_clear_of_floor(room: &Room, camera_in_lidar: &Se3, board_to_camera: &Se3) -> bool {
+    let (hw, hh) = (room.board.width / 2.0, room.board.height / 2.0);
+    [(-hw, -hh), (hw, -hh), (-hw, hh), (hw, hh)].iter().all(|&(x, y)| {
+        let p = camera_in_lidar.act(&board_to_camera.act(&Vec3::new(x, y, 0.0)));
+        p.z > -world::LIDAR_HEIGHT + 0.1
+    })
+}
+
+fn board_truth(
+    room: &Room,
+    camera: &Camera,
+    to_camera: &Se3,
+    to_lidar: &Se3,
+    sweep: Option<(&raycast::SweepTruth, usize)>,
+) -> BoardTruth {
+    let spec = &room.board;
+    let project = |p: Vec3| {
+        let px = camera.project(&to_camera.act(&p)).expect("laid-out boards project into the image");
+        [px.x, px.y]
+    };
+    let holes = || (0..spec.holes.len()).map(|h| spec.hole(h));
+    BoardTruth {
+        board_to_camera: Extrinsic::from_se3(to_camera),
+        corners_px: (0..spec.corner_count()).map(|i| project(spec.corner(i))).collect(),
+        holes_px: holes().map(project).collect(),
+        holes_lidar: match sweep {
+            Some(_) => holes().map(|h| to_lidar.act(&h).into()).collect(),
+            None => Vec::new(),
+        },
+        lidar_points: sweep.map_or(0, |(t, i)| t.board_points[i]),
+        hole_scan_lines: sweep.map_or(Vec::new(), |(t, i)| t.hole_rings[i].clone()),
+    }
+}

@@ -1,0 +1,478 @@
+//! Per-unit angle corrections: fixed-size tables usable without an allocator, built-in
+//! nominal tables per model (from the vendors' user manuals), and (std) parsers for Hesai
+//! angle-correction CSV files and Velodyne calibration YAML files (the `velodyne_pointcloud`
+//! subset: a `lasers:` list of flow or block mappings, `num_lasers`, `distance_resolution`).
+
+use super::decoder::Model;
+
+/// The most lasers any supported model has.
+pub const MAX_LASERS: usize = 64;
+
+/// Corrections of one laser, with the trigonometry precomputed.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LaserCorrection {
+    /// Elevation, radians, up positive.
+    pub elevation: f32,
+    /// Added to the firing azimuth, radians, clockwise seen from above positive (Hesai's
+    /// "azimuth" column; minus Velodyne's `rot_correction`).
+    pub azimuth_offset: f32,
+    /// Added to every non-zero range, metres (Velodyne `dist_correction`).
+    pub dist_correction: f32,
+    /// Velodyne optical-centre offsets, metres.
+    pub vert_offset: f32,
+    pub horiz_offset: f32,
+    pub sin_elevation: f32,
+    pub cos_elevation: f32,
+}
+
+impl LaserCorrection {
+    /// A correction from angles in degrees, other terms zero.
+    pub fn from_degrees(elevation_deg: f32, azimuth_offset_deg: f32) -> Self {
+        Self::new(elevation_deg.to_radians(), azimuth_offset_deg.to_radians(), 0.0, 0.0, 0.0)
+    }
+
+    /// A correction from angles in radians and offsets in metres.
+    pub fn new(elevation: f32, azimuth_offset: f32, dist: f32, vert: f32, horiz: f32) -> Self {
+        LaserCorrection {
+            elevation,
+            azimuth_offset,
+            dist_correction: dist,
+            vert_offset: vert,
+            horiz_offset: horiz,
+            sin_elevation: libm::sinf(elevation),
+            cos_elevation: libm::cosf(elevation),
+        }
+    }
+}
+
+/// The angle table of one unit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Calibration {
+    pub model: Model,
+    /// Indexed by the laser number in the packet (0-based); entries past `model.lasers()` unused.
+    pub lasers: [LaserCorrection; MAX_LASERS],
+    /// Metres per range count for Velodyne units (Hesai packets carry their own unit).
+    pub distance_resolution: f32,
+    /// How Velodyne firing azimuths are interpolated between block azimuths.
+    pub interpolation: Interpolation,
+}
+
+/// How a Velodyne decoder places each firing between two block azimuths.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Interpolation {
+    /// By firing time as the user manuals give it (VLP-16: per laser and firing; VLP-32C: per
+    /// laser pair; HDL-32E: per laser); the last sequence of a packet reuses the previous
+    /// advance.
+    #[default]
+    Manual,
+    /// As tier4/nebula 0.x does, to reproduce its clouds exactly: VLP-16 as the manual but the
+    /// first block without a successor gets no advance; VLP-32C advances each of the 32
+    /// channel slots by 2.304 µs. Hesai decoding is the same in both modes.
+    Nebula,
+}
+
+/// Why a calibration table does not fit its model.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CalibrationError {
+    /// A laser number outside the model's range.
+    LaserOutOfRange(usize),
+    /// Fewer lasers than the model has.
+    MissingLasers { found: usize, expected: usize },
+    /// A non-finite or absurd value (|angle| > 90°, resolution ≤ 0).
+    BadValue,
+}
+
+impl core::fmt::Display for CalibrationError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            CalibrationError::LaserOutOfRange(i) => write!(f, "laser {i} out of range"),
+            CalibrationError::MissingLasers { found, expected } => {
+                write!(f, "{found} lasers given, the model has {expected}")
+            }
+            CalibrationError::BadValue => write!(f, "non-finite or out-of-range value"),
+        }
+    }
+}
+
+impl Calibration {
+    /// The nominal table of `model` from its user manual.
+    pub fn nominal(model: Model) -> Self {
+        let mut lasers = [LaserCorrection::default(); MAX_LASERS];
+        let (elev, azim): (&[f32], &[f32]) = match model {
+            Model::Vlp16 => (&VLP16_ELEVATION, &[0.0; 16]),
+            Model::Vlp32c => (&VLP32C_ELEVATION, &VLP32C_AZIMUTH),
+            Model::Hdl32e => (&HDL32E_ELEVATION, &[0.0; 32]),
+            Model::Pandar40p => (&PANDAR40P_ELEVATION, &PANDAR40P_AZIMUTH),
+            Model::Pandar64 => (&PANDAR64_ELEVATION, &PANDAR64_AZIMUTH),
+        };
+        for ((slot, e), a) in lasers.iter_mut().zip(elev).zip(azim) {
+            *slot = LaserCorrection::from_degrees(*e, *a);
+        }
+        let distance_resolution = match model {
+            Model::Vlp32c => 0.004,
+            Model::Vlp16 | Model::Hdl32e => 0.002,
+            Model::Pandar40p | Model::Pandar64 => 0.004,
+        };
+        Calibration { model, lasers, distance_resolution, interpolation: Interpolation::Manual }
+    }
+
+    /// Sets laser `index` (0-based), checking it exists and its values are sane.
+    pub fn set(&mut self, index: usize, c: LaserCorrection) -> Result<(), CalibrationError> {
+        if index >= self.model.lasers() {
+            return Err(CalibrationError::LaserOutOfRange(index));
+        }
+        let sane = |v: f32, lim: f32| v.is_finite() && v.abs() <= lim;
+        let half_pi = core::f32::consts::FRAC_PI_2;
+        if !(sane(c.elevation, half_pi)
+            && sane(c.azimuth_offset, half_pi)
+            && sane(c.dist_correction, 10.0)
+            && sane(c.vert_offset, 10.0)
+            && sane(c.horiz_offset, 10.0))
+        {
+            return Err(CalibrationError::BadValue);
+        }
+        self.lasers[index] = c;
+        Ok(())
+    }
+
+    /// The lasers of the model.
+    pub fn active(&self) -> &[LaserCorrection] {
+        &self.lasers[..self.model.lasers()]
+    }
+
+    /// Laser numbers sorted by elevation, bottom first: `rings()[laser]` is the ring index
+    /// (0 = lowest beam), as most point-cloud tools number rings.
+    pub fn rings(&self) -> [u16; MAX_LASERS] {
+        let mut rings = [0u16; MAX_LASERS];
+        let active = self.active();
+        for (i, c) in active.iter().enumerate() {
+            let below = active
+                .iter()
+                .enumerate()
+                .filter(|(j, o)| {
+                    o.elevation < c.elevation || (o.elevation == c.elevation && *j < i)
+                })
+                .count();
+            rings[i] = below as u16;
+        }
+        rings
+    }
+}
+
+/// VLP-16 vertical angles by laser number, degrees (manual, table 9-1).
+pub const VLP16_ELEVATION: [f32; 16] =
+    [-15., 1., -13., 3., -11., 5., -9., 7., -7., 9., -5., 11., -3., 13., -1., 15.];
+
+/// VLP-32C vertical angles by laser number, degrees (manual, table 9-2).
+pub const VLP32C_ELEVATION: [f32; 32] = [
+    -25., -1., -1.667, -15.639, -11.31, 0., -0.667, -8.843, -7.254, 0.333, -0.333, -6.148, -5.333,
+    1.333, 0.667, -4., -4.667, 1.667, 1., -3.667, -3.333, 3.333, 2.333, -2.667, -3., 7., 4.667,
+    -2.333, -2., 15., 10.333, -1.333,
+];
+
+/// VLP-32C azimuth offsets by laser number, degrees (manual, table 9-2).
+pub const VLP32C_AZIMUTH: [f32; 32] = [
+    1.4, -4.2, 1.4, -1.4, 1.4, -1.4, 4.2, -1.4, 1.4, -4.2, 1.4, -1.4, 4.2, -1.4, 4.2, -1.4, 1.4,
+    -4.2, 1.4, -4.2, 4.2, -1.4, 1.4, -1.4, 1.4, -1.4, 1.4, -4.2, 4.2, -1.4, 1.4, -1.4,
+];
+
+/// HDL-32E vertical angles by laser number, degrees: two interleaved fans 4/3° apart.
+pub const HDL32E_ELEVATION: [f32; 32] = [
+    -30.67, -9.33, -29.33, -8., -28., -6.67, -26.67, -5.33, -25.33, -4., -24., -2.67, -22.67,
+    -1.33, -21.33, 0., -20., 1.33, -18.67, 2.67, -17.33, 4., -16., 5.33, -14.67, 6.67, -13.33, 8.,
+    -12., 9.33, -10.67, 10.67,
+];
+
+/// Pandar40P nominal elevations by channel, degrees (user manual, appendix I).
+pub const PANDAR40P_ELEVATION: [f32; 40] = [
+    15., 11., 8., 5., 3., 2., 1.67, 1.33, 1., 0.67, 0.33, 0., -0.33, -0.67, -1., -1.33, -1.67, -2.,
+    -2.33, -2.67, -3., -3.33, -3.67, -4., -4.33, -4.67, -5., -5.33, -5.67, -6., -7., -8., -9.,
+    -10., -11., -12., -13., -14., -19., -25.,
+];
+
+/// Pandar40P nominal azimuth offsets by channel, degrees (user manual, appendix I).
+pub const PANDAR40P_AZIMUTH: [f32; 40] = {
+    let mut a = [-1.042f32; 40];
+    let cycle = [3.125f32, -5.208, -1.042];
+    let mut i = 6;
+    while i < 30 {
+        a[i] = cycle[(i - 6) % 3];
+        i += 1;
+    }
+    a
+};
+
+/// Pandar64 nominal elevations by channel, degrees (user manual, appendix I).
+pub const PANDAR64_ELEVATION: [f32; 64] = [
+    14.882, 11.032, 8.059, 5.057, 3.04, 2.028, 1.86, 1.688, 1.522, 1.351, 1.184, 1.013, 0.846,
+    0.675, 0.508, 0.337, 0.169, 0., -0.169, -0.337, -0.508, -0.675, -0.845, -1.013, -1.184, -1.351,
+    -1.522, -1.688, -1.86, -2.028, -2.198, -2.365, -2.536, -2.7, -2.873, -3.04, -3.21, -3.375,
+    -3.548, -3.712, -3.884, -4.05, -4.221, -4.385, -4.558, -4.72, -4.892, -5.057, -5.229, -5.391,
+    -5.565, -5.726, -5.898, -6.061, -7.063, -8.059, -9.06, -9.885, -11.032, -12.006, -12.974,
+    -13.93, -18.889, -24.897,
+];
+
+/// Pandar64 nominal azimuth offsets by channel, degrees (user manual, appendix I).
+pub const PANDAR64_AZIMUTH: [f32; 64] = {
+    let mut a = [-1.042f32; 64];
+    let cycle = [1.042f32, 3.125, 5.208, -5.208, -3.125, -1.042];
+    let mut i = 6;
+    while i < 54 {
+        a[i] = cycle[(i - 6) % 6];
+        i += 1;
+    }
+    a
+};
+
+#[cfg(feature = "std")]
+pub use files::{load, parse_hesai_csv, parse_velodyne_yaml, CalibrationFileError};
+
+#[cfg(feature = "std")]
+mod files {
+    use std::path::{Path, PathBuf};
+
+    use super::{Calibration, CalibrationError, LaserCorrection};
+    use crate::lidar::decoder::Model;
+
+    /// Why a calibration file could not be used; every message names the file.
+    #[derive(Debug, thiserror::Error)]
+    pub enum CalibrationFileError {
+        #[error("calibration file {path}: cannot read: {source}")]
+        Read { path: PathBuf, source: std::io::Error },
+        #[error("calibration file {path}: line {line}: {message}")]
+        Syntax { path: PathBuf, line: usize, message: String },
+        #[error("calibration file {path}: {source}")]
+        Invalid { path: PathBuf, source: CalibrationError },
+    }
+
+    impl std::error::Error for CalibrationError {}
+
+    /// Reads a calibration file for `model`: Hesai CSV for Pandar models, Velodyne YAML for
+    /// Velodyne models.
+    pub fn load(model: Model, path: &Path) -> Result<Calibration, CalibrationFileError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| CalibrationFileError::Read { path: path.to_owned(), source })?;
+        if model.is_velodyne() {
+            parse_velodyne_yaml(model, &text, path)
+        } else {
+            parse_hesai_csv(model, &text, path)
+        }
+    }
+
+    /// Parses a Hesai angle-correction CSV (`Laser id,Elevation,Azimuth`, 1-based ids, degrees;
+    /// an optional `EEFF` preamble line and trailing hash lines are skipped).
+    pub fn parse_hesai_csv(
+        model: Model,
+        text: &str,
+        path: &Path,
+    ) -> Result<Calibration, CalibrationFileError> {
+        let syntax = |line: usize, message: String| CalibrationFileError::Syntax {
+            path: path.to_owned(),
+            line,
+            message,
+        };
+        let invalid = |source| CalibrationFileError::Invalid { path: path.to_owned(), source };
+        let mut cal = Calibration::nominal(model);
+        let mut seen = [false; super::MAX_LASERS];
+        for (n, line) in text.lines().enumerate().map(|(i, l)| (i + 1, l.trim())) {
+            let cols: Vec<&str> = line.split(',').map(str::trim).collect();
+            // Header, preamble and hash lines have a non-numeric first column.
+            let Ok(id) = cols[0].parse::<usize>() else { continue };
+            if cols.len() < 3 {
+                return Err(syntax(n, format!("expected 3 columns, found {}", cols.len())));
+            }
+            let num =
+                |s: &str| s.parse::<f32>().map_err(|_| syntax(n, format!("{s:?} is not a number")));
+            let (elev, azim) = (num(cols[1])?, num(cols[2])?);
+            let index = id.checked_sub(1).ok_or_else(|| syntax(n, "laser id 0".into()))?;
+            cal.set(index, LaserCorrection::from_degrees(elev, azim)).map_err(invalid)?;
+            seen[index] = true;
+        }
+        check_complete(model, &seen).map_err(invalid)?;
+        Ok(cal)
+    }
+
+    /// Parses a Velodyne calibration YAML (`velodyne_pointcloud` format; angles in radians,
+    /// distances in metres). Unknown keys are ignored; two-point distance and intensity
+    /// (focal) corrections are not applied.
+    pub fn parse_velodyne_yaml(
+        model: Model,
+        text: &str,
+        path: &Path,
+    ) -> Result<Calibration, CalibrationFileError> {
+        let syntax = |line: usize, message: String| CalibrationFileError::Syntax {
+            path: path.to_owned(),
+            line,
+            message,
+        };
+        let invalid = |source| CalibrationFileError::Invalid { path: path.to_owned(), source };
+        let mut cal = Calibration::nominal(model);
+        let mut seen = [false; super::MAX_LASERS];
+        let mut entry: Option<(usize, Vec<(String, f64)>)> = None;
+        let mut in_lasers = false;
+        let mut finish = |entry: Option<(usize, Vec<(String, f64)>)>,
+                          cal: &mut Calibration|
+         -> Result<(), CalibrationFileError> {
+            let Some((line, kv)) = entry else { return Ok(()) };
+            let get = |k: &str| kv.iter().find(|(key, _)| key == k).map(|(_, v)| *v as f32);
+            let id =
+                get("laser_id").ok_or_else(|| syntax(line, "laser without laser_id".into()))?;
+            if id < 0.0 || id.fract() != 0.0 {
+                return Err(syntax(line, format!("laser_id {id} is not an index")));
+            }
+            let c = LaserCorrection::new(
+                get("vert_correction").unwrap_or(0.0),
+                -get("rot_correction").unwrap_or(0.0),
+                get("dist_correction").unwrap_or(0.0),
+                get("vert_offset_correction").unwrap_or(0.0),
+                get("horiz_offset_correction").unwrap_or(0.0),
+            );
+            cal.set(id as usize, c).map_err(invalid)?;
+            seen[id as usize] = true;
+            Ok(())
+        };
+        for (n, raw) in text.lines().enumerate().map(|(i, l)| (i + 1, l)) {
+            let line = raw.split('#').next().unwrap_or("");
+            let trimmed = line.trim();
+            if trimmed.is_empty() {
+                continue;
+            }
+            let top_level = !line.starts_with(' ') && !line.starts_with('-');
+            if top_level {
+                finish(entry.take(), &mut cal)?;
+                let (key, value) = trimmed.split_once(':').unwrap_or((trimmed, ""));
+                in_lasers = key.trim() == "lasers";
+                if key.trim() == "distance_resolution" {
+                    let v: f32 = value.trim().parse().map_err(|_| {
+                        syntax(n, format!("distance_resolution {:?} is not a number", value.trim()))
+                    })?;
+                    if !(v > 0.0 && v < 1.0) {
+                        return Err(invalid(CalibrationError::BadValue));
+                    }
+                    cal.distance_resolution = v;
+                }
+                continue;
+            }
+            if !in_lasers {
+                continue;
+            }
+            let mut body = trimmed;
+            if let Some(rest) = body.strip_prefix('-') {
+                finish(entry.take(), &mut cal)?;
+                entry = Some((n, Vec::new()));
+                body = rest;
+            }
+            let Some((_, kv)) = entry.as_mut() else {
+                return Err(syntax(n, "laser field outside a `- ` list item".into()));
+            };
+            for item in body.split(',') {
+                let item = item.trim().trim_matches(|c| c == '{' || c == '}').trim();
+                if item.is_empty() {
+                    continue;
+                }
+                let (k, v) = item
+                    .split_once(':')
+                    .ok_or_else(|| syntax(n, format!("expected `key: value`, found {item:?}")))?;
+                let v: f64 =
+                    v.trim().parse().map_err(|_| syntax(n, format!("{:?} is not a number", v)))?;
+                kv.push((k.trim().to_owned(), v));
+            }
+        }
+        finish(entry.take(), &mut cal)?;
+        check_complete(model, &seen).map_err(invalid)?;
+        Ok(cal)
+    }
+
+    fn check_complete(model: Model, seen: &[bool]) -> Result<(), CalibrationError> {
+        let found = seen.iter().filter(|s| **s).count();
+        if found < model.lasers() {
+            return Err(CalibrationError::MissingLasers { found, expected: model.lasers() });
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nominal_tables_have_the_model_sizes_and_ranges() {
+        for m in Model::ALL {
+            let c = Calibration::nominal(m);
+            let active = c.active();
+            assert_eq!(active.len(), m.lasers());
+            let top = active.iter().map(|l| l.elevation.to_degrees()).fold(f32::MIN, f32::max);
+            let bottom = active.iter().map(|l| l.elevation.to_degrees()).fold(f32::MAX, f32::min);
+            assert!(top > 10.0 && top <= 15.001, "{m:?} top {top}");
+            assert!(bottom < -14.0 && bottom > -31.0, "{m:?} bottom {bottom}");
+            // Ring numbering is a permutation.
+            let mut rings: Vec<u16> = c.rings()[..m.lasers()].to_vec();
+            rings.sort_unstable();
+            assert!(rings.iter().enumerate().all(|(i, r)| usize::from(*r) == i), "{m:?}");
+        }
+        let counts = |t: &[f32], v: f32| t.iter().filter(|a| (**a - v).abs() < 1e-6).count();
+        assert_eq!(counts(&PANDAR64_AZIMUTH, -1.042), 24);
+        assert_eq!(counts(&PANDAR64_AZIMUTH, 5.208), 8);
+        assert_eq!(counts(&PANDAR40P_AZIMUTH, -1.042), 24);
+    }
+
+    #[test]
+    fn set_rejects_bad_values() {
+        let mut c = Calibration::nominal(Model::Vlp16);
+        assert_eq!(
+            c.set(16, LaserCorrection::default()),
+            Err(CalibrationError::LaserOutOfRange(16))
+        );
+        assert_eq!(
+            c.set(0, LaserCorrection::from_degrees(f32::NAN, 0.0)),
+            Err(CalibrationError::BadValue)
+        );
+        assert!(c.set(3, LaserCorrection::from_degrees(2.0, 0.5)).is_ok());
+    }
+
+    #[cfg(feature = "std")]
+    #[test]
+    fn parses_both_yaml_styles_and_csv() {
+        use std::path::Path;
+        let flow = "lasers:\n  - {dist_correction: 0.01, laser_id: 1, rot_correction: 0.1,\n     vert_correction: -0.2}\n";
+        let block = "  - laser_id: 0\n    vert_correction: 0.3\n    rot_correction: -0.05\nnum_lasers: 16\ndistance_resolution: 0.002\n";
+        // Only two lasers: incomplete.
+        let text = format!("{flow}{block}");
+        let err = parse_velodyne_yaml(Model::Vlp16, &text, Path::new("x.yaml")).unwrap_err();
+        assert!(
+            err.to_string().contains("x.yaml") && err.to_string().contains("2 lasers"),
+            "{err}"
+        );
+        let mut full = String::from("lasers:\n");
+        for i in 0..16 {
+            full.push_str(&format!(
+                "  - {{laser_id: {i}, rot_correction: -0.01, vert_correction: {}}}\n",
+                0.01 * i as f64
+            ));
+        }
+        full.push_str(flow.trim_start_matches("lasers:\n"));
+        full.push_str("distance_resolution: 0.004\n");
+        let c = parse_velodyne_yaml(Model::Vlp16, &full, Path::new("x.yaml")).unwrap();
+        assert!((c.lasers[1].azimuth_offset + 0.1).abs() < 1e-7);
+        assert!((c.lasers[1].dist_correction - 0.01).abs() < 1e-7);
+        assert!((c.lasers[5].elevation - 0.05).abs() < 1e-7);
+        assert!((c.lasers[5].azimuth_offset - 0.01).abs() < 1e-7);
+        assert_eq!(c.distance_resolution, 0.004);
+        let blocky = format!("lasers:\n{block}");
+        let err = parse_velodyne_yaml(Model::Vlp16, &blocky, Path::new("b.yaml")).unwrap_err();
+        assert!(err.to_string().contains("1 lasers given"), "{err}");
+
+        let mut csv = String::from("Laser id,Elevation,Azimuth\n");
+        for i in 1..=40 {
+            csv.push_str(&format!("{i},{},{}\n", 15.0 - i as f32, 0.5));
+        }
+        let c = parse_hesai_csv(Model::Pandar40p, &csv, Path::new("a.csv")).unwrap();
+        assert!((c.lasers[0].elevation.to_degrees() - 14.0).abs() < 1e-5);
+        let bad = csv.replace("3,12,0.5", "3,twelve,0.5");
+        let err = parse_hesai_csv(Model::Pandar40p, &bad, Path::new("a.csv")).unwrap_err();
+        assert!(err.to_string().contains("line 4"), "{err}");
+        let short = "Laser id,Elevation,Azimuth\n1,2,3\n";
+        assert!(parse_hesai_csv(Model::Pandar40p, short, Path::new("a.csv")).is_err());
+    }
+}

@@ -1,0 +1,336 @@
+//! What every vendor decoder shares: the supported models, return modes, the decode error
+//! enum, the per-return record handed to sinks, and `decode_packet`, which dispatches a raw
+//! UDP payload to the right vendor decoder. No heap: returns go to a caller's sink.
+
+use core::fmt;
+
+use super::calibration::Calibration;
+use super::{hesai, velodyne, Point};
+
+/// A supported LiDAR model.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Model {
+    /// Velodyne VLP-16 (Puck), also the Puck Hi-Res / LITE (same packet format).
+    Vlp16,
+    /// Velodyne VLP-32C (Ultra Puck).
+    Vlp32c,
+    /// Velodyne HDL-32E.
+    Hdl32e,
+    /// Hesai Pandar40P.
+    Pandar40p,
+    /// Hesai Pandar64.
+    Pandar64,
+}
+
+impl Model {
+    /// Every supported model.
+    pub const ALL: [Model; 5] =
+        [Model::Vlp16, Model::Vlp32c, Model::Hdl32e, Model::Pandar40p, Model::Pandar64];
+
+    /// Parses the names the room and CLI files use (`vlp16`, `vlp32c`, `hdl32e`, `pandar40p`,
+    /// `pandar64`; case-insensitive, `-`/`_` ignored).
+    pub fn from_name(name: &str) -> Option<Model> {
+        let mut buf = [0u8; 16];
+        let mut n = 0;
+        for b in name.bytes().filter(|b| *b != b'-' && *b != b'_') {
+            *buf.get_mut(n)? = b.to_ascii_lowercase();
+            n += 1;
+        }
+        match &buf[..n] {
+            b"vlp16" => Some(Model::Vlp16),
+            b"vlp32c" | b"vlp32" => Some(Model::Vlp32c),
+            b"hdl32e" | b"hdl32" => Some(Model::Hdl32e),
+            b"pandar40p" | b"pandar40" => Some(Model::Pandar40p),
+            b"pandar64" => Some(Model::Pandar64),
+            _ => None,
+        }
+    }
+
+    /// The canonical lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Model::Vlp16 => "vlp16",
+            Model::Vlp32c => "vlp32c",
+            Model::Hdl32e => "hdl32e",
+            Model::Pandar40p => "pandar40p",
+            Model::Pandar64 => "pandar64",
+        }
+    }
+
+    /// Number of lasers (channels).
+    pub fn lasers(self) -> usize {
+        match self {
+            Model::Vlp16 => 16,
+            Model::Vlp32c | Model::Hdl32e => 32,
+            Model::Pandar40p => 40,
+            Model::Pandar64 => 64,
+        }
+    }
+
+    /// Whether the model is a Velodyne (1206 B data packets).
+    pub fn is_velodyne(self) -> bool {
+        matches!(self, Model::Vlp16 | Model::Vlp32c | Model::Hdl32e)
+    }
+
+    /// The factory-default UDP port of the data packets.
+    pub fn data_port(self) -> u16 {
+        2368
+    }
+
+    /// The factory-default UDP port of the position / GPS packets (ignored by the decoders).
+    pub fn position_port(self) -> u16 {
+        if self.is_velodyne() {
+            8308
+        } else {
+            10110
+        }
+    }
+
+    /// Guesses the model from a data payload (length, magic, Velodyne product id).
+    pub fn detect(payload: &[u8]) -> Option<Model> {
+        if let Ok(p) = velodyne::Packet::new_checked(payload) {
+            return velodyne::Product::from_id(p.product_id()).map(|p| p.model());
+        }
+        [Model::Pandar64, Model::Pandar40p]
+            .into_iter()
+            .find(|m| hesai::Packet::new_checked(payload, *m).is_ok())
+    }
+}
+
+/// How many echoes a packet carries per firing, and which.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ReturnMode {
+    Strongest,
+    Last,
+    /// Hesai only.
+    First,
+    /// Two echoes per firing (Velodyne: last + strongest; Hesai: any dual mode).
+    Dual,
+}
+
+impl ReturnMode {
+    /// Echoes per firing.
+    pub fn returns(self) -> usize {
+        if self == ReturnMode::Dual {
+            2
+        } else {
+            1
+        }
+    }
+}
+
+/// Why a payload was not decoded. Decoders never panic on bytes; they answer one of these.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DecodeError {
+    /// Shorter than the format's fixed length.
+    Truncated { len: usize, expected: usize },
+    /// Longer than the format's fixed length.
+    Oversized { len: usize, expected: usize },
+    /// A start-of-packet / start-of-block magic is wrong.
+    BadMagic,
+    /// A header field (laser or block count, distance unit, product id) does not match the model.
+    BadHeader,
+    /// The return-mode byte is not one the format defines.
+    BadReturnMode(u8),
+    /// An azimuth is out of range (≥ 360°).
+    BadAzimuth(u16),
+    /// The calibration is for another model.
+    WrongCalibration,
+}
+
+impl fmt::Display for DecodeError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            DecodeError::Truncated { len, expected } => {
+                write!(f, "truncated packet: {len} bytes, expected {expected}")
+            }
+            DecodeError::Oversized { len, expected } => {
+                write!(f, "oversized packet: {len} bytes, expected {expected}")
+            }
+            DecodeError::BadMagic => write!(f, "bad start-of-packet or start-of-block magic"),
+            DecodeError::BadHeader => write!(f, "header does not match the model"),
+            DecodeError::BadReturnMode(m) => write!(f, "unknown return mode 0x{m:02x}"),
+            DecodeError::BadAzimuth(a) => write!(f, "azimuth {a} out of range (0..36000)"),
+            DecodeError::WrongCalibration => write!(f, "calibration is for another model"),
+        }
+    }
+}
+
+/// One decoded return: the point plus what sweep assembly and filters need.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Return {
+    pub point: Point,
+    /// Range after distance correction, metres.
+    pub distance: f32,
+    /// Azimuth of the firing (block azimuth, interpolated per firing where the model needs it),
+    /// before the per-laser offset: hundredths of a degree, clockwise seen from above, 0 = +x.
+    pub azimuth: u16,
+    /// Block index in the packet.
+    pub block: u8,
+    /// 0 = first echo slot of the firing (strongest/last/first), 1 = second slot (dual).
+    pub echo: u8,
+}
+
+/// What a decoded packet said about itself.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PacketSummary {
+    pub model: Model,
+    pub return_mode: ReturnMode,
+    /// Packet time, seconds: Velodyne = seconds past the top of the hour (sensor clock);
+    /// Hesai = Unix seconds from the packet's date/time and microseconds fields.
+    pub time: f64,
+    /// Azimuth of the first and of the last block, hundredths of a degree.
+    pub first_azimuth: u16,
+    pub last_azimuth: u16,
+    /// Hesai UDP sequence number when the packet carries one.
+    pub sequence: Option<u32>,
+    /// Returns handed to the sink (zero-range and duplicate dual echoes are not).
+    pub returns: usize,
+}
+
+/// A simulated return to encode: laser (channel) number, block azimuth (0.01°, before the
+/// laser's azimuth offset), range (m), intensity.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SimReturn {
+    pub laser: u16,
+    pub azimuth: u16,
+    pub range: f32,
+    pub intensity: u8,
+}
+
+/// Encodes `returns` (in firing order; consecutive returns with the same azimuth are one
+/// firing, i.e. one block) as single-return
+/// data packets of `calibration.model`, handing each packet to `out`; returns the packet count.
+/// `start_time` stamps the first packet: seconds past the hour for Velodyne models (the
+/// packet field), Unix seconds for Hesai models. Decoding the packets gives the returns back
+/// (range to the model's resolution).
+pub fn encode_sweep(
+    calibration: &Calibration,
+    returns: &[SimReturn],
+    start_time: f64,
+    out: &mut dyn FnMut(&[u8]),
+) -> Result<usize, DecodeError> {
+    if calibration.model.is_velodyne() {
+        let past_hour = start_time - 3600.0 * libm::floor(start_time / 3600.0);
+        let us = libm::round(past_hour * 1e6) as u32;
+        velodyne::encode_sweep(calibration, returns, us, out)
+    } else {
+        hesai::encode_sweep(calibration, returns, start_time, out)
+    }
+}
+
+/// Decodes one data payload of `calibration.model`, handing each valid return to `sink`
+/// (zero ranges and identical dual echoes are dropped). Never panics on any bytes.
+pub fn decode_packet(
+    calibration: &Calibration,
+    payload: &[u8],
+    sink: &mut dyn FnMut(Return),
+) -> Result<PacketSummary, DecodeError> {
+    if calibration.model.is_velodyne() {
+        velodyne::decode(calibration, payload, sink)
+    } else {
+        hesai::decode(calibration, payload, sink)
+    }
+}
+
+/// Decodes one data payload into `out`, returning how many points were written; returns
+/// beyond `out.len()` are counted in `PacketSummary::returns` but not stored.
+pub fn decode_into(
+    calibration: &Calibration,
+    payload: &[u8],
+    out: &mut [Point],
+) -> Result<(usize, PacketSummary), DecodeError> {
+    let mut n = 0;
+    let summary = decode_packet(calibration, payload, &mut |r: Return| {
+        if let Some(slot) = out.get_mut(n) {
+            *slot = r.point;
+            n += 1;
+        }
+    })?;
+    Ok((n, summary))
+}
+
+/// Converts range and angles to the sensor frame (x forward, y left, z up). `azimuth` is
+/// clockwise seen from above with 0 = forward, as both vendors count it; `vert_offset` and
+/// `horiz_offset` are Velodyne's optical-centre offsets (0 for Hesai).
+#[inline]
+pub(crate) fn to_xyz(
+    distance: f32,
+    sin_az: f32,
+    cos_az: f32,
+    sin_el: f32,
+    cos_el: f32,
+    vert_offset: f32,
+    horiz_offset: f32,
+) -> (f32, f32, f32) {
+    let xy = distance * cos_el - vert_offset * sin_el;
+    // Velodyne's manual frame is x right, y forward; rotate to x forward, y left.
+    let x_right = xy * sin_az - horiz_offset * cos_az;
+    let y_fwd = xy * cos_az + horiz_offset * sin_az;
+    let z = distance * sin_el + vert_offset * cos_el;
+    (y_fwd, -x_right, z)
+}
+
+/// Seconds since the Unix epoch of a UTC civil date and time (no leap seconds).
+pub(crate) fn unix_seconds(year: i64, month: u32, day: u32, h: u32, m: u32, s: u32) -> i64 {
+    // Howard Hinnant's days_from_civil.
+    let y = if month <= 2 { year - 1 } else { year };
+    let era = y.div_euclid(400);
+    let yoe = y - era * 400;
+    let mp = (i64::from(month) + 9) % 12;
+    let doy = (153 * mp + 2) / 5 + i64::from(day) - 1;
+    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
+    let days = era * 146_097 + doe - 719_468;
+    days * 86_400 + i64::from(h) * 3600 + i64::from(m) * 60 + i64::from(s)
+}
+
+/// UTC civil date and time (year, month, day, hour, minute, second) of Unix seconds.
+pub(crate) fn civil_from_unix(t: i64) -> (i64, u32, u32, u32, u32, u32) {
+    let days = t.div_euclid(86_400);
+    let sod = t.rem_euclid(86_400) as u32;
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = (doy - (153 * mp + 2) / 5 + 1) as u32;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    (year, month, day, sod / 3600, sod / 60 % 60, sod % 60)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn model_names_round_trip() {
+        for m in Model::ALL {
+            assert_eq!(Model::from_name(m.name()), Some(m));
+        }
+        assert_eq!(Model::from_name("VLP-32C"), Some(Model::Vlp32c));
+        assert_eq!(Model::from_name("Pandar_64"), Some(Model::Pandar64));
+        assert_eq!(Model::from_name("hdl64e"), None);
+        assert_eq!(Model::from_name("a-very-long-name-indeed"), None);
+    }
+
+    #[test]
+    fn civil_time_round_trips() {
+        assert_eq!(unix_seconds(1970, 1, 1, 0, 0, 0), 0);
+        assert_eq!(unix_seconds(2023, 1, 11, 2, 24, 40), 1_673_403_880);
+        for t in [0i64, 951_782_400, 1_673_403_880, 4_102_444_799, 4_762_094_400] {
+            let (y, mo, d, h, mi, s) = civil_from_unix(t);
+            assert_eq!(unix_seconds(y, mo, d, h, mi, s), t, "{t}");
+        }
+    }
+
+    #[test]
+    fn frame_is_x_forward_y_left() {
+        // Azimuth 90° clockwise from forward = to the right = -y.
+        let (x, y, z) = to_xyz(10.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.0);
+        assert!(x.abs() < 1e-6 && (y + 10.0).abs() < 1e-6 && z == 0.0);
+        let (x, y, _) = to_xyz(10.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0);
+        assert!((x - 10.0).abs() < 1e-6 && y.abs() < 1e-6);
+    }
+}

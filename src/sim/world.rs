@@ -1,0 +1,210 @@
+//! The simulated room as geometry: boards on stands, floor, ceiling, walls and clutter,
+//! all in the LiDAR frame (x forward, y left, z up). The camera renderer and the LiDAR
+//! ray caster both ask the same question of it: what does this ray hit first?
+
+use crate::geometry::{Se3, Vec3};
+use crate::target::BoardSpec;
+
+use super::rng::{texture, Rng};
+
+/// Where the LiDAR's origin stands above the floor (m).
+pub const LIDAR_HEIGHT: f64 = 2.0;
+/// Radius of the pole each board stands on (m).
+const POLE_RADIUS: f64 = 0.03;
+/// Albedo of the board's white (paper) and black (print).
+pub const WHITE: f64 = 0.86;
+pub const BLACK: f64 = 0.06;
+
+/// What a ray hit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Surface {
+    /// Board `index` at board-plane point (x, y).
+    Board { index: usize, x: f64, y: f64 },
+    /// Anything else, with its albedo in [0, 1].
+    Background { albedo: f64 },
+}
+
+/// The first hit along a ray.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hit {
+    /// Distance along the (unit) ray, m.
+    pub distance: f64,
+    pub surface: Surface,
+}
+
+/// An axis-aligned box standing on the floor.
+#[derive(Clone, Copy, Debug)]
+struct Crate {
+    min: Vec3,
+    max: Vec3,
+}
+
+/// The room in the LiDAR frame.
+#[derive(Clone, Debug)]
+pub struct World {
+    pub board: BoardSpec,
+    /// Board → LiDAR frame for every board.
+    pub boards: Vec<Se3>,
+    texture_seed: u64,
+    crates: Vec<Crate>,
+    floor_z: f64,
+    ceiling_z: f64,
+    front_x: f64,
+    back_x: f64,
+    side_y: f64,
+}
+
+impl World {
+    /// A room around `boards` (board → LiDAR poses), with clutter drawn from `rng`.
+    pub fn new(board: &BoardSpec, boards: Vec<Se3>, rng: &mut Rng) -> Self {
+        let texture_seed = rng.next_u64();
+        let mut crates = Vec::new();
+        for side in [-1.0, 1.0] {
+            let x = rng.range(2.0, 7.0);
+            let y = side * rng.range(3.5, 5.5);
+            let (dx, dy, h) = (rng.range(0.3, 0.8), rng.range(0.3, 0.8), rng.range(0.4, 1.2));
+            let z0 = -LIDAR_HEIGHT;
+            crates.push(Crate {
+                min: Vec3::new(x - dx, y - dy, z0),
+                max: Vec3::new(x + dx, y + dy, z0 + h),
+            });
+        }
+        World {
+            board: board.clone(),
+            boards,
+            texture_seed,
+            crates,
+            floor_z: -LIDAR_HEIGHT,
+            ceiling_z: 3.2,
+            front_x: 10.0,
+            back_x: -8.0,
+            side_y: 7.0,
+        }
+    }
+
+    /// The first surface along the unit ray `origin + s·dir`, s > 0.
+    pub fn cast(&self, origin: &Vec3, dir: &Vec3) -> Option<Hit> {
+        let mut best: Option<Hit> = None;
+        let mut consider = |hit: Option<Hit>| {
+            if let Some(h) = hit {
+                if best.is_none_or(|b| h.distance < b.distance) {
+                    best = Some(h);
+                }
+            }
+        };
+        for (index, pose) in self.boards.iter().enumerate() {
+            consider(self.cast_board(index, pose, origin, dir));
+            consider(self.cast_pole(pose, origin, dir));
+        }
+        for c in &self.crates {
+            consider(self.cast_crate(c, origin, dir));
+        }
+        consider(self.cast_shell(origin, dir));
+        best
+    }
+
+    /// The albedo of a board at board-plane point (x, y): checker squares or white border.
+    pub fn board_albedo(&self, x: f64, y: f64) -> f64 {
+        let spec = &self.board;
+        let (hx, hy) = spec.checker_half_extent();
+        let (u, v) = (x - spec.checker_offset[0] + hx, y - spec.checker_offset[1] + hy);
+        if u < 0.0 || v < 0.0 || u >= 2.0 * hx || v >= 2.0 * hy {
+            return WHITE;
+        }
+        let (col, row) = ((u / spec.square).floor() as i64, (v / spec.square).floor() as i64);
+        // The top-left square is black (target.rs).
+        if (col + row) % 2 == 0 {
+            BLACK
+        } else {
+            WHITE
+        }
+    }
+
+    fn cast_board(&self, index: usize, pose: &Se3, origin: &Vec3, dir: &Vec3) -> Option<Hit> {
+        let normal = pose.rotation.column(2).into_owned();
+        let denom = normal.dot(dir);
+        if denom.abs() < 1e-12 {
+            return None;
+        }
+        let s = normal.dot(&(pose.translation - origin)) / denom;
+        if s <= 1e-6 {
+            return None;
+        }
+        let local = pose.rotation.transpose() * (origin + dir * s - pose.translation);
+        self.board.is_solid(local.x, local.y).then_some(Hit {
+            distance: s,
+            surface: Surface::Board { index, x: local.x, y: local.y },
+        })
+    }
+
+    /// The vertical pole from the floor to the middle of the board's lower edge.
+    fn cast_pole(&self, pose: &Se3, origin: &Vec3, dir: &Vec3) -> Option<Hit> {
+        let bottom = pose.act(&Vec3::new(0.0, self.board.height / 2.0, 0.0));
+        let (ox, oy) = (origin.x - bottom.x, origin.y - bottom.y);
+        let a = dir.x * dir.x + dir.y * dir.y;
+        if a < 1e-12 {
+            return None;
+        }
+        let b = ox * dir.x + oy * dir.y;
+        let c = ox * ox + oy * oy - POLE_RADIUS * POLE_RADIUS;
+        let disc = b * b - a * c;
+        if disc < 0.0 {
+            return None;
+        }
+        let s = (-b - disc.sqrt()) / a;
+        let z = origin.z + s * dir.z;
+        (s > 1e-6 && z >= self.floor_z && z <= bottom.z)
+            .then_some(Hit { distance: s, surface: Surface::Background { albedo: 0.25 } })
+    }
+
+    fn cast_crate(&self, c: &Crate, origin: &Vec3, dir: &Vec3) -> Option<Hit> {
+        let (mut lo, mut hi) = (f64::NEG_INFINITY, f64::INFINITY);
+        for k in 0..3 {
+            if dir[k].abs() < 1e-12 {
+                if origin[k] < c.min[k] || origin[k] > c.max[k] {
+                    return None;
+                }
+                continue;
+            }
+            let (a, b) = ((c.min[k] - origin[k]) / dir[k], (c.max[k] - origin[k]) / dir[k]);
+            lo = lo.max(a.min(b));
+            hi = hi.min(a.max(b));
+        }
+        (lo <= hi && lo > 1e-6).then(|| {
+            let p = origin + dir * lo;
+            let albedo = 0.2 + 0.5 * texture(self.texture_seed ^ 0xC, p.x * 3.0 + p.z, p.y * 3.0 + p.z);
+            Hit { distance: lo, surface: Surface::Background { albedo } }
+        })
+    }
+
+    /// Floor, ceiling and the four walls, each textured.
+    fn cast_shell(&self, origin: &Vec3, dir: &Vec3) -> Option<Hit> {
+        let planes = [
+            (2, self.floor_z, 1u64),
+            (2, self.ceiling_z, 2),
+            (0, self.front_x, 3),
+            (0, self.back_x, 4),
+            (1, self.side_y, 5),
+            (1, -self.side_y, 6),
+        ];
+        let mut best: Option<Hit> = None;
+        for (axis, level, id) in planes {
+            if dir[axis].abs() < 1e-12 {
+                continue;
+            }
+            let s = (level - origin[axis]) / dir[axis];
+            if s <= 1e-6 || best.is_some_and(|b| b.distance <= s) {
+                continue;
+            }
+            let p = origin + dir * s;
+            let (u, v) = match axis {
+                0 => (p.y, p.z),
+                1 => (p.x, p.z),
+                _ => (p.x, p.y),
+            };
+            let albedo = 0.15 + 0.6 * texture(self.texture_seed ^ id, u, v);
+            best = Some(Hit { distance: s, surface: Surface::Background { albedo } });
+        }
+        best
+    }
+}
