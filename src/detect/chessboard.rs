@@ -47,6 +47,10 @@ const BASE_THRESHOLD: i16 = 64;
 const MIN_CONTRAST: f32 = 6.0;
 /// Empirical factor from the sandwich covariance to the observed error spread.
 const SIGMA_SCALE: f32 = 1.0;
+/// Most the corner may move between the full and the half window (px): more means
+/// something else in the window (a stand in front of the board, a reflection) biases
+/// it, and the corner is dropped rather than reported wrong.
+const MAX_WINDOW_SHIFT: f32 = 0.3;
 /// Floor of the reported standard deviation (px).
 const SIGMA_FLOOR: f32 = 0.01;
 
@@ -297,11 +301,12 @@ impl ChessboardDetector {
                 let spacing = local_spacing(&self.grid, &self.cands, i, j);
                 let radius = ((0.4 * spacing).round() as usize).clamp(2, corner::MAX_REFINE_RADIUS);
                 let (x0, y0) = (self.cands[c].x, self.cands[c].y);
-                let Some(r) = corner::refine(view, x0, y0, radius, 10) else {
+                let Some((r, shift)) = refine_stable(view, x0, y0, radius) else {
                     board.complete = false;
                     continue;
                 };
-                if (r.x - x0).abs() > 0.25 * spacing || (r.y - y0).abs() > 0.25 * spacing {
+                let moved = (r.x - x0).abs() > 0.25 * spacing || (r.y - y0).abs() > 0.25 * spacing;
+                if moved || !clean_window(view, r.x, r.y, radius as f32) {
                     board.complete = false;
                     continue;
                 }
@@ -309,7 +314,7 @@ impl ChessboardDetector {
                 let half_trace = 0.5 * (r.cxx + r.cyy);
                 let gap = (0.25 * (r.cxx - r.cyy).powi(2) + r.cxy * r.cxy).sqrt();
                 let var = (half_trace + gap).max(0.0);
-                let sigma = (SIGMA_SCALE * var.sqrt()).max(SIGMA_FLOOR);
+                let sigma = (SIGMA_SCALE * var.sqrt()).max(SIGMA_FLOOR).max(shift);
                 let corner = Corner {
                     x: r.x as f64,
                     y: r.y as f64,
@@ -323,6 +328,38 @@ impl ChessboardDetector {
         }
         Some(board)
     }
+}
+
+/// Refines with the given window, and checks it against half that window: when the two
+/// disagree by more than [`MAX_WINDOW_SHIFT`], something else in the larger window (the
+/// board's edge under steep tilt, a stand in front of the board) biases it, and the
+/// smaller window is tried in turn, down to a half-size of 3. Returns the estimate and
+/// its shift from the check; `None` when the fit itself fails.
+fn refine_stable(view: &View, x0: f32, y0: f32, radius: usize) -> Option<(corner::Refined, f32)> {
+    let mut radius = radius;
+    let mut current = corner::refine(view, x0, y0, radius, 10)?;
+    // Below this half-size a window is too small to check against its half.
+    while radius >= 6 {
+        let half = corner::refine(view, current.x, current.y, radius / 2, 10)?;
+        let shift = ((half.x - current.x).powi(2) + (half.y - current.y).powi(2)).sqrt();
+        // The half window is noisier: allow for some of its own spread.
+        let half_sigma = (0.5 * (half.cxx + half.cyy)).max(0.0).sqrt() * SIGMA_SCALE;
+        if shift <= MAX_WINDOW_SHIFT + (2.0 * half_sigma).min(0.2) {
+            return Some((current, shift));
+        }
+        radius /= 2;
+        current = half;
+    }
+    Some((current, 0.0))
+}
+
+/// Whether the refinement window round (x, y) holds a plain saddle: rings inside and at
+/// the edge of the window each cross the mean exactly four times.
+fn clean_window(view: &View, x: f32, y: f32, radius: f32) -> bool {
+    if radius < 3.0 {
+        return true;
+    }
+    [0.6, 1.2].iter().all(|k| corner::ring_lines(view, x, y, k * radius, MIN_CONTRAST).is_some())
 }
 
 /// Sign of the cross product of the grid's mean column and row steps: positive when the
