@@ -50,10 +50,9 @@ fn errors(
         let near = |c: &roomcal::detect::Corner| {
             t.iter().any(|p| ((c.x - p[0]).powi(2) + (c.y - p[1]).powi(2)).sqrt() < 0.5)
         };
-        let partial =
-            boards.iter().filter(|b| !b.complete).find(|b| b.corners.iter().any(|c| near(c)));
+        let partial = boards.iter().filter(|b| !b.complete).find(|b| b.corners.iter().any(&near));
         let Some(partial) = partial else { panic!("{what}: board {n} not found") };
-        assert!(partial.corners.iter().all(|c| near(c)), "{what}: board {n} has a wrong corner");
+        assert!(partial.corners.iter().all(near), "{what}: board {n} has a wrong corner");
         eprintln!(
             "{what}: board {n} partly hidden, {} of {} corners",
             partial.corners.len(),
@@ -82,17 +81,14 @@ fn run(options: SimOptions, what: &str) -> (f64, f64) {
     let sigma =
         boards.iter().flat_map(|b| b.corners.iter().map(|c| c.sigma)).sum::<f64>() / e.len() as f64;
     eprintln!("{what}: {} boards ({complete} complete), mean {mean:.4} px, max {max:.4} px, mean sigma {sigma:.4} px", boards.len());
-    assert!(sigma > 0.2 * mean && sigma < 5.0 * mean, "{what}: sigma {sigma} vs mean error {mean}");
+    assert!(sigma > 0.3 * mean && sigma < 3.0 * mean, "{what}: sigma {sigma} vs mean error {mean}");
     (mean, max)
 }
 
 #[test]
 fn sim_default_room() {
-    for seed in [1] {
-        let (mean, max) =
-            run(SimOptions { seed, ..SimOptions::default() }, &format!("default seed {seed}"));
-        assert!(mean <= 0.05 && max <= 0.3, "seed {seed}: mean {mean}, max {max}");
-    }
+    let (mean, max) = run(SimOptions { seed: 1, ..SimOptions::default() }, "default room");
+    assert!(mean <= 0.05 && max <= 0.3, "mean {mean}, max {max}");
 }
 
 #[test]

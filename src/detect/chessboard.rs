@@ -46,7 +46,7 @@ const BASE_THRESHOLD: i16 = 64;
 /// Least ring contrast (mean absolute deviation, grey levels) of a corner.
 const MIN_CONTRAST: f32 = 6.0;
 /// Empirical factor from the sandwich covariance to the observed error spread.
-const SIGMA_SCALE: f32 = 1.0;
+const SIGMA_SCALE: f32 = 0.3;
 /// Most the corner may move between the full and the half window (px): more means
 /// something else in the window (a stand in front of the board, a reflection) biases
 /// it, and the corner is dropped rather than reported wrong.

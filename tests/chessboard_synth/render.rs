@@ -3,6 +3,9 @@
 //! gradient, sensor noise and a textured background. Truth corners come from the same
 //! model, solved exactly, in the board model's order.
 
+// Each test binary that includes this file uses a different part of it.
+#![allow(dead_code)]
+
 /// One board: pose (board → camera) and pattern.
 #[derive(Clone, Copy, Debug)]
 pub struct BoardPose {
@@ -55,7 +58,7 @@ fn mul(a: &[[f64; 3]; 3], b: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
 
 impl BoardPose {
     /// Board point (x, y) in metres relative to the checker centre → camera frame.
-    fn to_camera(&self, x: f64, y: f64) -> [f64; 3] {
+    fn board_to_camera(&self, x: f64, y: f64) -> [f64; 3] {
         let r = &self.r;
         [
             r[0][0] * x + r[0][1] * y + self.t[0],
@@ -136,7 +139,7 @@ impl Scene {
                 for row in 0..b.rows {
                     for col in 0..b.cols {
                         let (x, y) = b.corner(col, row);
-                        let p = b.to_camera(x, y);
+                        let p = b.board_to_camera(x, y);
                         let (u, w) = self.distort(p[0] / p[2], p[1] / p[2]);
                         v.push([u, w]);
                     }
@@ -185,8 +188,8 @@ impl Scene {
         for b in &self.boards {
             if let Some((x, y)) = b.intersect(ray) {
                 if let Some(a) = b.albedo(x, y) {
-                    let p = b.to_camera(x, y);
-                    if best.is_none_or(|(z, _)| p[2] < z) {
+                    let p = b.board_to_camera(x, y);
+                    if !best.is_some_and(|(z, _)| p[2] >= z) {
                         best = Some((p[2], a));
                     }
                 }

@@ -52,9 +52,6 @@ pub struct Lines {
     pub b: [f32; 2],
     /// Mean absolute deviation of the ring from its mean (grey levels).
     pub contrast: f32,
-    /// Largest departure of two crossings from half a turn apart (rad): near zero for
-    /// straight edges through the centre, large when something else is in the ring.
-    pub skew: f32,
 }
 
 const RING_N: usize = 32;
@@ -112,17 +109,17 @@ fn crossings_to_lines(d: &[f32; RING_N], step: f32, contrast: f32) -> Option<Lin
     if n_up != 2 || n_down != 2 {
         return None;
     }
-    let (a, skew_a) = line_from_pair(up[0], up[1])?;
-    let (b, skew_b) = line_from_pair(down[0], down[1])?;
+    let a = line_from_pair(up[0], up[1])?;
+    let b = line_from_pair(down[0], down[1])?;
     // The two lines must not nearly coincide (a tilted board still keeps them apart).
     if (a[0] * b[1] - a[1] * b[0]).abs() < 0.25 {
         return None;
     }
-    Some(Lines { a, b, contrast, skew: skew_a.max(skew_b) })
+    Some(Lines { a, b, contrast })
 }
 
 /// The line through two crossing angles that should be half a turn apart.
-fn line_from_pair(t0: f32, t1: f32) -> Option<([f32; 2], f32)> {
+fn line_from_pair(t0: f32, t1: f32) -> Option<[f32; 2]> {
     use core::f32::consts::PI;
     let mut gap = t1 - t0 - PI;
     while gap > PI {
@@ -135,7 +132,7 @@ fn line_from_pair(t0: f32, t1: f32) -> Option<([f32; 2], f32)> {
         return None;
     }
     let angle = t0 + 0.5 * gap;
-    Some(([angle.cos(), angle.sin()], gap.abs()))
+    Some([angle.cos(), angle.sin()])
 }
 
 /// A refined corner: position and the covariance of its estimate (px²).
