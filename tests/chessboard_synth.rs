@@ -5,7 +5,7 @@
 #[path = "chessboard_synth/render.rs"]
 mod render;
 
-use render::{rotation, six_boards, BoardPose, Scene};
+use render::{grid_boards, rotation, six_boards, BoardPose, Scene};
 use roomcal::detect::{Board, ChessboardDetector};
 use roomcal::target::BoardSpec;
 
@@ -209,4 +209,53 @@ fn occluded_board_is_incomplete_with_true_corners() {
             assert!(c.x < cut, "corner behind the occluder");
         }
     }
+}
+
+#[test]
+fn sixteen_boards() {
+    let scene = grid_boards(1600, 1000, 1000.0, 0.05, 30.0, 12, 4.2, 4, 4);
+    let boards = detect(&scene, 7, 5);
+    assert_eq!(boards.len(), 16);
+    let (mean, max) = summary(&errors(&boards, &scene.truth(), true));
+    eprintln!("16 boards: mean {mean:.4} px, max {max:.4} px");
+    assert!(mean <= 0.05 && max <= 0.3, "mean {mean}, max {max}");
+}
+
+#[test]
+fn large_squares() {
+    // About 120 px squares, close up and a little tilted.
+    let r = rotation(0.2, -0.25, 0.1);
+    let b = BoardPose { r, t: [0.0, 0.0, 0.6], cols: 7, rows: 5, square: 0.08 };
+    let scene = Scene {
+        w: 1280,
+        h: 800,
+        f: 900.0,
+        k: 0.0,
+        boards: vec![b],
+        blur: 1.5,
+        noise: 2.0,
+        seed: 13,
+        texture: 1.0,
+        occluder: None,
+    };
+    let boards = detect(&scene, 7, 5);
+    assert_eq!(boards.len(), 1);
+    let (mean, max) = summary(&errors(&boards, &scene.truth(), true));
+    eprintln!("120 px squares: mean {mean:.4} px, max {max:.4} px");
+    assert!(mean <= 0.05 && max <= 0.3, "mean {mean}, max {max}");
+}
+
+#[test]
+fn errors_name_the_problem() {
+    let err = ChessboardDetector::new(640, 480, &spec(1, 5)).err().expect("1 column refused");
+    assert!(err.to_string().contains("inner_corners"), "{err}");
+    let err = ChessboardDetector::new(8, 8, &spec(7, 5)).err().expect("tiny image refused");
+    assert!(err.to_string().contains("8x8"), "{err}");
+    let mut det = ChessboardDetector::new(64, 48, &spec(7, 5)).unwrap();
+    let err = det.detect(&[0u8; 100], &mut Vec::new()).unwrap_err();
+    assert!(err.to_string().contains("100 bytes") && err.to_string().contains("64x48"), "{err}");
+    // A flat frame holds no board.
+    let mut out = Vec::new();
+    det.detect(&[128u8; 64 * 48], &mut out).unwrap();
+    assert!(out.is_empty());
 }

@@ -273,13 +273,30 @@ fn blur(img: &mut [f32], w: usize, h: usize, sigma: f64) {
 /// Six boards in a 3 × 2 layout filling a `w`×`h` frame, tilted up to `tilt_deg`, about
 /// `z` metres away.
 pub fn six_boards(w: usize, h: usize, f: f64, k: f64, tilt_deg: f64, seed: u64, z: f64) -> Scene {
+    grid_boards(w, h, f, k, tilt_deg, seed, z, 3, 2)
+}
+
+/// `nx` × `ny` boards in a grid filling a `w`×`h` frame (see [`six_boards`]).
+#[allow(clippy::too_many_arguments)]
+pub fn grid_boards(
+    w: usize,
+    h: usize,
+    f: f64,
+    k: f64,
+    tilt_deg: f64,
+    seed: u64,
+    z: f64,
+    nx: usize,
+    ny: usize,
+) -> Scene {
     let (cols, rows, square) = (7, 5, 0.08);
     let mut boards = Vec::new();
     let tilt = tilt_deg.to_radians();
     let signs = [(1.0, 0.4), (-0.5, 1.0), (0.8, -0.8), (-1.0, -0.3), (0.3, 1.0), (-0.7, 0.7)];
-    for (n, &(sx, sy)) in signs.iter().enumerate() {
-        let (gx, gy) = ((n % 3) as f64, (n / 3) as f64);
-        let (u, v) = ((gx + 0.5) / 3.0 * w as f64, (gy + 0.5) / 2.0 * h as f64);
+    for n in 0..nx * ny {
+        let (sx, sy) = signs[n % signs.len()];
+        let (gx, gy) = ((n % nx) as f64, (n / nx) as f64);
+        let (u, v) = ((gx + 0.5) / nx as f64 * w as f64, (gy + 0.5) / ny as f64 * h as f64);
         let z = z * (1.0 + 0.12 * ((seed + n as u64) % 3) as f64);
         let (cx, cy) = (w as f64 / 2.0, h as f64 / 2.0);
         let (xn, yn) = ((u - cx) / f, (v - cy) / f);
