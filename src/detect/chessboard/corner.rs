@@ -151,32 +151,44 @@ pub struct Refined {
 /// estimate leaves the image.
 pub fn refine(v: &View, x0: f32, y0: f32, radius: usize, max_iter: usize) -> Option<Refined> {
     let radius = radius.clamp(1, MAX_REFINE_RADIUS);
-    let (mut x, mut y) = (x0, y0);
+    let n = 2 * radius + 3;
+    let half = (radius + 1) as f32;
+    // Gaussian window weights, once per call.
     let sigma = 0.5 * radius as f32 + 0.5;
     let inv_2s2 = 1.0 / (2.0 * sigma * sigma);
-    let mut cov = (0.0, 0.0, 0.0);
+    let mut weight = [0f32; PATCH * PATCH];
+    for r in 1..n - 1 {
+        let dy = r as f32 - half;
+        for c in 1..n - 1 {
+            let dx = c as f32 - half;
+            weight[r * PATCH + c] = (-(dx * dx + dy * dy) * inv_2s2).exp();
+        }
+    }
+    let mut patch = [0f32; PATCH * PATCH];
+    let (mut x, mut y) = (x0, y0);
+    let mut last = None;
     for _ in 0..max_iter.max(1) {
         if !v.inside(x, y, radius as f32 + 2.0) {
             return None;
         }
-        let (step, c) = refine_step(v, x, y, radius, inv_2s2)?;
+        sample_patch(v, x, y, n, half, &mut patch);
+        let (step, inv) = solve_step(&patch, &weight, n, half)?;
         x += step.0;
         y += step.1;
-        cov = c;
+        last = Some((step, inv));
         if step.0 * step.0 + step.1 * step.1 < 1e-4 {
             break;
         }
     }
-    Some(Refined { x, y, cxx: cov.0, cxy: cov.1, cyy: cov.2 })
+    let (step, inv) = last?;
+    // Covariance from the last window (the residuals round the last estimate).
+    let meat = residual_meat(&patch, &weight, n, half, step);
+    let (cxx, cxy, cyy) = sandwich(inv, meat);
+    Some(Refined { x, y, cxx, cxy, cyy })
 }
 
-type Step = ((f32, f32), (f32, f32, f32));
-
-fn refine_step(v: &View, x: f32, y: f32, radius: usize, inv_2s2: f32) -> Option<Step> {
-    let n = 2 * radius + 3;
-    let mut patch = [0f32; PATCH * PATCH];
-    let half = (radius + 1) as f32;
-    // Integer-offset samples of a window centred on the sub-pixel estimate.
+/// Integer-offset samples of a window centred on the sub-pixel estimate (x, y).
+fn sample_patch(v: &View, x: f32, y: f32, n: usize, half: f32, patch: &mut [f32]) {
     let (fx, fy) = ((x - half).floor(), (y - half).floor());
     let (ax, ay) = (x - half - fx, y - half - fy);
     let (bx, by) = (fx as isize, fy as isize);
@@ -185,12 +197,19 @@ fn refine_step(v: &View, x: f32, y: f32, radius: usize, inv_2s2: f32) -> Option<
             patch[r * PATCH + c] = sample_at(v, bx + c as isize, by + r as isize, ax, ay);
         }
     }
+}
+
+type Inverse = (f32, f32, f32);
+
+/// One Gauss–Newton step: the offset from the window centre to the point all gradients
+/// are orthogonal to, and the inverse normal matrix.
+fn solve_step(patch: &[f32], weight: &[f32], n: usize, half: f32) -> Option<((f32, f32), Inverse)> {
     let (mut a11, mut a12, mut a22, mut b1, mut b2) = (0f32, 0f32, 0f32, 0f32, 0f32);
     for r in 1..n - 1 {
         let dy = r as f32 - half;
         for c in 1..n - 1 {
             let dx = c as f32 - half;
-            let w = (-(dx * dx + dy * dy) * inv_2s2).exp();
+            let w = weight[r * PATCH + c];
             let gx = 0.5 * (patch[r * PATCH + c + 1] - patch[r * PATCH + c - 1]);
             let gy = 0.5 * (patch[(r + 1) * PATCH + c] - patch[(r - 1) * PATCH + c]);
             let (gxx, gxy, gyy) = (w * gx * gx, w * gx * gy, w * gy * gy);
@@ -207,18 +226,15 @@ fn refine_step(v: &View, x: f32, y: f32, radius: usize, inv_2s2: f32) -> Option<
         return None;
     }
     let (i11, i12, i22) = (a22 / det, -a12 / det, a11 / det);
-    let (sx, sy) = (i11 * b1 + i12 * b2, i12 * b1 + i22 * b2);
-    let meat = residual_meat(&patch, n, half, inv_2s2, (sx, sy));
-    let cov = sandwich((i11, i12, i22), meat);
-    Some(((sx, sy), cov))
+    Some(((i11 * b1 + i12 * b2, i12 * b1 + i22 * b2), (i11, i12, i22)))
 }
 
 /// Σ w² r² g gᵀ with r = gᵀ(p − q): the spread of the orthogonality residuals.
 fn residual_meat(
     patch: &[f32],
+    weight: &[f32],
     n: usize,
     half: f32,
-    inv_2s2: f32,
     q: (f32, f32),
 ) -> (f32, f32, f32) {
     let (mut m11, mut m12, mut m22) = (0f32, 0f32, 0f32);
@@ -226,7 +242,7 @@ fn residual_meat(
         let dy = r as f32 - half;
         for c in 1..n - 1 {
             let dx = c as f32 - half;
-            let w = (-(dx * dx + dy * dy) * inv_2s2).exp();
+            let w = weight[r * PATCH + c];
             let gx = 0.5 * (patch[r * PATCH + c + 1] - patch[r * PATCH + c - 1]);
             let gy = 0.5 * (patch[(r + 1) * PATCH + c] - patch[(r - 1) * PATCH + c]);
             let res = gx * (dx - q.0) + gy * (dy - q.1);
