@@ -30,6 +30,8 @@
 
 pub mod geometry;
 pub mod lidar;
+pub mod service;
+pub mod solve;
 pub mod target;
 
 #[cfg(feature = "std")]

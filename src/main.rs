@@ -12,7 +12,11 @@ use roomcal::sim::{self, SimOptions};
 use roomcal::target::LidarModel;
 
 #[derive(Parser)]
-#[command(name = "roomcal", version, about = "Joint camera intrinsic and LiDAR-camera extrinsic calibration")]
+#[command(
+    name = "roomcal",
+    version,
+    about = "Joint camera intrinsic and LiDAR-camera extrinsic calibration"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

@@ -299,8 +299,7 @@ impl LidarSpec {
         let orth = (r.transpose() * r - Mat3::identity()).abs().max();
         let det = (r.determinant() - 1.0).abs();
         let deviation = orth.max(det);
-        // `!(a <= b)` also refuses NaN.
-        if !(deviation <= ROTATION_TOLERANCE) {
+        if deviation.is_nan() || deviation > ROTATION_TOLERANCE {
             return Err(RoomError::RotationNotOrthonormal { deviation });
         }
         Ok(())
@@ -328,8 +327,7 @@ impl Room {
 }
 
 fn positive(key: &'static str, value: f64) -> Result<(), RoomError> {
-    // `!(v > 0)` also refuses NaN.
-    if !(value > 0.0) || !value.is_finite() {
+    if value.is_nan() || value <= 0.0 || !value.is_finite() {
         return Err(RoomError::NonPositive { key, value });
     }
     Ok(())

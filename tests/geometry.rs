@@ -128,7 +128,7 @@ fn so3_exp_small_angle_matches_series_and_skew_is_cross() {
 #[test]
 fn so3_jacobians_match_central_differences() {
     let mut rng = Rng(3);
-    let (mut worst_l, mut worst_r) = (0.0f64, 0.0f64);
+    let (mut worst_l, mut worst_r, mut worst_inv) = (0.0f64, 0.0f64, 0.0f64);
     let mut angles = vec![0.0, 1e-7, 1e-3];
     for _ in 0..500 {
         angles.push(rng.uniform(0.0, 3.0));
@@ -148,6 +148,11 @@ fn so3_jacobians_match_central_differences() {
             &Vec3::zeros(),
             &h,
         );
+        // log(exp(δ) exp(w)) ≈ w + J_l⁻¹ δ, and on the right with J_r⁻¹.
+        let jli_num = numeric_jacobian(|d| so3_log(&(so3_exp(d) * r0)), &Vec3::zeros(), &h);
+        let jri_num = numeric_jacobian(|d| so3_log(&(r0 * so3_exp(d))), &Vec3::zeros(), &h);
+        worst_inv = worst_inv.max(scaled_err(&so3_left_jacobian_inv(&w), &jli_num));
+        worst_inv = worst_inv.max(scaled_err(&so3_right_jacobian_inv(&w), &jri_num));
         let (jl, jr) = (so3_left_jacobian(&w), so3_right_jacobian(&w));
         worst_l = worst_l.max(scaled_err(&jl, &jl_num));
         worst_r = worst_r.max(scaled_err(&jr, &jr_num));
@@ -155,8 +160,8 @@ fn so3_jacobians_match_central_differences() {
         assert!((so3_right_jacobian_inv(&w) * jr - Mat3::identity()).norm() < 1e-12);
         assert!((jr - jl.transpose()).norm() < 1e-15);
     }
-    println!("so3 J_l worst error {worst_l:.2e}, J_r worst error {worst_r:.2e}");
-    assert!(worst_l < 1e-8 && worst_r < 1e-8);
+    println!("so3 J_l worst error {worst_l:.2e}, J_r {worst_r:.2e}, inverses {worst_inv:.2e}");
+    assert!(worst_l < 1e-8 && worst_r < 1e-8 && worst_inv < 1e-8);
 }
 
 #[test]

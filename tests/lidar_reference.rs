@@ -216,3 +216,22 @@ fn nominal_tables_match_the_shipped_calibrations() {
         assert_eq!(file_cal.distance_resolution, nominal.distance_resolution, "{file}");
     }
 }
+
+#[test]
+fn decode_payloads_decodes_every_packet_and_counts_the_rest() {
+    let Some(dir) = data_dir() else { return };
+    let payloads = pcap_payloads(&dir.join("velodyne-vlp16/velodyne-vlp16.pcap"));
+    let cal = Calibration::nominal(Model::Vlp16);
+    let mut expected = 0;
+    for p in &payloads {
+        let s = decode_packet(&cal, p, &mut |r| assert!(r.distance > 0.0)).unwrap();
+        expected += s.returns;
+    }
+    let junk = [vec![0u8; 512], payloads[3][..600].to_vec()];
+    let all = payloads.iter().chain(&junk).map(Vec::as_slice);
+    let (points, stats) = roomcal::lidar::decode_payloads(&cal, all);
+    assert_eq!(points.len(), expected);
+    assert_eq!(stats.packets as usize, payloads.len());
+    assert_eq!((stats.truncated, stats.position), (1, 1), "{stats:?}");
+    assert!(points.iter().all(|p| p.x.is_finite() && usize::from(p.ring) < 16));
+}

@@ -45,29 +45,25 @@ fn every_model_round_trips() {
         assert_eq!(decoded.len(), returns.len(), "{model:?}");
         // Decoded order: block by block, channel by channel, as encoded (VLP-16 interleaves two
         // firings per block, so compare as sets keyed by (azimuth group, laser)).
-        let mut want: Vec<_> = returns.iter().map(|r| (r.azimuth, r.laser, r)).collect();
-        want.sort_by_key(|w| (w.0, w.1));
+        let want: std::collections::HashMap<(u16, u16), &SimReturn> =
+            returns.iter().map(|r| ((r.laser, r.azimuth), r)).collect();
         let mut max_err = 0.0f32;
         for r in &decoded {
             let laser = r.point.ring;
             let corr = cal.lasers[usize::from(laser)];
-            // The firing azimuth lies at most one block advance (0.2°) after its block's.
-            // The nearest block azimuth at or before the firing's.
-            let offset = |w: &&(u16, u16, &SimReturn)| {
-                (36000 + u32::from(r.azimuth) - u32::from(w.0)) % 36000
-            };
-            let w = want
-                .iter()
-                .filter(|w| {
-                    w.1 == laser
-                        && offset(w) <= 20
-                        && (r.distance - w.2.range).abs() <= resolution / 2.0 + 1e-4
+            // The firing azimuth lies at most one block advance (0.2°) after its block's: take
+            // the nearest block azimuth at or before it holding this laser at this range.
+            let w = (0..=20u16)
+                .filter_map(|k| {
+                    want.get(&(
+                        laser,
+                        ((u32::from(r.azimuth) + 36000 - u32::from(k)) % 36000) as u16,
+                    ))
                 })
-                .min_by_key(offset)
+                .find(|w| (r.distance - w.range).abs() <= resolution / 2.0 + 1e-4)
                 .unwrap_or_else(|| {
                     panic!("{model:?}: no return for laser {laser} az {}", r.azimuth)
                 });
-            let w = w.2;
             assert!(
                 (r.distance - w.range).abs() <= resolution / 2.0 + 1e-4,
                 "{model:?}: laser {laser} az {} block az {} got {} want {}",

@@ -522,3 +522,12 @@ fn real_pcd_speed() {
         );
     }
 }
+
+#[test]
+fn format_names() {
+    for f in [PcdFormat::Ascii, PcdFormat::Binary, PcdFormat::BinaryCompressed] {
+        assert_eq!(f.to_string().parse::<PcdFormat>(), Ok(f));
+        assert_eq!(f.as_str().to_uppercase().parse::<PcdFormat>(), Ok(f));
+    }
+    assert!("lzf".parse::<PcdFormat>().unwrap_err().contains("lzf"));
+}

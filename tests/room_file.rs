@@ -12,7 +12,10 @@ fn error_of(text: &str) -> String {
         Ok(_) => panic!("accepted a bad room file:\n{text}"),
         Err(e) => {
             let message = e.to_string();
-            assert!(message.contains("bad-room.toml"), "the message does not name the file: {message}");
+            assert!(
+                message.contains("bad-room.toml"),
+                "the message does not name the file: {message}"
+            );
             message
         }
     }
@@ -39,7 +42,10 @@ fn the_design_example_parses() {
 
 #[test]
 fn intrinsics_only_room_parses() {
-    let text = GOOD.replace("holes = [[-0.45, -0.35], [0.45, -0.35], [-0.45, 0.35], [0.45, 0.35]]", "holes = []");
+    let text = GOOD.replace(
+        "holes = [[-0.45, -0.35], [0.45, -0.35], [-0.45, 0.35], [0.45, 0.35]]",
+        "holes = []",
+    );
     let text = text.split("[lidar]").next().unwrap();
     let room = parse(text, Path::new("room.toml")).expect("intrinsics-only room");
     assert!(room.intrinsics_only());
@@ -71,7 +77,8 @@ fn too_few_inner_corners() {
 
 #[test]
 fn hole_overlapping_the_checkerboard() {
-    let m = error_of(&GOOD.replace("[-0.45, -0.35], [0.45, -0.35]", "[-0.30, -0.20], [0.45, -0.35]"));
+    let m =
+        error_of(&GOOD.replace("[-0.45, -0.35], [0.45, -0.35]", "[-0.30, -0.20], [0.45, -0.35]"));
     assert_mentions(&m, &["board.holes[0]", "overlaps the checkerboard"]);
 }
 

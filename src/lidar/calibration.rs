@@ -23,6 +23,8 @@ pub struct LaserCorrection {
     pub horiz_offset: f32,
     pub sin_elevation: f32,
     pub cos_elevation: f32,
+    pub sin_azimuth_offset: f32,
+    pub cos_azimuth_offset: f32,
 }
 
 impl LaserCorrection {
@@ -41,6 +43,8 @@ impl LaserCorrection {
             horiz_offset: horiz,
             sin_elevation: libm::sinf(elevation),
             cos_elevation: libm::cosf(elevation),
+            sin_azimuth_offset: libm::sinf(azimuth_offset),
+            cos_azimuth_offset: libm::cosf(azimuth_offset),
         }
     }
 }

@@ -95,18 +95,6 @@ pub mod return_mode {
     pub const DUAL_FIRST_STRONGEST: u8 = 0x3c;
 }
 
-fn mode_of(byte: u8) -> Option<ReturnMode> {
-    match byte {
-        return_mode::FIRST => Some(ReturnMode::First),
-        return_mode::STRONGEST => Some(ReturnMode::Strongest),
-        return_mode::LAST => Some(ReturnMode::Last),
-        return_mode::DUAL_LAST_STRONGEST..=return_mode::DUAL_FIRST_STRONGEST => {
-            Some(ReturnMode::Dual)
-        }
-        _ => None,
-    }
-}
-
 impl Layout {
     /// The layout of a Hesai model.
     pub fn of(model: Model) -> Option<&'static Layout> {
@@ -455,39 +443,6 @@ impl Repr {
     }
 }
 
-/// Firing offset of channels from the start of their block, ns (negative = before the packet
-/// timestamp), Pandar64 user manual appendix "laser firing time".
-const PANDAR64_FIRING_NS: [i32; 64] = [
-    -23180, -21876, -20572, -19268, -17964, -16660, -11444, -46796, -7532, -36956, -50732, -54668,
-    -40892, -44828, -31052, -34988, -48764, -52700, -38924, -42860, -29084, -33020, -46796, -25148,
-    -36956, -50732, -27116, -40892, -44828, -31052, -34988, -48764, -25148, -38924, -42860, -29084,
-    -33020, -52700, -6228, -54668, -15356, -27116, -10140, -23180, -4924, -21876, -14052, -17964,
-    -8836, -19268, -3620, -20572, -12748, -16660, -7532, -11444, -6228, -15356, -10140, -4924,
-    -3620, -14052, -8836, -12748,
-];
-
-/// Same for the Pandar40P (user manual appendix II).
-const PANDAR40P_FIRING_NS: [i32; 40] = [
-    -42220, -28470, -16040, -3620, -45490, -31740, -47460, -54670, -20620, -33710, -40910, -8190,
-    -20620, -27160, -50730, -8190, -14740, -36980, -45490, -52700, -23890, -31740, -38950, -11470,
-    -18650, -25190, -48760, -6230, -12770, -35010, -21920, -9500, -43520, -29770, -17350, -4920,
-    -42220, -28470, -16040, -3620,
-];
-
-/// Firing sequence period (one block in single-return mode), ns.
-const SEQUENCE_NS: i64 = 55_560;
-
-/// Time of channel `c` in block `b` relative to the packet timestamp, seconds.
-fn firing_offset(l: &Layout, b: usize, c: usize, returns: usize) -> f64 {
-    let (block_base, table): (i64, &[i32]) = match l.model {
-        Model::Pandar40p => (-28_580, &PANDAR40P_FIRING_NS),
-        _ => (-42_580, &PANDAR64_FIRING_NS),
-    };
-    let sequences_after = ((l.blocks - b - 1) / returns) as i64;
-    let ns = block_base - SEQUENCE_NS * sequences_after + i64::from(table[c]);
-    ns as f64 * 1e-9
-}
-
 /// Nominal packet period in single-return mode, seconds.
 pub fn packet_period(model: Model) -> f64 {
     let blocks = Layout::of(model).map_or(6, |l| l.blocks);
@@ -511,10 +466,13 @@ pub fn decode(
     for group in (0..l.blocks).step_by(n) {
         let az = p.azimuth(group);
         let az_rad = f32::from(az) * (PI / 18000.0);
+        // One sine and cosine per block; each channel's offset is added by the angle-sum rule.
+        let (sin_block, cos_block) = (libm::sinf(az_rad), libm::cosf(az_rad));
         for c in 0..l.lasers {
             let corr = &cal.lasers[c];
-            let angle = az_rad + corr.azimuth_offset;
-            let (sin_az, cos_az) = (libm::sinf(angle), libm::cosf(angle));
+            let (so, co) = (corr.sin_azimuth_offset, corr.cos_azimuth_offset);
+            let (sin_az, cos_az) =
+                (sin_block * co + cos_block * so, cos_block * co - sin_block * so);
             for k in 0..n {
                 let b = group + k;
                 let raw = p.distance(b, c);
@@ -616,6 +574,51 @@ pub fn encode_sweep(
         }
     }
     Ok(packets)
+}
+
+fn mode_of(byte: u8) -> Option<ReturnMode> {
+    match byte {
+        return_mode::FIRST => Some(ReturnMode::First),
+        return_mode::STRONGEST => Some(ReturnMode::Strongest),
+        return_mode::LAST => Some(ReturnMode::Last),
+        return_mode::DUAL_LAST_STRONGEST..=return_mode::DUAL_FIRST_STRONGEST => {
+            Some(ReturnMode::Dual)
+        }
+        _ => None,
+    }
+}
+
+/// Firing offset of channels from the start of their block, ns (negative = before the packet
+/// timestamp), Pandar64 user manual appendix "laser firing time".
+const PANDAR64_FIRING_NS: [i32; 64] = [
+    -23180, -21876, -20572, -19268, -17964, -16660, -11444, -46796, -7532, -36956, -50732, -54668,
+    -40892, -44828, -31052, -34988, -48764, -52700, -38924, -42860, -29084, -33020, -46796, -25148,
+    -36956, -50732, -27116, -40892, -44828, -31052, -34988, -48764, -25148, -38924, -42860, -29084,
+    -33020, -52700, -6228, -54668, -15356, -27116, -10140, -23180, -4924, -21876, -14052, -17964,
+    -8836, -19268, -3620, -20572, -12748, -16660, -7532, -11444, -6228, -15356, -10140, -4924,
+    -3620, -14052, -8836, -12748,
+];
+
+/// Same for the Pandar40P (user manual appendix II).
+const PANDAR40P_FIRING_NS: [i32; 40] = [
+    -42220, -28470, -16040, -3620, -45490, -31740, -47460, -54670, -20620, -33710, -40910, -8190,
+    -20620, -27160, -50730, -8190, -14740, -36980, -45490, -52700, -23890, -31740, -38950, -11470,
+    -18650, -25190, -48760, -6230, -12770, -35010, -21920, -9500, -43520, -29770, -17350, -4920,
+    -42220, -28470, -16040, -3620,
+];
+
+/// Firing sequence period (one block in single-return mode), ns.
+const SEQUENCE_NS: i64 = 55_560;
+
+/// Time of channel `c` in block `b` relative to the packet timestamp, seconds.
+fn firing_offset(l: &Layout, b: usize, c: usize, returns: usize) -> f64 {
+    let (block_base, table): (i64, &[i32]) = match l.model {
+        Model::Pandar40p => (-28_580, &PANDAR40P_FIRING_NS),
+        _ => (-42_580, &PANDAR64_FIRING_NS),
+    };
+    let sequences_after = ((l.blocks - b - 1) / returns) as i64;
+    let ns = block_base - SEQUENCE_NS * sequences_after + i64::from(table[c]);
+    ns as f64 * 1e-9
 }
 
 #[cfg(test)]

@@ -1,5 +1,12 @@
 //! LiDAR input: no_std packet views and decoders per vendor, sweep assembly, and (std)
 //! pcap/pcapng and PCD readers and writers.
+//!
+//! Decoding: [`Calibration::nominal`] (or `calibration::load` for a unit's Hesai CSV /
+//! Velodyne YAML) and [`decode_packet`] per UDP payload, or [`SweepAssembler`] for whole
+//! turns, or (std) [`decode_payloads`] for a capture. Units of `Point::time`: seconds past
+//! the top of the hour on the sensor clock for Velodyne, Unix seconds for Hesai, each plus
+//! the firing offset within the packet. `Point::ring` is the vendor's laser number;
+//! `Calibration::rings` maps it to the bottom-up ring index.
 
 /// One LiDAR return in the sensor frame (x forward, y left, z up), metres.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -35,7 +42,7 @@ pub use sweep::{Sweep, SweepAssembler, SweepConfig, SweepStats};
 
 /// Decodes every return of every data payload (zero-range returns and identical dual echoes
 /// dropped), in order; payloads that are not valid data packets of the calibration's model
-/// (position packets, truncated, corrupted...) are skipped and counted in the stats.
+/// (512-byte position packets, truncated, corrupted...) are skipped and counted in the stats.
 #[cfg(feature = "std")]
 pub fn decode_payloads<'a, I>(
     calibration: &Calibration,
@@ -51,6 +58,9 @@ where
             Ok(s) => {
                 stats.packets += 1;
                 stats.points += s.returns as u64;
+            }
+            Err(_) if velodyne::PositionPacket::new_checked(payload).is_ok() => {
+                stats.position += 1;
             }
             Err(e) => stats.count_error(e),
         }

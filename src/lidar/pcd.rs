@@ -34,6 +34,35 @@ pub enum PcdFormat {
     BinaryCompressed,
 }
 
+impl PcdFormat {
+    /// The name used on the header's `DATA` line.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            PcdFormat::Ascii => "ascii",
+            PcdFormat::Binary => "binary",
+            PcdFormat::BinaryCompressed => "binary_compressed",
+        }
+    }
+}
+
+impl core::fmt::Display for PcdFormat {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl core::str::FromStr for PcdFormat {
+    type Err = String;
+
+    /// Parses a `DATA` name (any case), e.g. for a command-line option.
+    fn from_str(s: &str) -> Result<Self, String> {
+        [PcdFormat::Ascii, PcdFormat::Binary, PcdFormat::BinaryCompressed]
+            .into_iter()
+            .find(|f| f.as_str().eq_ignore_ascii_case(s))
+            .ok_or_else(|| format!("unknown PCD format `{s}` (ascii, binary, binary_compressed)"))
+    }
+}
+
 /// What a successful read found besides the points.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PcdInfo {
@@ -104,11 +133,7 @@ pub fn write(path: impl AsRef<Path>, points: &[Point], format: PcdFormat) -> Res
 
 /// Appends the PCD encoding of `points` (fields `x y z intensity ring`) to `out`.
 pub fn encode(points: &[Point], format: PcdFormat, out: &mut Vec<u8>) {
-    let data = match format {
-        PcdFormat::Ascii => "ascii",
-        PcdFormat::Binary => "binary",
-        PcdFormat::BinaryCompressed => "binary_compressed",
-    };
+    let data = format.as_str();
     let n = points.len();
     let header = format!(
         "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS x y z intensity ring\n\
@@ -267,6 +292,12 @@ enum Scalar {
 
 impl Scalar {
     fn new(kind: &str, size: usize) -> Option<Scalar> {
+        let kind = match kind {
+            "f" | "F" => "F",
+            "i" | "I" => "I",
+            "u" | "U" => "U",
+            _ => return None,
+        };
         Some(match (kind, size) {
             ("F", 4) => Scalar::F4,
             ("F", 8) => Scalar::F8,
@@ -289,27 +320,6 @@ impl Scalar {
             Scalar::F4 | Scalar::I4 | Scalar::U4 => 4,
             Scalar::F8 | Scalar::I8 | Scalar::U8 => 8,
         }
-    }
-
-    /// Value at `at` in `bytes` (little-endian); NaN when out of range.
-    #[inline(always)]
-    fn read(self, bytes: &[u8], at: usize) -> f64 {
-        fn get<const N: usize>(bytes: &[u8], at: usize) -> Option<[u8; N]> {
-            bytes.get(at..at.checked_add(N)?)?.try_into().ok()
-        }
-        let v = match self {
-            Scalar::F4 => get(bytes, at).map(|b| f64::from(f32::from_le_bytes(b))),
-            Scalar::F8 => get(bytes, at).map(f64::from_le_bytes),
-            Scalar::I1 => get(bytes, at).map(|b| f64::from(i8::from_le_bytes(b))),
-            Scalar::I2 => get(bytes, at).map(|b| f64::from(i16::from_le_bytes(b))),
-            Scalar::I4 => get(bytes, at).map(|b| f64::from(i32::from_le_bytes(b))),
-            Scalar::I8 => get(bytes, at).map(|b| i64::from_le_bytes(b) as f64),
-            Scalar::U1 => get(bytes, at).map(|b: [u8; 1]| f64::from(b[0])),
-            Scalar::U2 => get(bytes, at).map(|b| f64::from(u16::from_le_bytes(b))),
-            Scalar::U4 => get(bytes, at).map(|b| f64::from(u32::from_le_bytes(b))),
-            Scalar::U8 => get(bytes, at).map(|b| u64::from_le_bytes(b) as f64),
-        };
-        v.unwrap_or(f64::NAN)
     }
 }
 
@@ -420,14 +430,11 @@ impl Header {
             } else if is("POINTS") {
                 raw.points = Some(single(words).ok_or_else(|| bad("POINTS"))?);
             } else if is("DATA") {
-                let format = words.next().unwrap_or_default();
-                let format = if format.eq_ignore_ascii_case("ascii") {
-                    PcdFormat::Ascii
-                } else if format.eq_ignore_ascii_case("binary") {
-                    PcdFormat::Binary
-                } else if format.eq_ignore_ascii_case("binary_compressed") {
-                    PcdFormat::BinaryCompressed
-                } else {
+                let word = words.next().unwrap_or_default();
+                let formats = [PcdFormat::Ascii, PcdFormat::Binary, PcdFormat::BinaryCompressed];
+                let Some(format) =
+                    formats.into_iter().find(|f| f.as_str().eq_ignore_ascii_case(word))
+                else {
                     return Err(bad("unknown DATA format"));
                 };
                 return raw.finish(format, pos).map_err(|p| (line_no, p));
@@ -543,13 +550,6 @@ struct Locator {
     scalar: Scalar,
 }
 
-impl Locator {
-    #[inline(always)]
-    fn read(&self, data: &[u8], i: usize) -> f64 {
-        self.scalar.read(data, self.start + i * self.step)
-    }
-}
-
 struct Locators {
     x: Locator,
     y: Locator,
@@ -620,25 +620,78 @@ fn make_point(x: f64, y: f64, z: f64, intensity: f64, ring: f64, time: f64) -> O
     valid.then_some(Point { x, y, z, intensity: intensity as f32, ring: ring as u16, time })
 }
 
-/// Reads `points` records from a checked data block; returns how many were skipped.
+/// Reads `points` records from a checked data block into `out` (empty on entry);
+/// returns how many were skipped. Works column by column so each inner loop handles one
+/// field of one type.
 fn read_records(data: &[u8], points: usize, loc: &Locators, out: &mut Vec<Point>) -> usize {
-    out.reserve(points);
-    let opt = |l: &Option<Locator>, i| l.as_ref().map_or(0.0, |l| l.read(data, i));
-    let before = out.len();
-    for i in 0..points {
-        let p = make_point(
-            loc.x.read(data, i),
-            loc.y.read(data, i),
-            loc.z.read(data, i),
-            opt(&loc.intensity, i),
-            opt(&loc.ring, i),
-            opt(&loc.time, i),
-        );
-        if let Some(p) = p {
-            out.push(p);
+    out.resize(points, Point::default());
+    // Blocks that stay in L1 cache while each column passes over them.
+    for (b, block) in out.chunks_mut(BLOCK).enumerate() {
+        let first = b * BLOCK;
+        fill(data, &loc.x, first, block, |p, v| p.x = v as f32);
+        fill(data, &loc.y, first, block, |p, v| p.y = v as f32);
+        fill(data, &loc.z, first, block, |p, v| p.z = v as f32);
+        if let Some(l) = &loc.intensity {
+            fill(data, l, first, block, |p, v| p.intensity = v as f32);
+        }
+        if let Some(l) = &loc.ring {
+            // Float-to-int `as` saturates (NaN → 0), what an odd ring value deserves.
+            fill(data, l, first, block, |p, v| p.ring = v as u16);
+        }
+        if let Some(l) = &loc.time {
+            fill(data, l, first, block, |p, v| p.time = v);
         }
     }
-    points - (out.len() - before)
+    out.retain(is_valid);
+    points - out.len()
+}
+
+/// Points per block of [`read_records`] (8 KiB of `Point`s).
+const BLOCK: usize = 256;
+
+/// Whether a point is a real return: finite and not exactly at the origin.
+fn is_valid(p: &Point) -> bool {
+    p.x.is_finite() && p.y.is_finite() && p.z.is_finite() && (p.x, p.y, p.z) != (0.0, 0.0, 0.0)
+}
+
+/// Sets one field of the points `first..first + out.len()` from column `loc` of `data`.
+fn fill(
+    data: &[u8],
+    loc: &Locator,
+    first: usize,
+    out: &mut [Point],
+    set: impl Fn(&mut Point, f64),
+) {
+    let loc = &Locator { start: loc.start + first * loc.step, ..*loc };
+    match loc.scalar {
+        Scalar::F4 => column(data, loc, out, |b| f64::from(f32::from_le_bytes(b)), set),
+        Scalar::F8 => column(data, loc, out, f64::from_le_bytes, set),
+        Scalar::I1 => column(data, loc, out, |b| f64::from(i8::from_le_bytes(b)), set),
+        Scalar::I2 => column(data, loc, out, |b| f64::from(i16::from_le_bytes(b)), set),
+        Scalar::I4 => column(data, loc, out, |b| f64::from(i32::from_le_bytes(b)), set),
+        Scalar::I8 => column(data, loc, out, |b| i64::from_le_bytes(b) as f64, set),
+        Scalar::U1 => column(data, loc, out, |b: [u8; 1]| f64::from(b[0]), set),
+        Scalar::U2 => column(data, loc, out, |b| f64::from(u16::from_le_bytes(b)), set),
+        Scalar::U4 => column(data, loc, out, |b| f64::from(u32::from_le_bytes(b)), set),
+        Scalar::U8 => column(data, loc, out, |b| u64::from_le_bytes(b) as f64, set),
+    }
+}
+
+/// The inner loop of [`fill`] for a scalar of `N` bytes; NaN where `data` is too short
+/// (cannot happen after [`sized`], but costs nothing and cannot panic).
+#[inline(always)]
+fn column<const N: usize>(
+    data: &[u8],
+    loc: &Locator,
+    out: &mut [Point],
+    convert: impl Fn([u8; N]) -> f64,
+    set: impl Fn(&mut Point, f64),
+) {
+    for (i, p) in out.iter_mut().enumerate() {
+        let at = loc.start + i * loc.step;
+        let bytes = data.get(at..at + N).and_then(|b| <[u8; N]>::try_from(b).ok());
+        set(p, bytes.map_or(f64::NAN, &convert));
+    }
 }
 
 /// The first `points × stride` bytes of `data`, or a truncation error.

@@ -149,7 +149,9 @@ impl<'b> SweepAssembler<'b> {
     /// Feeds one UDP payload received on destination `port`; calls `on_sweep` for each sweep
     /// this payload completes (at most one in practice).
     pub fn push(&mut self, port: u16, payload: &[u8], on_sweep: &mut dyn FnMut(Sweep<'_>)) {
-        if port == self.config.position_port {
+        let velodyne_position =
+            self.cal.model.is_velodyne() && velodyne::PositionPacket::new_checked(payload).is_ok();
+        if port == self.config.position_port || velodyne_position {
             self.stats.position += 1;
             return;
         }

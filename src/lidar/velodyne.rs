@@ -10,7 +10,7 @@
 
 use core::f32::consts::PI;
 
-use super::calibration::{Calibration, Interpolation};
+use super::calibration::{Calibration, Interpolation, LaserCorrection};
 use super::decoder::{to_xyz, DecodeError, Model, PacketSummary, Return, ReturnMode, SimReturn};
 use super::Point;
 
@@ -300,21 +300,6 @@ impl Repr {
     }
 }
 
-/// Firing timing per model, microseconds (manual ch. 9).
-struct Timing {
-    /// Between firing sequences (one block for 32-laser models, half a block for VLP-16).
-    sequence_us: f64,
-    /// Between consecutive lasers (or laser pairs on the VLP-32C) within a sequence.
-    laser_us: f64,
-}
-
-fn timing(model: Model) -> Timing {
-    match model {
-        Model::Hdl32e => Timing { sequence_us: 46.080, laser_us: 1.152 },
-        _ => Timing { sequence_us: 55.296, laser_us: 2.304 },
-    }
-}
-
 /// Nominal packet period of a model in single-return mode, seconds (dual: half).
 pub fn packet_period(model: Model) -> f64 {
     let per_block = if model == Model::Vlp16 { 2.0 } else { 1.0 };
@@ -341,6 +326,8 @@ pub fn decode(
         Interpolation::Nebula => nebula_advances(&p, dual),
     };
     for (b, &(az, diff)) in advances.iter().enumerate() {
+        let az_rad = f32::from(az) * (PI / 18000.0);
+        let block_trig = (libm::sinf(az_rad), libm::cosf(az_rad));
         let echo = if dual { (b % 2) as u8 } else { 0 };
         for c in 0..field::CHANNELS {
             let raw = p.distance(b, c);
@@ -351,11 +338,11 @@ pub fn decode(
                 firing(cal.model, cal.interpolation, b, c, dual, az, diff);
             let corr = &cal.lasers[laser];
             let distance = f32::from(raw) * cal.distance_resolution + corr.dist_correction;
-            let angle = f32::from(firing_az) * (PI / 18000.0) + corr.azimuth_offset;
+            let (sin_az, cos_az) = firing_trig(block_trig, az, firing_az, corr);
             let (x, y, z) = to_xyz(
                 distance,
-                libm::sinf(angle),
-                libm::cosf(angle),
+                sin_az,
+                cos_az,
                 corr.sin_elevation,
                 corr.cos_elevation,
                 corr.vert_offset,
@@ -382,85 +369,6 @@ pub fn decode(
         sequence: None,
         returns,
     })
-}
-
-/// Per block: the azimuth its firings start from and the advance over one firing sequence
-/// (both 0.01°). The last sequence of the packet reuses the previous advance.
-fn manual_advances<T: AsRef<[u8]>>(p: &Packet<T>, dual: bool) -> [(u16, f32); field::BLOCKS] {
-    let mut out = [(0u16, 0.0f32); field::BLOCKS];
-    let mut last_diff = 0.0;
-    for (b, slot) in out.iter_mut().enumerate() {
-        let az = p.azimuth(b);
-        let next = b + 1 + usize::from(dual);
-        if next < field::BLOCKS {
-            let d = (36000 + u32::from(p.azimuth(next)) - u32::from(az)) % 36000;
-            // A jump of more than 5° between blocks is not rotation: do not interpolate over it.
-            last_diff = if d <= 500 { d as f32 } else { 0.0 };
-        }
-        *slot = (az, last_diff);
-    }
-    out
-}
-
-/// The same as tier4/nebula 0.x computes it (from velodyne_pointcloud), quirks included: in
-/// dual-return mode the second block of each pair takes the next pair's azimuth with no
-/// advance, and the first block without a successor gets no advance.
-fn nebula_advances<T: AsRef<[u8]>>(p: &Packet<T>, dual: bool) -> [(u16, f32); field::BLOCKS] {
-    let mut out = [(0u16, 0.0f32); field::BLOCKS];
-    let step = 1 + usize::from(dual);
-    let (mut azimuth_next, mut last_diff) = (p.azimuth(0), 0.0f32);
-    for (b, slot) in out.iter_mut().enumerate() {
-        let az = azimuth_next;
-        let diff = if b + step < field::BLOCKS {
-            azimuth_next = p.azimuth(b + step);
-            last_diff = ((36000 + u32::from(azimuth_next) - u32::from(az)) % 36000) as f32;
-            last_diff
-        } else if b == field::BLOCKS - step {
-            0.0
-        } else {
-            last_diff
-        };
-        *slot = (az, diff);
-    }
-    out
-}
-
-/// Laser number, firing azimuth (0.01°, rounded to the packet's resolution as Velodyne's
-/// reference driver does) and firing offset from the packet timestamp (µs) of channel slot
-/// `c` in block `b`; `diff` is the azimuth advance over one firing sequence (0.01°).
-fn firing(
-    model: Model,
-    interpolation: Interpolation,
-    b: usize,
-    c: usize,
-    dual: bool,
-    az: u16,
-    diff: f32,
-) -> (usize, u16, f64) {
-    let t = timing(model);
-    // Blocks of one firing sequence in dual mode share the sequence's time.
-    let seq_block = if dual { b / 2 } else { b };
-    // f32 arithmetic in the order Velodyne's driver uses, so rounding ties fall the same way.
-    let (laser_us, seq_us) = (t.laser_us as f32, t.sequence_us as f32);
-    let (laser, slot_us, span_us, offset) = if model == Model::Vlp16 {
-        // Two firings of 16 lasers per block, each 55.296 µs, lasers 2.304 µs apart.
-        let (laser, firing) = (c % 16, c / 16);
-        let slot = laser as f32 * laser_us + firing as f32 * seq_us;
-        let offset = (2 * seq_block + firing) as f64 * t.sequence_us + laser as f64 * t.laser_us;
-        (laser, slot, 2.0 * seq_us, offset)
-    } else {
-        // 32-laser models: one sequence per block; the VLP-32C fires lasers in pairs.
-        let slot = if model == Model::Vlp32c { c / 2 } else { c };
-        let offset = seq_block as f64 * t.sequence_us + slot as f64 * t.laser_us;
-        let slot_us = match interpolation {
-            // nebula 0.x advances every channel slot by 2.304 µs.
-            Interpolation::Nebula if model == Model::Vlp32c => c as f32 * laser_us,
-            _ => slot as f32 * laser_us,
-        };
-        (c, slot_us, seq_us, offset)
-    };
-    let firing_az = f32::from(az) + diff * slot_us / span_us;
-    (laser, (libm::roundf(firing_az) as u32 % 36000) as u16, offset)
 }
 
 /// Encodes single-return (strongest) packets from `returns` sorted by azimuth: each distinct
@@ -576,6 +484,126 @@ impl<T: AsRef<[u8]>> PositionPacket<T> {
         let end = d.iter().position(|b| *b == 0).unwrap_or(d.len());
         &d[..end]
     }
+}
+
+/// Firing timing per model, microseconds (manual ch. 9).
+struct Timing {
+    /// Between firing sequences (one block for 32-laser models, half a block for VLP-16).
+    sequence_us: f64,
+    /// Between consecutive lasers (or laser pairs on the VLP-32C) within a sequence.
+    laser_us: f64,
+}
+
+fn timing(model: Model) -> Timing {
+    match model {
+        Model::Hdl32e => Timing { sequence_us: 46.080, laser_us: 1.152 },
+        _ => Timing { sequence_us: 55.296, laser_us: 2.304 },
+    }
+}
+
+/// Sine and cosine of a firing's azimuth plus the laser's offset, from the block azimuth's
+/// (computed once per block) by the angle-sum rule: the firing lies a few hundredths of a
+/// degree after the block, where a short series is exact to f32 precision.
+fn firing_trig(
+    (sin_block, cos_block): (f32, f32),
+    block_az: u16,
+    firing_az: u16,
+    corr: &LaserCorrection,
+) -> (f32, f32) {
+    let steps = (36000 + u32::from(firing_az) - u32::from(block_az)) % 36000;
+    let d = steps as f32 * (PI / 18000.0);
+    let (sin_d, cos_d) = if d < 0.2 {
+        let d2 = d * d;
+        (
+            d * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0)),
+            1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0)),
+        )
+    } else {
+        (libm::sinf(d), libm::cosf(d))
+    };
+    let (sin_f, cos_f) =
+        (sin_block * cos_d + cos_block * sin_d, cos_block * cos_d - sin_block * sin_d);
+    let (so, co) = (corr.sin_azimuth_offset, corr.cos_azimuth_offset);
+    (sin_f * co + cos_f * so, cos_f * co - sin_f * so)
+}
+
+/// Per block: the azimuth its firings start from and the advance over one firing sequence
+/// (both 0.01°). The last sequence of the packet reuses the previous advance.
+fn manual_advances<T: AsRef<[u8]>>(p: &Packet<T>, dual: bool) -> [(u16, f32); field::BLOCKS] {
+    let mut out = [(0u16, 0.0f32); field::BLOCKS];
+    let mut last_diff = 0.0;
+    for (b, slot) in out.iter_mut().enumerate() {
+        let az = p.azimuth(b);
+        let next = b + 1 + usize::from(dual);
+        if next < field::BLOCKS {
+            let d = (36000 + u32::from(p.azimuth(next)) - u32::from(az)) % 36000;
+            // A jump of more than 5° between blocks is not rotation: do not interpolate over it.
+            last_diff = if d <= 500 { d as f32 } else { 0.0 };
+        }
+        *slot = (az, last_diff);
+    }
+    out
+}
+
+/// The same as tier4/nebula 0.x computes it (from velodyne_pointcloud), quirks included: in
+/// dual-return mode the second block of each pair takes the next pair's azimuth with no
+/// advance, and the first block without a successor gets no advance.
+fn nebula_advances<T: AsRef<[u8]>>(p: &Packet<T>, dual: bool) -> [(u16, f32); field::BLOCKS] {
+    let mut out = [(0u16, 0.0f32); field::BLOCKS];
+    let step = 1 + usize::from(dual);
+    let (mut azimuth_next, mut last_diff) = (p.azimuth(0), 0.0f32);
+    for (b, slot) in out.iter_mut().enumerate() {
+        let az = azimuth_next;
+        let diff = if b + step < field::BLOCKS {
+            azimuth_next = p.azimuth(b + step);
+            last_diff = ((36000 + u32::from(azimuth_next) - u32::from(az)) % 36000) as f32;
+            last_diff
+        } else if b == field::BLOCKS - step {
+            0.0
+        } else {
+            last_diff
+        };
+        *slot = (az, diff);
+    }
+    out
+}
+
+/// Laser number, firing azimuth (0.01°, rounded to the packet's resolution as Velodyne's
+/// reference driver does) and firing offset from the packet timestamp (µs) of channel slot
+/// `c` in block `b`; `diff` is the azimuth advance over one firing sequence (0.01°).
+fn firing(
+    model: Model,
+    interpolation: Interpolation,
+    b: usize,
+    c: usize,
+    dual: bool,
+    az: u16,
+    diff: f32,
+) -> (usize, u16, f64) {
+    let t = timing(model);
+    // Blocks of one firing sequence in dual mode share the sequence's time.
+    let seq_block = if dual { b / 2 } else { b };
+    // f32 arithmetic in the order Velodyne's driver uses, so rounding ties fall the same way.
+    let (laser_us, seq_us) = (t.laser_us as f32, t.sequence_us as f32);
+    let (laser, slot_us, span_us, offset) = if model == Model::Vlp16 {
+        // Two firings of 16 lasers per block, each 55.296 µs, lasers 2.304 µs apart.
+        let (laser, firing) = (c % 16, c / 16);
+        let slot = laser as f32 * laser_us + firing as f32 * seq_us;
+        let offset = (2 * seq_block + firing) as f64 * t.sequence_us + laser as f64 * t.laser_us;
+        (laser, slot, 2.0 * seq_us, offset)
+    } else {
+        // 32-laser models: one sequence per block; the VLP-32C fires lasers in pairs.
+        let slot = if model == Model::Vlp32c { c / 2 } else { c };
+        let offset = seq_block as f64 * t.sequence_us + slot as f64 * t.laser_us;
+        let slot_us = match interpolation {
+            // nebula 0.x advances every channel slot by 2.304 µs.
+            Interpolation::Nebula if model == Model::Vlp32c => c as f32 * laser_us,
+            _ => slot as f32 * laser_us,
+        };
+        (c, slot_us, seq_us, offset)
+    };
+    let firing_az = f32::from(az) + diff * slot_us / span_us;
+    (laser, (libm::roundf(firing_az) as u32 % 36000) as u16, offset)
 }
 
 #[cfg(test)]

@@ -17,13 +17,13 @@ const MARGIN_PX: f64 = 8.0;
 const ATTEMPTS: usize = 400;
 
 /// Board → camera poses for `count` boards, or an error when they do not fit.
-/// `floor_ok` says whether a board pose (board → camera) stands clear of the floor.
+/// `fits` says whether a board pose (board → camera) stays inside the room.
 pub fn lay_out(
     spec: &BoardSpec,
     camera: &Camera,
     count: usize,
     rng: &mut Rng,
-    floor_ok: &dyn Fn(&Se3) -> bool,
+    fits: &dyn Fn(&Se3) -> bool,
 ) -> Result<Vec<Se3>, SimError> {
     let (cols, rows) = grid_for(count, camera.width as f64 / camera.height as f64);
     let cells = pick_cells(cols, rows, count);
@@ -32,10 +32,11 @@ pub fn lay_out(
         let pose = (0..ATTEMPTS)
             .find_map(|attempt| {
                 let shrink = attempt as f64 / ATTEMPTS as f64;
-                let candidate = propose(spec, camera, (cols, rows), (cell_col, cell_row), i, shrink, rng)?;
+                let candidate =
+                    propose(camera, (cols, rows), (cell_col, cell_row), i, shrink, rng)?;
                 let bbox = image_box(spec, camera, &candidate)?;
                 let clear = placed.iter().all(|(_, other)| !boxes_overlap(&bbox, other));
-                (clear && floor_ok(&candidate)).then_some((candidate, bbox))
+                (clear && fits(&candidate)).then_some((candidate, bbox))
             })
             .ok_or(SimError::Layout { count, board: i })?;
         placed.push(pose);
@@ -69,7 +70,6 @@ fn pick_cells(cols: usize, rows: usize, count: usize) -> Vec<(usize, usize)> {
 /// `shrink` (0→1 over the attempts) draws the aim towards the cell centre and the board
 /// farther away, so that crowded layouts still fit.
 fn propose(
-    spec: &BoardSpec,
     camera: &Camera,
     (cols, rows): (usize, usize),
     (col, row): (usize, usize),
@@ -80,7 +80,8 @@ fn propose(
     let (w, h) = (camera.width as f64, camera.height as f64);
     let cell = (w / cols as f64, h / rows as f64);
     // Offset from the cell centre towards the image border, so the corners get covered.
-    let outward = |k: usize, n: usize| if n == 1 { 0.0 } else { (k as f64 / (n - 1) as f64) * 2.0 - 1.0 };
+    let outward =
+        |k: usize, n: usize| if n == 1 { 0.0 } else { (k as f64 / (n - 1) as f64) * 2.0 - 1.0 };
     let push = 0.22 * (1.0 - shrink);
     let aim = Vec2::new(
         cell.0 * (col as f64 + 0.5 + outward(col, cols) * push + rng.range(-0.05, 0.05)),
@@ -137,5 +138,8 @@ fn image_box(spec: &BoardSpec, camera: &Camera, pose: &Se3) -> Option<[f64; 4]> 
 }
 
 fn boxes_overlap(a: &[f64; 4], b: &[f64; 4]) -> bool {
-    a[0] - MARGIN_PX < b[2] && b[0] - MARGIN_PX < a[2] && a[1] - MARGIN_PX < b[3] && b[1] - MARGIN_PX < a[3]
+    a[0] - MARGIN_PX < b[2]
+        && b[0] - MARGIN_PX < a[2]
+        && a[1] - MARGIN_PX < b[3]
+        && b[1] - MARGIN_PX < a[3]
 }

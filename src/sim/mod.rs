@@ -72,7 +72,9 @@ impl Default for SimOptions {
 pub enum SimError {
     #[error("cannot lay out {count} boards without overlap or leaving the image (board {board} did not fit); use fewer boards or a wider field of view")]
     Layout { count: usize, board: usize },
-    #[error("the simulator has no beam table for LiDAR model {0:?} (use pandar64, vlp32c or vlp16)")]
+    #[error(
+        "the simulator has no beam table for LiDAR model {0:?} (use pandar64, vlp32c or vlp16)"
+    )]
     NoBeamTable(LidarModel),
     #[error("distortion needs {expected} coefficients for this camera model, got {got}")]
     Distortion { expected: usize, got: usize },
@@ -112,6 +114,9 @@ pub struct BoardTruth {
     /// LiDAR returns on the board.
     #[serde(default)]
     pub lidar_points: usize,
+    /// Inner corners hidden from the camera by something in front (0 for a clear view).
+    #[serde(default)]
+    pub occluded_corners: usize,
     /// Per hole: how many scan lines (rings) passed through it.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub hole_scan_lines: Vec<usize>,
@@ -143,8 +148,8 @@ pub fn simulate(room: &Room, options: &SimOptions) -> Result<Scene, SimError> {
     let lidar_to_camera = true_extrinsic(&room, &mut rng.fork(1));
     let camera_in_lidar = lidar_to_camera.inverse();
     let count = options.boards.unwrap_or(room.board.count as usize);
-    let floor_ok = |board_to_camera: &Se3| stands_clear_of_floor(&room, &camera_in_lidar, board_to_camera);
-    let poses = layout::lay_out(&room.board, &camera, count, &mut rng.fork(2), &floor_ok)?;
+    let fits = |board_to_camera: &Se3| fits_in_room(&room, &camera_in_lidar, board_to_camera);
+    let poses = layout::lay_out(&room.board, &camera, count, &mut rng.fork(2), &fits)?;
     let in_lidar: Vec<Se3> = poses.iter().map(|p| camera_in_lidar.compose(p)).collect();
     let world = World::new(&room.board, in_lidar.clone(), &mut rng.fork(3));
     let image = render::render(&world, &camera, &camera_in_lidar, &options.image, &mut rng.fork(4));
@@ -163,7 +168,15 @@ pub fn simulate(room: &Room, options: &SimOptions) -> Result<Scene, SimError> {
         .zip(&in_lidar)
         .enumerate()
         .map(|(i, (to_camera, to_lidar))| {
-            board_truth(&room, &camera, to_camera, to_lidar, sweep_truth.as_ref().map(|t| (t, i)))
+            let mut truth = board_truth(
+                &room,
+                &camera,
+                to_camera,
+                to_lidar,
+                sweep_truth.as_ref().map(|t| (t, i)),
+            );
+            truth.occluded_corners = occluded_corners(&world, i, &camera_in_lidar);
+            truth
         })
         .collect();
     let truth = Truth {
@@ -201,7 +214,8 @@ pub fn write_scene(scene: &Scene, dir: &Path) -> Result<(), SimError> {
     let json = serde_json::to_string_pretty(&scene.truth).expect("truth serialises");
     std::fs::write(&truth_path, json + "\n").map_err(|e| fail(&truth_path, &e))?;
     let room_path = dir.join("room.toml");
-    std::fs::write(&room_path, crate::room::to_toml(&scene.room)).map_err(|e| fail(&room_path, &e))?;
+    std::fs::write(&room_path, crate::room::to_toml(&scene.room))
+        .map_err(|e| fail(&room_path, &e))?;
     Ok(())
 }
 
@@ -266,13 +280,29 @@ fn true_extrinsic(room: &Room, rng: &mut Rng) -> Se3 {
     }
 }
 
-/// Whether the whole board outline is at least 10 cm above the floor.
-fn stands_clear_of_floor(room: &Room, camera_in_lidar: &Se3, board_to_camera: &Se3) -> bool {
+/// Whether the whole board outline stays at least 10 cm clear of the floor and ceiling.
+fn fits_in_room(room: &Room, camera_in_lidar: &Se3, board_to_camera: &Se3) -> bool {
     let (hw, hh) = (room.board.width / 2.0, room.board.height / 2.0);
     [(-hw, -hh), (hw, -hh), (-hw, hh), (hw, hh)].iter().all(|&(x, y)| {
         let p = camera_in_lidar.act(&board_to_camera.act(&Vec3::new(x, y, 0.0)));
-        p.z > -world::LIDAR_HEIGHT + 0.1
+        p.z > -world::LIDAR_HEIGHT + 0.1 && p.z < world::CEILING_Z - 0.1
     })
+}
+
+/// How many of board `index`'s inner corners something else hides from the camera.
+fn occluded_corners(world: &World, index: usize, camera_in_lidar: &Se3) -> usize {
+    let spec = &world.board;
+    let origin = camera_in_lidar.translation;
+    (0..spec.corner_count())
+        .filter(|&c| {
+            let corner = world.boards[index].act(&spec.corner(c));
+            let (dir, distance) = ((corner - origin).normalize(), (corner - origin).norm());
+            !world.cast(&origin, &dir).is_some_and(|hit| {
+                matches!(hit.surface, world::Surface::Board { index: i, .. } if i == index)
+                    && (hit.distance - distance).abs() < 1e-6
+            })
+        })
+        .count()
 }
 
 fn board_truth(
@@ -284,7 +314,8 @@ fn board_truth(
 ) -> BoardTruth {
     let spec = &room.board;
     let project = |p: Vec3| {
-        let px = camera.project(&to_camera.act(&p)).expect("laid-out boards project into the image");
+        let px =
+            camera.project(&to_camera.act(&p)).expect("laid-out boards project into the image");
         [px.x, px.y]
     };
     let holes = || (0..spec.holes.len()).map(|h| spec.hole(h));
@@ -296,6 +327,7 @@ fn board_truth(
             Some(_) => holes().map(|h| to_lidar.act(&h).into()).collect(),
             None => Vec::new(),
         },
+        occluded_corners: 0,
         lidar_points: sweep.map_or(0, |(t, i)| t.board_points[i]),
         hole_scan_lines: sweep.map_or(Vec::new(), |(t, i)| t.hole_rings[i].clone()),
     }

@@ -35,11 +35,17 @@ pub struct SweepTruth {
 }
 
 /// Casts one sweep; points in the LiDAR frame with ring, intensity and time.
-pub fn sweep(world: &World, elevations: &[f64], range_noise_m: f64, rng: &mut Rng) -> (Vec<Point>, SweepTruth) {
+pub fn sweep(
+    world: &World,
+    elevations: &[f64],
+    range_noise_m: f64,
+    rng: &mut Rng,
+) -> (Vec<Point>, SweepTruth) {
     let columns = (360.0 / AZIMUTH_STEP_DEG).round() as usize;
     let boards = world.boards.len();
     let holes = world.board.holes.len();
-    let mut truth = SweepTruth { board_points: vec![0; boards], hole_rings: vec![vec![0; holes]; boards] };
+    let mut truth =
+        SweepTruth { board_points: vec![0; boards], hole_rings: vec![vec![0; holes]; boards] };
     let mut crossed = vec![vec![vec![false; elevations.len()]; holes]; boards];
     let mut points = Vec::with_capacity(columns * elevations.len());
     let origin = Vec3::zeros();
@@ -86,7 +92,13 @@ pub fn sweep(world: &World, elevations: &[f64], range_noise_m: f64, rng: &mut Rn
 }
 
 /// Marks the holes this beam passed through before it hit something at `distance`.
-fn mark_holes_crossed(world: &World, dir: &Vec3, distance: f64, ring: usize, crossed: &mut [Vec<Vec<bool>>]) {
+fn mark_holes_crossed(
+    world: &World,
+    dir: &Vec3,
+    distance: f64,
+    ring: usize,
+    crossed: &mut [Vec<Vec<bool>>],
+) {
     let r2 = world.board.hole_radius * world.board.hole_radius;
     for (b, pose) in world.boards.iter().enumerate() {
         let normal = pose.rotation.column(2).into_owned();

@@ -1,7 +1,7 @@
 //! The camera frame: every pixel's sub-samples traced through the exact inverse of the
 //! camera model into the room, then lens blur, vignetting, uneven light and sensor noise.
 
-use crate::geometry::{Camera, Se3, Vec2};
+use crate::geometry::{Camera, Se3, Vec2, Vec3};
 
 use super::rng::Rng;
 use super::world::{Surface, World};
@@ -9,7 +9,7 @@ use super::world::{Surface, World};
 /// How the camera image is degraded.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ImageNoise {
-    /// Sub-samples per pixel along each axis.
+    /// Sub-samples per pixel: `supersample²`, on a rank-1 lattice.
     pub supersample: u32,
     /// Gaussian blur σ (px); 0 turns it off.
     pub blur_px: f64,
@@ -44,10 +44,8 @@ pub fn render(
         for (chunk, out) in radiance.chunks_mut(rows_per_chunk * w).enumerate() {
             let first_row = chunk * rows_per_chunk;
             scope.spawn(move || {
-                for (i, value) in out.iter_mut().enumerate() {
-                    let (x, y) = (i % w, first_row + i / w);
-                    *value = shade_pixel(world, camera, camera_in_lidar, noise, x, y) as f32;
-                }
+                let tracer = Tracer { world, camera, camera_in_lidar, noise };
+                tracer.shade_rows(first_row, out);
             });
         }
     });
@@ -63,41 +61,96 @@ pub fn render(
         .collect()
 }
 
-/// Mean grey level over the pixel's sub-samples (pixel centres at integer coordinates,
-/// as OpenCV has them), with the light falling on it.
-fn shade_pixel(
-    world: &World,
-    camera: &Camera,
-    camera_in_lidar: &Se3,
-    noise: &ImageNoise,
-    x: usize,
-    y: usize,
-) -> f64 {
-    let s = noise.supersample.max(1);
-    let mut sum = 0.0;
-    for j in 0..s {
-        for i in 0..s {
-            let px = Vec2::new(
-                x as f64 - 0.5 + (i as f64 + 0.5) / s as f64,
-                y as f64 - 0.5 + (j as f64 + 0.5) / s as f64,
-            );
-            sum += albedo_seen(world, camera, camera_in_lidar, &px);
-        }
-    }
-    let albedo = sum / (s * s) as f64;
-    255.0 * albedo * illumination(camera, noise, x as f64, y as f64)
+/// Traces one band of rows.
+struct Tracer<'a> {
+    world: &'a World,
+    camera: &'a Camera,
+    camera_in_lidar: &'a Se3,
+    noise: &'a ImageNoise,
 }
 
-/// The albedo of whatever the pixel position looks at (dark where the model has no ray).
-fn albedo_seen(world: &World, camera: &Camera, camera_in_lidar: &Se3, px: &Vec2) -> f64 {
-    let Some(ray) = camera.unproject(px) else { return 0.0 };
-    let dir = camera_in_lidar.rotation * ray;
-    match world.cast(&camera_in_lidar.translation, &dir) {
-        Some(hit) => match hit.surface {
-            Surface::Board { x, y, .. } => world.board_albedo(x, y),
-            Surface::Background { albedo } => albedo,
-        },
-        None => 0.0,
+impl Tracer<'_> {
+    /// Shades the rows from `first_row` on into `out` (whole rows).
+    ///
+    /// The model is inverted exactly at every pixel corner; sub-samples inside a pixel
+    /// interpolate the four corner rays bilinearly. Over one pixel the inverse mapping is
+    /// flat to far below 1e-4 px even at |k1| = 0.4, and this is sixteen times fewer
+    /// iterative inversions than one per sub-sample. Where a corner has no ray (outside
+    /// the model's domain) the sub-samples are inverted one by one.
+    fn shade_rows(&self, first_row: usize, out: &mut [f32]) {
+        let w = self.camera.width as usize;
+        let lattice_row = |y: usize| -> Vec<Option<Vec3>> {
+            (0..=w)
+                .map(|x| self.camera.unproject(&Vec2::new(x as f64 - 0.5, y as f64 - 0.5)))
+                .collect()
+        };
+        let mut top = lattice_row(first_row);
+        for (r, row_out) in out.chunks_mut(w).enumerate() {
+            let y = first_row + r;
+            let bottom = lattice_row(y + 1);
+            for (x, value) in row_out.iter_mut().enumerate() {
+                let corners = [top[x], top[x + 1], bottom[x], bottom[x + 1]];
+                *value = self.shade_pixel(x, y, corners) as f32;
+            }
+            top = bottom;
+        }
+    }
+
+    /// Mean grey level over the pixel's sub-samples (pixel centres at integer
+    /// coordinates, as OpenCV has them), with the light falling on it.
+    fn shade_pixel(&self, x: usize, y: usize, corners: [Option<Vec3>; 4]) -> f64 {
+        let n = self.noise.supersample.max(1).pow(2);
+        let generator = lattice_generator(n);
+        let mut sum = 0.0;
+        for k in 0..n {
+            // A rank-1 lattice: every row and column of the pixel holds one sample, so an
+            // edge along either axis is resolved in 1/n px steps rather than 1/√n.
+            let fx = (k as f64 + 0.5) / n as f64;
+            let fy = ((k * generator) % n) as f64 / n as f64 + 0.5 / n as f64;
+            let ray = match corners {
+                [Some(a), Some(b), Some(c), Some(d)] => Some(
+                    (a * (1.0 - fx) * (1.0 - fy)
+                        + b * fx * (1.0 - fy)
+                        + c * (1.0 - fx) * fy
+                        + d * fx * fy)
+                        .normalize(),
+                ),
+                _ => self.camera.unproject(&Vec2::new(x as f64 - 0.5 + fx, y as f64 - 0.5 + fy)),
+            };
+            sum += ray.map_or(0.0, |ray| self.albedo_seen(&ray));
+        }
+        let albedo = sum / n as f64;
+        255.0 * albedo * illumination(self.camera, self.noise, x as f64, y as f64)
+    }
+
+    /// The albedo of whatever the camera ray (camera frame) looks at.
+    fn albedo_seen(&self, ray: &Vec3) -> f64 {
+        let dir = self.camera_in_lidar.rotation * ray;
+        match self.world.cast(&self.camera_in_lidar.translation, &dir) {
+            Some(hit) => match hit.surface {
+                Surface::Board { x, y, .. } => self.world.board_albedo(x, y),
+                Surface::Background { albedo } => albedo,
+            },
+            None => 0.0,
+        }
+    }
+}
+
+/// The generator of a rank-1 lattice of `n` points: the integer coprime with `n`
+/// nearest to n/φ (the golden ratio spreads the points most evenly).
+fn lattice_generator(n: u32) -> u32 {
+    let ideal = (n as f64 / 1.618_033_988_75).round() as u32;
+    (0..n)
+        .flat_map(|d| [ideal.saturating_sub(d), ideal + d])
+        .find(|&g| g > 0 && gcd(g, n) == 1)
+        .unwrap_or(1)
+}
+
+fn gcd(a: u32, b: u32) -> u32 {
+    if b == 0 {
+        a
+    } else {
+        gcd(b, a % b)
     }
 }
 

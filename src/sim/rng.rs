@@ -62,7 +62,8 @@ pub fn texture(seed: u64, u: f64, v: f64) -> f64 {
     let mut amplitude = 0.5;
     let mut frequency = 2.0;
     for octave in 0..4u64 {
-        sum += amplitude * value_noise(seed.wrapping_add(octave * 7919), u * frequency, v * frequency);
+        sum +=
+            amplitude * value_noise(seed.wrapping_add(octave * 7919), u * frequency, v * frequency);
         amplitude *= 0.5;
         frequency *= 2.3;
     }
@@ -83,7 +84,9 @@ fn value_noise(seed: u64, u: f64, v: f64) -> f64 {
 }
 
 fn hash(seed: u64, a: i64, b: i64) -> u64 {
-    let mut rng = Rng::new(seed ^ (a as u64).wrapping_mul(0xD6E8_FEB8_6659_FD93) ^ (b as u64).rotate_left(32));
+    let mut rng = Rng::new(
+        seed ^ (a as u64).wrapping_mul(0xD6E8_FEB8_6659_FD93) ^ (b as u64).rotate_left(32),
+    );
     rng.next_u64()
 }
 
@@ -118,7 +121,8 @@ mod tests {
 
     #[test]
     fn texture_stays_in_unit_range_and_varies() {
-        let values: Vec<f64> = (0..1000).map(|i| texture(3, i as f64 * 0.037, i as f64 * 0.011)).collect();
+        let values: Vec<f64> =
+            (0..1000).map(|i| texture(3, i as f64 * 0.037, i as f64 * 0.011)).collect();
         assert!(values.iter().all(|v| (0.0..=1.0).contains(v)));
         let spread = values.iter().cloned().fold(f64::MIN, f64::max)
             - values.iter().cloned().fold(f64::MAX, f64::min);

@@ -9,7 +9,9 @@ use super::rng::{texture, Rng};
 
 /// Where the LiDAR's origin stands above the floor (m).
 pub const LIDAR_HEIGHT: f64 = 2.0;
-/// Radius of the pole each board stands on (m).
+/// Where the ceiling is above the LiDAR's origin (m).
+pub const CEILING_Z: f64 = 3.2;
+/// Radius of the pole each board stands or hangs on (m).
 const POLE_RADIUS: f64 = 0.03;
 /// Albedo of the board's white (paper) and black (print).
 pub const WHITE: f64 = 0.86;
@@ -75,7 +77,7 @@ impl World {
             texture_seed,
             crates,
             floor_z: -LIDAR_HEIGHT,
-            ceiling_z: 3.2,
+            ceiling_z: CEILING_Z,
             front_x: 10.0,
             back_x: -8.0,
             side_y: 7.0,
@@ -137,10 +139,15 @@ impl World {
         })
     }
 
-    /// The vertical pole from the floor to the middle of the board's lower edge.
+    /// The vertical pole a board hangs on: from the middle of its upper edge to the
+    /// ceiling for boards above the LiDAR, from its lower edge to the floor otherwise, so
+    /// that no pole crosses in front of a board below or above it.
     fn cast_pole(&self, pose: &Se3, origin: &Vec3, dir: &Vec3) -> Option<Hit> {
-        let bottom = pose.act(&Vec3::new(0.0, self.board.height / 2.0, 0.0));
-        let (ox, oy) = (origin.x - bottom.x, origin.y - bottom.y);
+        let hanging = pose.translation.z > 0.0;
+        let edge_y = if hanging { -self.board.height / 2.0 } else { self.board.height / 2.0 };
+        let end = pose.act(&Vec3::new(0.0, edge_y, 0.0));
+        let (z_lo, z_hi) = if hanging { (end.z, self.ceiling_z) } else { (self.floor_z, end.z) };
+        let (ox, oy) = (origin.x - end.x, origin.y - end.y);
         let a = dir.x * dir.x + dir.y * dir.y;
         if a < 1e-12 {
             return None;
@@ -153,7 +160,7 @@ impl World {
         }
         let s = (-b - disc.sqrt()) / a;
         let z = origin.z + s * dir.z;
-        (s > 1e-6 && z >= self.floor_z && z <= bottom.z)
+        (s > 1e-6 && z >= z_lo && z <= z_hi)
             .then_some(Hit { distance: s, surface: Surface::Background { albedo: 0.25 } })
     }
 
@@ -172,7 +179,8 @@ impl World {
         }
         (lo <= hi && lo > 1e-6).then(|| {
             let p = origin + dir * lo;
-            let albedo = 0.2 + 0.5 * texture(self.texture_seed ^ 0xC, p.x * 3.0 + p.z, p.y * 3.0 + p.z);
+            let albedo =
+                0.2 + 0.5 * texture(self.texture_seed ^ 0xC, p.x * 3.0 + p.z, p.y * 3.0 + p.z);
             Hit { distance: lo, surface: Surface::Background { albedo } }
         })
     }

@@ -1,0 +1,372 @@
+//! The joint calibration problem: what is measured (board corners in the image, hole
+//! centres in the LiDAR frame, both held by reference), what is estimated (intrinsics,
+//! the LiDAR→camera extrinsic, one pose per board observation), and the residual blocks
+//! with their analytic Jacobians, streamed one at a time so memory does not grow with
+//! the number of corners.
+//!
+//! Residual blocks (2-vectors, divided by their pixel σ):
+//! - corner: `project(T_BC · X) − x_measured` — intrinsics and board `b`;
+//! - hole (the paper's term): `project(T_LC · P_lidar) − project(T_BC · H_board)` —
+//!   intrinsics, extrinsic and board `b`.
+//!
+//! Jacobians use the module's parameterisation (see [`crate::solve`]): additive
+//! intrinsics, left-perturbed rigid motions.
+
+use nalgebra::SMatrix;
+
+use super::init::point_jacobian;
+use super::{Projector, SolveError, EXT_ROTATION, INTRINSICS, SHARED};
+use crate::geometry::{Se3, Vec2, Vec3};
+
+/// What one board observation (one board in one frame) measured. Slices are the
+/// caller's: corners pair with `object`, LiDAR hole centres with `holes_board`.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct BoardObservation<'a> {
+    /// Checkerboard corners in the board frame (m), the detector's order.
+    pub object: &'a [Vec3],
+    /// Measured corner pixels, paired with `object`.
+    pub corners: &'a [Vec2],
+    /// Hole centres in the board frame (m); empty for intrinsics-only runs.
+    pub holes_board: &'a [Vec3],
+    /// The same holes measured in the LiDAR frame (m), paired with `holes_board`.
+    pub holes_lidar: &'a [Vec3],
+    /// This board's hole-term σ (px), when it differs from the problem's: a LiDAR
+    /// hole-centre error of `σ_m` at depth `z` shows as about `fx · σ_m / z` pixels, so
+    /// far boards deserve a smaller σ ([`hole_sigma_px`] computes it).
+    pub hole_sigma_px: Option<f64>,
+}
+
+/// The pixel σ of a LiDAR hole centre known to `lidar_sigma_m` at `depth_m` in front of
+/// a camera of focal length `fx` (px): `fx · σ / z`.
+pub fn hole_sigma_px(fx: f64, lidar_sigma_m: f64, depth_m: f64) -> f64 {
+    fx * lidar_sigma_m / depth_m.max(1e-3)
+}
+
+/// Robust loss on the squared whitened norm `s` of a residual block; the scale is in
+/// units of σ (e.g. `Huber(2.0)`: blocks beyond 2σ count linearly).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Loss {
+    /// Plain least squares.
+    Squared,
+    /// Quadratic up to `scale`, linear beyond.
+    Huber(f64),
+    /// `scale² · ln(1 + s / scale²)`: strongly down-weights outliers.
+    Cauchy(f64),
+}
+
+impl Loss {
+    /// `ρ(s)` and `ρ'(s)` (the IRLS weight) for a squared whitened norm `s`.
+    pub fn eval(&self, s: f64) -> (f64, f64) {
+        match *self {
+            Loss::Squared => (s, 1.0),
+            Loss::Huber(c) => {
+                let c2 = c * c;
+                if s <= c2 {
+                    (s, 1.0)
+                } else {
+                    let r = libm::sqrt(s);
+                    (2.0 * c * r - c2, c / r)
+                }
+            }
+            Loss::Cauchy(c) => {
+                let c2 = c * c;
+                (c2 * libm::log1p(s / c2), 1.0 / (1.0 + s / c2))
+            }
+        }
+    }
+}
+
+/// Which shared parameters (`[fx fy cx cy d0..d4 | δω δt]`, indices 0..15) stay fixed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ParamMask {
+    fixed: u16,
+}
+
+impl ParamMask {
+    /// Everything free.
+    pub const fn free() -> Self {
+        ParamMask { fixed: 0 }
+    }
+
+    /// Also holds shared parameter `i` fixed.
+    pub const fn fix(self, i: usize) -> Self {
+        ParamMask { fixed: self.fixed | (1 << i) }
+    }
+
+    /// Also holds shared parameters `range` fixed.
+    pub const fn fix_range(self, start: usize, end: usize) -> Self {
+        let mut m = self;
+        let mut i = start;
+        while i < end {
+            m = m.fix(i);
+            i += 1;
+        }
+        m
+    }
+
+    /// Holds all intrinsics fixed (the two-stage mode's second stage).
+    pub const fn fix_intrinsics(self) -> Self {
+        self.fix_range(0, INTRINSICS)
+    }
+
+    /// Holds the distortion coefficients fixed.
+    pub const fn fix_distortion(self) -> Self {
+        self.fix_range(4, INTRINSICS)
+    }
+
+    /// Holds the extrinsic fixed (intrinsics-only runs fix it automatically).
+    pub const fn fix_extrinsic(self) -> Self {
+        self.fix_range(EXT_ROTATION, SHARED)
+    }
+
+    /// Whether shared parameter `i` is fixed.
+    pub const fn is_fixed(&self, i: usize) -> bool {
+        self.fixed & (1 << i) != 0
+    }
+
+    /// Parameters fixed by either mask.
+    pub const fn union(self, other: ParamMask) -> Self {
+        ParamMask { fixed: self.fixed | other.fixed }
+    }
+
+    /// Number of free shared parameters.
+    pub const fn free_count(&self) -> usize {
+        SHARED - (self.fixed & ((1 << SHARED) - 1)).count_ones() as usize
+    }
+}
+
+/// The estimate: camera, LiDAR→camera extrinsic (`p_camera = R p_lidar + t`) and one
+/// board→camera pose per board observation, in the problem's order.
+#[derive(Clone, Debug)]
+pub struct JointParams<C, const B: usize> {
+    pub camera: C,
+    pub lidar_to_camera: Se3,
+    pub board_poses: heapless::Vec<Se3, B>,
+}
+
+/// Which measurement a residual block comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ResidualKind {
+    /// Corner `index` of the board's checkerboard.
+    Corner(usize),
+    /// Hole `index` of the board.
+    Hole(usize),
+}
+
+/// One whitened residual block and its Jacobians (shared parameters; its board's pose).
+#[derive(Clone, Copy, Debug)]
+pub struct Residual {
+    pub board: usize,
+    pub kind: ResidualKind,
+    /// Residual divided by its σ.
+    pub r: Vec2,
+    /// `∂r/∂[intrinsics | extrinsic]` (2×15).
+    pub j_shared: SMatrix<f64, 2, SHARED>,
+    /// `∂r/∂(board pose)` (2×6, `[δω δt]`).
+    pub j_board: SMatrix<f64, 2, 6>,
+}
+
+/// Boards (by reference), measurement noise and loss: everything the solver reads.
+#[derive(Clone, Debug)]
+pub struct JointProblem<'a, const B: usize> {
+    boards: heapless::Vec<BoardObservation<'a>, B>,
+    /// Corner measurement σ (px).
+    pub corner_sigma_px: f64,
+    /// Hole-term σ (px): the LiDAR hole centres' uncertainty seen in the image (boards
+    /// may override it, see [`BoardObservation::hole_sigma_px`]).
+    pub hole_sigma_px: f64,
+    /// Robust loss applied to every whitened block.
+    pub loss: Loss,
+}
+
+impl<'a, const B: usize> JointProblem<'a, B> {
+    /// An empty problem with these noise levels and loss.
+    pub fn new(corner_sigma_px: f64, hole_sigma_px: f64, loss: Loss) -> Self {
+        JointProblem { boards: heapless::Vec::new(), corner_sigma_px, hole_sigma_px, loss }
+    }
+
+    /// Adds a board observation; returns its index (the index of its pose).
+    pub fn add_board(&mut self, board: BoardObservation<'a>) -> Result<usize, SolveError> {
+        if board.object.len() != board.corners.len() {
+            return Err(SolveError::LengthMismatch {
+                left: board.object.len(),
+                right: board.corners.len(),
+            });
+        }
+        if board.holes_board.len() != board.holes_lidar.len() {
+            return Err(SolveError::LengthMismatch {
+                left: board.holes_board.len(),
+                right: board.holes_lidar.len(),
+            });
+        }
+        self.boards.push(board).map_err(|_| SolveError::TooManyBoards { capacity: B })?;
+        Ok(self.boards.len() - 1)
+    }
+
+    /// The board observations in order.
+    pub fn boards(&self) -> &[BoardObservation<'a>] {
+        &self.boards
+    }
+
+    /// Whether any hole residual exists (otherwise the extrinsic is not observed).
+    pub fn has_holes(&self) -> bool {
+        self.boards.iter().any(|b| !b.holes_lidar.is_empty())
+    }
+
+    /// Number of scalar residuals (2 per corner and per hole).
+    pub fn residual_count(&self) -> usize {
+        self.boards.iter().map(|b| 2 * (b.corners.len() + b.holes_lidar.len())).sum()
+    }
+
+    /// Checks the settings (positive finite σ and loss scale) and that `params` has one
+    /// pose per board.
+    pub fn check_params<C>(&self, params: &JointParams<C, B>) -> Result<(), SolveError> {
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        if !positive(self.corner_sigma_px) {
+            return Err(SolveError::BadSetting("corner σ must be positive"));
+        }
+        let board_sigmas = self.boards.iter().filter_map(|b| b.hole_sigma_px);
+        if !positive(self.hole_sigma_px) || !board_sigmas.clone().all(positive) {
+            return Err(SolveError::BadSetting("hole σ must be positive"));
+        }
+        if let Loss::Huber(c) | Loss::Cauchy(c) = self.loss {
+            if !positive(c) {
+                return Err(SolveError::BadSetting("robust loss scale must be positive"));
+            }
+        }
+        if params.board_poses.len() != self.boards.len() {
+            return Err(SolveError::LengthMismatch {
+                left: self.boards.len(),
+                right: params.board_poses.len(),
+            });
+        }
+        Ok(())
+    }
+
+    /// Calls `f` with every residual block and its Jacobians. Fails (naming the board)
+    /// if a point does not project.
+    pub fn for_each_residual<C: Projector>(
+        &self,
+        params: &JointParams<C, B>,
+        mut f: impl FnMut(&Residual),
+    ) -> Result<(), SolveError> {
+        self.check_params(params)?;
+        let cam = &params.camera;
+        let ext = &params.lidar_to_camera;
+        let ws = 1.0 / self.corner_sigma_px;
+        for (b, (obs, pose)) in self.boards.iter().zip(params.board_poses.iter()).enumerate() {
+            let wh = 1.0 / obs.hole_sigma_px.unwrap_or(self.hole_sigma_px);
+            let fail = SolveError::NotProjectable { board: b };
+            for (i, (x, meas)) in obs.object.iter().zip(obs.corners).enumerate() {
+                let rx = pose.rotation * x;
+                let (u, jp, jk) =
+                    cam.project_with_jacobians(&(rx + pose.translation)).ok_or(fail)?;
+                let mut j_shared = SMatrix::<f64, 2, SHARED>::zeros();
+                j_shared.fixed_view_mut::<2, INTRINSICS>(0, 0).copy_from(&(jk * ws));
+                f(&Residual {
+                    board: b,
+                    kind: ResidualKind::Corner(i),
+                    r: (u - meas) * ws,
+                    j_shared,
+                    j_board: jp * point_jacobian(&rx) * ws,
+                });
+            }
+            for (i, (h, p)) in obs.holes_board.iter().zip(obs.holes_lidar).enumerate() {
+                let rp = ext.rotation * p;
+                let (u1, jq, jk1) =
+                    cam.project_with_jacobians(&(rp + ext.translation)).ok_or(fail)?;
+                let rh = pose.rotation * h;
+                let (u2, jp, jk2) =
+                    cam.project_with_jacobians(&(rh + pose.translation)).ok_or(fail)?;
+                let mut j_shared = SMatrix::<f64, 2, SHARED>::zeros();
+                j_shared.fixed_view_mut::<2, INTRINSICS>(0, 0).copy_from(&((jk1 - jk2) * wh));
+                j_shared
+                    .fixed_view_mut::<2, 6>(0, EXT_ROTATION)
+                    .copy_from(&(jq * point_jacobian(&rp) * wh));
+                f(&Residual {
+                    board: b,
+                    kind: ResidualKind::Hole(i),
+                    r: (u1 - u2) * wh,
+                    j_shared,
+                    j_board: -(jp * point_jacobian(&rh)) * wh,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Calls `f(board, kind, pixel error)` for every block, without Jacobians or σ.
+    pub fn for_each_error<C: Projector>(
+        &self,
+        params: &JointParams<C, B>,
+        mut f: impl FnMut(usize, ResidualKind, Vec2),
+    ) -> Result<(), SolveError> {
+        self.check_params(params)?;
+        let cam = &params.camera;
+        let ext = &params.lidar_to_camera;
+        for (b, (obs, pose)) in self.boards.iter().zip(params.board_poses.iter()).enumerate() {
+            let fail = SolveError::NotProjectable { board: b };
+            for (i, (x, meas)) in obs.object.iter().zip(obs.corners).enumerate() {
+                let u = cam.project(&(pose.rotation * x + pose.translation)).ok_or(fail)?;
+                f(b, ResidualKind::Corner(i), u - meas);
+            }
+            for (i, (h, p)) in obs.holes_board.iter().zip(obs.holes_lidar).enumerate() {
+                let u1 = cam.project(&(ext.rotation * p + ext.translation)).ok_or(fail)?;
+                let u2 = cam.project(&(pose.rotation * h + pose.translation)).ok_or(fail)?;
+                f(b, ResidualKind::Hole(i), u1 - u2);
+            }
+        }
+        Ok(())
+    }
+
+    /// Robust cost `½ Σ ρ(|r/σ|²)`.
+    pub fn cost<C: Projector>(&self, params: &JointParams<C, B>) -> Result<f64, SolveError> {
+        let ws = 1.0 / self.corner_sigma_px;
+        let mut cost = 0.0;
+        self.for_each_error(params, |b, kind, e| {
+            let w = match kind {
+                ResidualKind::Corner(_) => ws,
+                ResidualKind::Hole(_) => {
+                    1.0 / self.boards[b].hole_sigma_px.unwrap_or(self.hole_sigma_px)
+                }
+            };
+            cost += 0.5 * self.loss.eval((e * w).norm_squared()).0;
+        })?;
+        if cost.is_finite() {
+            Ok(cost)
+        } else {
+            Err(SolveError::NonFinite)
+        }
+    }
+
+    /// RMS pixel error of the corners and of the hole term (0 when there are none):
+    /// `sqrt(mean |e|²)` over blocks, plain (no σ, no loss).
+    pub fn rms_px<C: Projector>(
+        &self,
+        params: &JointParams<C, B>,
+    ) -> Result<(f64, f64), SolveError> {
+        let (mut sc, mut nc, mut sh, mut nh) = (0.0, 0usize, 0.0, 0usize);
+        self.for_each_error(params, |_, kind, e| match kind {
+            ResidualKind::Corner(_) => {
+                sc += e.norm_squared();
+                nc += 1;
+            }
+            ResidualKind::Hole(_) => {
+                sh += e.norm_squared();
+                nh += 1;
+            }
+        })?;
+        let rms = |s: f64, n: usize| if n == 0 { 0.0 } else { libm::sqrt(s / n as f64) };
+        Ok((rms(sc, nc), rms(sh, nh)))
+    }
+
+    /// Shared parameters the data cannot move: the unused intrinsics of the model, and
+    /// the extrinsic when there is no hole residual.
+    pub fn structural_mask<C: Projector>(&self, camera: &C) -> ParamMask {
+        let mut m = ParamMask::free().fix_range(camera.num_params().min(INTRINSICS), INTRINSICS);
+        if !self.has_holes() {
+            m = m.fix_extrinsic();
+        }
+        m
+    }
+}

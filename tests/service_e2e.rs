@@ -1,0 +1,248 @@
+//! End to end over TCP: the UDS server with a fake backend on a socketcand endpoint
+//! (127.0.0.1:0), our client reading every DID, unlocking, starting a calibration and
+//! rolling back; the `roomcal query` library pieces; the socketcand handshake as
+//! python-can expects it; and SocketCAN's error for a missing interface.
+#![cfg(feature = "daemon")]
+
+use std::time::Duration;
+
+use roomcal::service::client::{
+    query, ClientError, ClientTiming, QueryCommand, QueryOptions, UdsClient,
+};
+use roomcal::service::driver::{serve, OsRandom};
+use roomcal::service::fake::FakeBackend;
+use roomcal::service::isotp::Config;
+use roomcal::service::socketcand::{SocketcandClient, SocketcandServer};
+use roomcal::service::transport::{memory_pair, CanTransport, Endpoint, TransportError};
+use roomcal::service::uds::{DaemonState, Server, ServerConfig, Session};
+use roomcal::service::{CanFrame, DEFAULT_REQUEST_ID, DEFAULT_RESPONSE_ID};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::sync::oneshot;
+
+const SECRET: &[u8] = b"e2e vehicle secret";
+
+/// Starts the server on 127.0.0.1:0; returns its address and a stop handle.
+async fn start_server(
+    backend: FakeBackend,
+) -> (String, oneshot::Sender<()>, tokio::task::JoinHandle<FakeBackend>) {
+    let mut transport = SocketcandServer::bind("127.0.0.1:0", "can0").await.unwrap();
+    let addr = transport.local_addr().to_string();
+    let (stop, stopped) = oneshot::channel::<()>();
+    let task = tokio::spawn(async move {
+        let mut server =
+            Server::new(backend, OsRandom::open().unwrap(), SECRET, ServerConfig::default());
+        let cfg = Config::new(DEFAULT_RESPONSE_ID, DEFAULT_REQUEST_ID);
+        serve(&mut transport, &mut server, cfg, async {
+            let _ = stopped.await;
+        })
+        .await
+        .unwrap();
+        server.backend().clone()
+    });
+    (addr, stop, task)
+}
+
+#[tokio::test]
+async fn client_reads_every_did_unlocks_starts_and_rolls_back() {
+    let mut backend = FakeBackend::calibrated();
+    backend.run_polls = 150; // 1.5 s: the client sees 0x78 first
+    let expected = backend.clone();
+    let (addr, stop, task) = start_server(backend).await;
+
+    let transport = SocketcandClient::connect(&addr, "can0").await.unwrap();
+    let mut c = UdsClient::with_defaults(transport);
+    let state = c.status().await.unwrap();
+    assert_eq!(state, expected.state);
+    assert_eq!(Some(c.intrinsics().await.unwrap()), expected.intrinsics);
+    assert_eq!(Some(c.extrinsic().await.unwrap()), expected.extrinsic);
+    assert_eq!(Some(c.quality().await.unwrap()), expected.quality);
+
+    // Routines need the extended session and security.
+    match c.rollback().await {
+        Err(ClientError::Negative { service: 0x31, nrc: 0x7F }) => {}
+        other => panic!("expected 0x7F, got {other:?}"),
+    }
+    let (p2, p2_star) = c.session(Session::Extended).await.unwrap();
+    assert_eq!((p2, p2_star), (Duration::from_millis(50), Duration::from_millis(5000)));
+    match c.rollback().await {
+        Err(ClientError::Negative { service: 0x31, nrc: 0x33 }) => {}
+        other => panic!("expected 0x33, got {other:?}"),
+    }
+    match c.unlock(b"wrong secret").await {
+        Err(ClientError::Negative { service: 0x27, nrc: 0x35 }) => {}
+        other => panic!("expected 0x35, got {other:?}"),
+    }
+    c.unlock(SECRET).await.unwrap();
+    let t0 = std::time::Instant::now();
+    let outcome = c.start_calibration().await.unwrap();
+    let took = t0.elapsed();
+    assert_eq!(outcome.state, DaemonState::Accepted);
+    assert_eq!(outcome.generation, expected.state.generation + 1);
+    assert!(
+        took >= Duration::from_millis(1400),
+        "final answer came before the run ended: {took:?}"
+    );
+    assert_eq!(c.calibration_results().await.unwrap(), outcome);
+    assert_eq!(c.rollback().await.unwrap(), expected.state.generation);
+    c.tester_present().await.unwrap();
+    println!("calibration round trip over socketcand took {took:?}");
+    // Round-trip rate over loopback TCP (single and multi-frame responses).
+    let t0 = std::time::Instant::now();
+    for _ in 0..500 {
+        assert_eq!(c.status().await.unwrap().generation, expected.state.generation);
+        assert_eq!(Some(c.intrinsics().await.unwrap()), expected.intrinsics);
+    }
+    let dt = t0.elapsed();
+    println!(
+        "1000 ReadDataByIdentifier round trips over socketcand: {:.1} µs each",
+        dt.as_secs_f64() * 1e6 / 1000.0
+    );
+
+    stop.send(()).unwrap();
+    let backend = task.await.unwrap();
+    assert_eq!(backend.runs_started, 1);
+    assert_eq!(backend.state.generation, expected.state.generation);
+}
+
+#[tokio::test]
+async fn query_pieces_print_every_did() {
+    let (addr, stop, _task) = start_server(FakeBackend::calibrated()).await;
+    let dir = std::env::temp_dir().join(format!("roomcal-e2e-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let secret_file = dir.join("secret");
+    std::fs::write(&secret_file, [SECRET, b"\n"].concat()).unwrap();
+
+    let mut opts = QueryOptions::new(&format!("socketcand:{addr}"));
+    let status = query(&opts, QueryCommand::Status).await.unwrap();
+    assert!(status.contains("generation: 7"), "{status}");
+    let intr = query(&opts, QueryCommand::Intrinsics).await.unwrap();
+    assert!(intr.contains("pinhole-radtan") && intr.contains("1000.000, 1000.500"), "{intr}");
+    let ext = query(&opts, QueryCommand::Extrinsic).await.unwrap();
+    assert!(ext.contains("[0.0500, 0.4200, -0.2800]") && ext.contains("(120.000 deg)"), "{ext}");
+    let q = query(&opts, QueryCommand::Quality).await.unwrap();
+    assert!(q.contains("boards:     6"), "{q}");
+    for text in [&status, &intr, &ext, &q] {
+        println!("{text}\n");
+    }
+    // start/rollback need the secret.
+    assert!(matches!(
+        query(&opts, QueryCommand::Rollback).await,
+        Err(ClientError::NeedsSecret("rollback"))
+    ));
+    opts.secret_file = Some(dir.join("missing"));
+    let err = query(&opts, QueryCommand::Start).await.unwrap_err();
+    assert!(err.to_string().contains("missing"), "{err}");
+    opts.secret_file = Some(secret_file);
+    let started = query(&opts, QueryCommand::Start).await.unwrap();
+    assert_eq!(started, "calibration accepted; generation in force: 8");
+    let rolled = query(&opts, QueryCommand::Rollback).await.unwrap();
+    assert_eq!(rolled, "rolled back; generation in force: 7");
+    assert!("reboot".parse::<QueryCommand>().is_err());
+    stop.send(()).unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[tokio::test]
+async fn socketcand_handshake_is_what_python_can_expects() {
+    let mut server = SocketcandServer::bind("127.0.0.1:0", "can0").await.unwrap();
+    let mut tcp = tokio::net::TcpStream::connect(server.local_addr()).await.unwrap();
+    // python-can reads each greeting with one recv() and compares it exactly.
+    async fn reply(tcp: &mut tokio::net::TcpStream) -> String {
+        let mut buf = [0u8; 256];
+        let n = tokio::time::timeout(Duration::from_secs(2), tcp.read(&mut buf))
+            .await
+            .unwrap()
+            .unwrap();
+        String::from_utf8(buf[..n].to_vec()).unwrap()
+    }
+    assert_eq!(reply(&mut tcp).await, "< hi >");
+    tcp.write_all(b"< open vcan9 >").await.unwrap();
+    assert!(reply(&mut tcp).await.starts_with("< error"));
+    tcp.write_all(b"< open can0 >").await.unwrap();
+    assert_eq!(reply(&mut tcp).await, "< ok >");
+    tcp.write_all(b"< rawmode >").await.unwrap();
+    assert_eq!(reply(&mut tcp).await, "< ok >");
+    // python-can's send format: hex length, bytes without leading zeros.
+    tcp.write_all(b"< send 7A0 8 2 10 3 cc cc cc cc cc >").await.unwrap();
+    let f = tokio::time::timeout(Duration::from_secs(2), server.recv()).await.unwrap().unwrap();
+    assert_eq!(
+        f,
+        CanFrame::new_standard(0x7A0, &[2, 0x10, 3, 0xCC, 0xCC, 0xCC, 0xCC, 0xCC]).unwrap()
+    );
+    server.send(&CanFrame::new_standard(0x7A8, &[0x02, 0x7E, 0x00]).unwrap()).await.unwrap();
+    let text = reply(&mut tcp).await;
+    assert!(text.starts_with("< frame 7A8 ") && text.ends_with(" 027E00 >"), "{text}");
+}
+
+#[tokio::test]
+async fn client_reports_timeouts_and_bad_endpoints() {
+    // A socketcand bus with nobody answering 0x7A0.
+    let server = SocketcandServer::bind("127.0.0.1:0", "can0").await.unwrap();
+    let t = SocketcandClient::connect(&server.local_addr().to_string(), "can0").await.unwrap();
+    let timing =
+        ClientTiming { p2: Duration::from_millis(100), p2_star: Duration::from_millis(100) };
+    let mut c = UdsClient::new(t, Config::new(DEFAULT_REQUEST_ID, DEFAULT_RESPONSE_ID), timing);
+    let err = c.status().await.unwrap_err();
+    assert!(matches!(err, ClientError::Timeout { service: 0x22, .. }), "{err}");
+
+    for bad in [
+        "can0",
+        "socketcand:",
+        "socketcand:host",
+        "socketcand:h:99999",
+        "socketcan:",
+        "tcp:1.2.3.4:5",
+    ] {
+        assert!(matches!(Endpoint::parse(bad), Err(TransportError::BadEndpoint(_))), "{bad}");
+    }
+    assert_eq!(
+        Endpoint::parse("socketcand:127.0.0.1:29536/vcan1").unwrap(),
+        Endpoint::Socketcand { addr: "127.0.0.1:29536".into(), channel: "vcan1".into() }
+    );
+    // Nothing listens on this port (bound then released).
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let err = SocketcandClient::connect(&format!("127.0.0.1:{port}"), "can0").await.err().unwrap();
+    assert!(err.to_string().contains(&format!("127.0.0.1:{port}")), "{err}");
+}
+
+#[tokio::test]
+async fn missing_socketcan_interface_is_named() {
+    let err = Endpoint::parse("socketcan:rcnocan7").unwrap().connect().await.err().unwrap();
+    let text = err.to_string();
+    assert!(matches!(err, TransportError::Open { .. }), "{text}");
+    assert!(text.contains("rcnocan7"), "{text}");
+    println!("{text}");
+}
+
+#[tokio::test]
+async fn server_on_memory_bus_times_out_the_session() {
+    let (mut bus, client_end) = memory_pair();
+    let (stop, stopped) = oneshot::channel::<()>();
+    let task = tokio::spawn(async move {
+        let cfg = ServerConfig { s3: Duration::from_millis(200), ..ServerConfig::default() };
+        let mut server =
+            Server::new(FakeBackend::calibrated(), OsRandom::open().unwrap(), SECRET, cfg);
+        let tp = Config::new(DEFAULT_RESPONSE_ID, DEFAULT_REQUEST_ID);
+        serve(&mut bus, &mut server, tp, async {
+            let _ = stopped.await;
+        })
+        .await
+        .unwrap();
+    });
+    let mut c = UdsClient::with_defaults(client_end);
+    c.session(Session::Extended).await.unwrap();
+    c.unlock(SECRET).await.unwrap();
+    // TesterPresent keeps the session; silence beyond S3 drops it (and the unlock).
+    for _ in 0..4 {
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        c.tester_present().await.unwrap();
+    }
+    assert_eq!(c.rollback().await.unwrap(), 6, "still extended and unlocked");
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    match c.rollback().await {
+        Err(ClientError::Negative { service: 0x31, nrc: 0x7F }) => {}
+        other => panic!("expected 0x7F after S3, got {other:?}"),
+    }
+    stop.send(()).unwrap();
+    task.await.unwrap();
+}

@@ -1,0 +1,431 @@
+//! UDS server tests: byte vectors both ways for every service and DID, the NRC cases
+//! and their priority, S3, SecurityAccess lockout, 0x78 while a calibration runs, and a
+//! flood of 10,000 requests through ISO-TP + server (rate printed).
+
+use core::time::Duration;
+
+use roomcal::service::fake::FakeBackend;
+use roomcal::service::isotp::{Config, Event, IsoTp};
+use roomcal::service::uds::{
+    security_key, DaemonState, ExtrinsicRecord, IntrinsicsRecord, Nrc, Outcome, QualityRecord,
+    RequestRepr, ResponseRepr, Server, ServerConfig, Session, StateRecord, SEED_LEN,
+};
+use roomcal::service::Instant;
+
+const SECRET: &[u8] = b"roomcal-secret";
+
+/// Seeds 0, 1, 2, ... in every byte, so each seed differs and is known.
+fn counting_seeds() -> impl FnMut(&mut [u8; SEED_LEN]) {
+    let mut n = 0u8;
+    move |seed: &mut [u8; SEED_LEN]| {
+        for (i, b) in seed.iter_mut().enumerate() {
+            *b = n.wrapping_add(i as u8);
+        }
+        n = n.wrapping_add(1);
+    }
+}
+
+type TestServer = Server<FakeBackend, Box<dyn FnMut(&mut [u8; SEED_LEN])>>;
+
+fn server(backend: FakeBackend) -> TestServer {
+    Server::new(backend, Box::new(counting_seeds()), SECRET, ServerConfig::default())
+}
+
+fn ms(t: u64) -> Instant {
+    Instant::from_millis(t)
+}
+
+fn ask(s: &mut TestServer, req: &[u8], now: Instant) -> Option<Vec<u8>> {
+    s.handle(req, now).map(|r| r.to_vec())
+}
+
+fn nrc(s: &mut TestServer, req: &[u8], now: Instant) -> u8 {
+    match ask(s, req, now).as_deref() {
+        Some([0x7F, sid, code]) if *sid == req[0] => *code,
+        other => panic!("expected a negative response to {req:02X?}, got {other:02X?}"),
+    }
+}
+
+fn unlock(s: &mut TestServer, now: Instant) {
+    assert_eq!(ask(s, &[0x10, 0x03], now).unwrap()[..2], [0x50, 0x03]);
+    let r = ask(s, &[0x27, 0x01], now).unwrap();
+    assert_eq!(r[..2], [0x67, 0x01]);
+    let mut req = vec![0x27, 0x02];
+    req.extend_from_slice(&security_key(SECRET, &r[2..]));
+    assert_eq!(ask(s, &req, now).unwrap(), [0x67, 0x02]);
+    assert!(s.is_unlocked());
+}
+
+#[test]
+fn hmac_key_matches_rfc4231() {
+    // RFC 4231 test case 2, truncated to 16 bytes.
+    let key = security_key(b"Jefe", b"what do ya want for nothing?");
+    let want = [
+        0x5b, 0xdc, 0xc1, 0x46, 0xbf, 0x60, 0x75, 0x4e, 0x6a, 0x04, 0x24, 0x26, 0x08, 0x95, 0x75,
+        0xc7,
+    ];
+    assert_eq!(key, want);
+}
+
+#[test]
+fn session_control_and_tester_present() {
+    let mut s = server(FakeBackend::calibrated());
+    // P2 = 50 ms (0x0032), P2* = 5000 ms in 10 ms units (0x01F4).
+    assert_eq!(ask(&mut s, &[0x10, 0x03], ms(0)).unwrap(), [0x50, 0x03, 0x00, 0x32, 0x01, 0xF4]);
+    assert_eq!(ask(&mut s, &[0x10, 0x01], ms(0)).unwrap(), [0x50, 0x01, 0x00, 0x32, 0x01, 0xF4]);
+    assert_eq!(ask(&mut s, &[0x10, 0x83], ms(0)), None, "suppressed positive response");
+    assert_eq!(s.session(), roomcal::service::uds::Session::Extended);
+    assert_eq!(nrc(&mut s, &[0x10, 0x02], ms(0)), 0x12);
+    assert_eq!(nrc(&mut s, &[0x10], ms(0)), 0x13);
+    assert_eq!(nrc(&mut s, &[0x10, 0x03, 0x00], ms(0)), 0x13);
+    assert_eq!(nrc(&mut s, &[0x10, 0x05, 0x00], ms(0)), 0x12, "0x12 before total length");
+
+    assert_eq!(ask(&mut s, &[0x3E, 0x00], ms(0)).unwrap(), [0x7E, 0x00]);
+    assert_eq!(ask(&mut s, &[0x3E, 0x80], ms(0)), None);
+    assert_eq!(nrc(&mut s, &[0x3E, 0x01], ms(0)), 0x12);
+    assert_eq!(nrc(&mut s, &[0x3E, 0x00, 0x00], ms(0)), 0x13);
+    assert_eq!(nrc(&mut s, &[0x3E], ms(0)), 0x13);
+
+    for unsupported in [0x11u8, 0x14, 0x19, 0x2E, 0x34, 0x85, 0x00, 0xFF] {
+        assert_eq!(nrc(&mut s, &[unsupported, 0x01], ms(0)), 0x11);
+    }
+    assert_eq!(ask(&mut s, &[], ms(0)), None);
+}
+
+#[test]
+fn s3_timeout_falls_back_to_default_and_relocks() {
+    let mut s = server(FakeBackend::calibrated());
+    unlock(&mut s, ms(0));
+    assert_eq!(s.poll_at(), Some(ms(5000)));
+    assert_eq!(s.poll(ms(4999)), None);
+    assert!(s.is_unlocked());
+    // TesterPresent (even suppressed) keeps the session alive.
+    assert_eq!(ask(&mut s, &[0x3E, 0x80], ms(4000)), None);
+    s.poll(ms(8999));
+    assert!(s.is_unlocked());
+    s.poll(ms(9000));
+    assert!(!s.is_unlocked());
+    assert_eq!(s.session(), roomcal::service::uds::Session::Default);
+    assert_eq!(nrc(&mut s, &[0x27, 0x01], ms(9001)), 0x7F);
+    // A session change relocks too.
+    unlock(&mut s, ms(10_000));
+    ask(&mut s, &[0x10, 0x03], ms(10_001));
+    assert!(!s.is_unlocked());
+}
+
+#[test]
+fn read_data_by_identifier_byte_vectors() {
+    let mut s = server(FakeBackend::calibrated());
+    // 0xC001: state idle (0), generation 7, time 1_700_000_000 (0x6553F100).
+    let r = ask(&mut s, &[0x22, 0xC0, 0x01], ms(0)).unwrap();
+    assert_eq!(r, [0x62, 0xC0, 0x01, 0x00, 0, 0, 0, 7, 0x65, 0x53, 0xF1, 0x00]);
+    // 0xC002: model 0, fx fy cx cy, n = 5, distortion.
+    let r = ask(&mut s, &[0x22, 0xC0, 0x02], ms(0)).unwrap();
+    let mut want = vec![0x62, 0xC0, 0x02, 0x00];
+    for hex in ["447a0000", "447a2000", "44700000", "44160000"] {
+        want.extend(u32::from_str_radix(hex, 16).unwrap().to_be_bytes());
+    }
+    want.push(5);
+    for d in [-0.25f32, 0.0625, 0.001, -0.0005, 0.0] {
+        want.extend(d.to_be_bytes());
+    }
+    assert_eq!(r, want);
+    let rec = IntrinsicsRecord::parse(&r[3..]).unwrap();
+    assert_eq!(Some(&rec), s.backend().intrinsics.as_ref());
+    // 0xC003 and 0xC004 decode back to the backend's values.
+    let r = ask(&mut s, &[0x22, 0xC0, 0x03], ms(0)).unwrap();
+    assert_eq!(r.len(), 3 + ExtrinsicRecord::LEN);
+    assert_eq!(r[3..7], 0.5f32.to_be_bytes());
+    assert_eq!(Some(ExtrinsicRecord::parse(&r[3..]).unwrap()), s.backend().extrinsic);
+    let r = ask(&mut s, &[0x22, 0xC0, 0x04], ms(0)).unwrap();
+    assert_eq!(r, [0x62, 0xC0, 0x04, 0x3E, 0, 0, 0, 0x3F, 0x40, 0, 0, 6]);
+    assert_eq!(QualityRecord::parse(&r[3..]).unwrap().boards, 6);
+    // Several DIDs in one request; unsupported ones among them are left out.
+    let r = ask(&mut s, &[0x22, 0xC0, 0x04, 0xF1, 0x90, 0xC0, 0x01], ms(0)).unwrap();
+    assert_eq!(r.len(), 1 + (2 + 9) * 2);
+    assert_eq!(r[1..3], [0xC0, 0x04]);
+    assert_eq!(r[12..14], [0xC0, 0x01]);
+}
+
+#[test]
+fn read_data_by_identifier_negative_responses() {
+    let mut s = server(FakeBackend::calibrated());
+    assert_eq!(nrc(&mut s, &[0x22, 0xF1, 0x90], ms(0)), 0x31, "unknown DID");
+    assert_eq!(nrc(&mut s, &[0x22, 0xC0, 0x00], ms(0)), 0x31);
+    assert_eq!(nrc(&mut s, &[0x22, 0xC0, 0x05], ms(0)), 0x31);
+    assert_eq!(nrc(&mut s, &[0x22], ms(0)), 0x13);
+    assert_eq!(nrc(&mut s, &[0x22, 0xC0], ms(0)), 0x13);
+    assert_eq!(nrc(&mut s, &[0x22, 0xC0, 0x01, 0xC0], ms(0)), 0x13);
+    let nine: Vec<u8> = std::iter::once(0x22).chain([0xC0, 0x01].repeat(9)).collect();
+    assert_eq!(nrc(&mut s, &nine, ms(0)), 0x13, "more DIDs than the server takes");
+    // No calibration yet: the data is not available.
+    let mut s = server(FakeBackend::empty());
+    assert_eq!(nrc(&mut s, &[0x22, 0xC0, 0x02], ms(0)), 0x22);
+    let r = ask(&mut s, &[0x22, 0xC0, 0x01], ms(0)).unwrap();
+    assert_eq!(StateRecord::parse(&r[3..]).unwrap().generation, 0);
+}
+
+#[test]
+fn security_access() {
+    let mut s = server(FakeBackend::calibrated());
+    assert_eq!(nrc(&mut s, &[0x27, 0x01], ms(0)), 0x7F, "not in the default session");
+    assert_eq!(nrc(&mut s, &[0x27], ms(0)), 0x7F, "session checked before length");
+    ask(&mut s, &[0x10, 0x03], ms(0));
+    assert_eq!(nrc(&mut s, &[0x27], ms(0)), 0x13);
+    assert_eq!(nrc(&mut s, &[0x27, 0x03], ms(0)), 0x12);
+    assert_eq!(nrc(&mut s, &[0x27, 0x01, 0x00], ms(0)), 0x13);
+    let mut key = vec![0x27, 0x02];
+    key.extend([0u8; 16]);
+    assert_eq!(nrc(&mut s, &key, ms(0)), 0x24, "key without a seed");
+    assert_eq!(nrc(&mut s, &key[..17], ms(0)), 0x13);
+
+    // Three wrong keys: 0x35, 0x35, 0x36, then 0x37 for 10 s.
+    for (i, want) in [0x35u8, 0x35, 0x36].into_iter().enumerate() {
+        let r = ask(&mut s, &[0x27, 0x01], ms(i as u64)).unwrap();
+        assert_eq!(r.len(), 2 + SEED_LEN);
+        assert_ne!(r[2..], [0u8; 16]);
+        let mut bad = security_key(SECRET, &r[2..]);
+        bad[0] ^= 1;
+        let mut req = vec![0x27, 0x02];
+        req.extend(bad);
+        assert_eq!(nrc(&mut s, &req, ms(i as u64)), want);
+        assert_eq!(nrc(&mut s, &req, ms(i as u64)), 0x24, "seed used up");
+    }
+    assert_eq!(nrc(&mut s, &[0x27, 0x01], ms(5000)), 0x37);
+    ask(&mut s, &[0x3E, 0x80], ms(7000));
+    assert_eq!(nrc(&mut s, &[0x27, 0x01], ms(10_001)), 0x37);
+    // The delay has expired 10 s after the third wrong key.
+    let r = ask(&mut s, &[0x27, 0x01], ms(10_002)).unwrap();
+    let mut req = vec![0x27, 0x02];
+    req.extend(security_key(SECRET, &r[2..]));
+    assert_eq!(ask(&mut s, &req, ms(10_002)).unwrap(), [0x67, 0x02]);
+    // Unlocked: the seed is all zeros.
+    assert_eq!(ask(&mut s, &[0x27, 0x01], ms(10_003)).unwrap()[2..], [0u8; 16]);
+    // A key from another secret is refused.
+    let mut s = server(FakeBackend::calibrated());
+    ask(&mut s, &[0x10, 0x03], ms(0));
+    let r = ask(&mut s, &[0x27, 0x01], ms(0)).unwrap();
+    let mut req = vec![0x27, 0x02];
+    req.extend(security_key(b"other", &r[2..]));
+    assert_eq!(nrc(&mut s, &req, ms(0)), 0x35);
+}
+
+#[test]
+fn routine_control_nrc_priority() {
+    let mut s = server(FakeBackend::calibrated());
+    assert_eq!(nrc(&mut s, &[0x31, 0x01, 0xC1, 0x00], ms(0)), 0x7F);
+    assert_eq!(nrc(&mut s, &[0x31, 0x05], ms(0)), 0x7F, "session before length");
+    ask(&mut s, &[0x10, 0x03], ms(0));
+    assert_eq!(nrc(&mut s, &[0x31, 0x05], ms(0)), 0x13, "length before sub-function");
+    assert_eq!(nrc(&mut s, &[0x31, 0x01, 0xC1], ms(0)), 0x13);
+    assert_eq!(nrc(&mut s, &[0x31, 0x05, 0xC1, 0x00], ms(0)), 0x12);
+    assert_eq!(nrc(&mut s, &[0x31, 0x02, 0xC1, 0x00], ms(0)), 0x12, "stop not supported");
+    assert_eq!(nrc(&mut s, &[0x31, 0x01, 0x12, 0x34], ms(0)), 0x31, "RID before security");
+    assert_eq!(nrc(&mut s, &[0x31, 0x01, 0xC1, 0x00], ms(0)), 0x33);
+    assert_eq!(nrc(&mut s, &[0x31, 0x01, 0xC1, 0x00, 0xFF], ms(0)), 0x33, "security before length");
+    unlock(&mut s, ms(0));
+    assert_eq!(nrc(&mut s, &[0x31, 0x01, 0xC1, 0x00, 0xFF], ms(0)), 0x13);
+    assert_eq!(nrc(&mut s, &[0x31, 0x03, 0xC1, 0x00], ms(0)), 0x24, "no run yet");
+    assert_eq!(nrc(&mut s, &[0x31, 0x03, 0xC1, 0x01], ms(0)), 0x12, "rollback has no results");
+    s.backend_mut().refuse_start = true;
+    assert_eq!(nrc(&mut s, &[0x31, 0x01, 0xC1, 0x00], ms(0)), 0x22);
+}
+
+#[test]
+fn calibration_answers_pending_then_final() {
+    let mut backend = FakeBackend::calibrated();
+    backend.run_polls = 300; // 3 s at the 10 ms check interval
+    let mut s = server(backend);
+    unlock(&mut s, ms(0));
+    assert_eq!(ask(&mut s, &[0x31, 0x01, 0xC1, 0x00], ms(100)).unwrap(), [0x7F, 0x31, 0x78]);
+    assert!(s.is_pending());
+    // Another request while the routine runs.
+    assert_eq!(nrc(&mut s, &[0x3E, 0x00], ms(150)), 0x21);
+    let mut now = ms(100);
+    let mut pendings = vec![];
+    let final_response = loop {
+        now = s.poll_at().unwrap().max(now);
+        if let Some(r) = s.poll(now) {
+            if r[..] == [0x7F, 0x31, 0x78] {
+                pendings.push(now);
+                continue;
+            }
+            break r.to_vec();
+        }
+        assert!(now < ms(10_000), "calibration never finished");
+    };
+    // 0x78 repeated every 2 s (well inside P2* = 5 s); no S3 fallback meanwhile.
+    assert_eq!(pendings, [ms(2100)]);
+    assert_eq!(final_response, [0x71, 0x01, 0xC1, 0x00, 0x04, 0, 0, 0, 8]);
+    assert!(s.is_unlocked());
+    let r = ask(&mut s, &[0x31, 0x03, 0xC1, 0x00], now).unwrap();
+    assert_eq!(
+        Outcome::parse(&r[4..]).unwrap(),
+        Outcome { state: DaemonState::Accepted, generation: 8 }
+    );
+    // Suppressed start: the 0x78 cancels the suppression, the final answer comes.
+    assert_eq!(ask(&mut s, &[0x31, 0x81, 0xC1, 0x00], now).unwrap(), [0x7F, 0x31, 0x78]);
+    let mut t = now;
+    let r = loop {
+        t = s.poll_at().unwrap().max(t);
+        if let Some(r) = s.poll(t) {
+            if r[2] != 0x78 {
+                break r;
+            }
+        }
+    };
+    assert_eq!(r[..5], [0x71, 0x01, 0xC1, 0x00, 0x04]);
+    // Roll back: 9 → 8; suppressed variant answers nothing but acts.
+    assert_eq!(
+        ask(&mut s, &[0x31, 0x01, 0xC1, 0x01], t).unwrap(),
+        [0x71, 0x01, 0xC1, 0x01, 0, 0, 0, 8]
+    );
+    assert_eq!(ask(&mut s, &[0x31, 0x81, 0xC1, 0x01], t), None);
+    assert_eq!(s.backend().state.generation, 7);
+}
+
+#[test]
+fn response_repr_parses_both_kinds() {
+    assert_eq!(
+        ResponseRepr::parse(&[0x7F, 0x22, 0x31]),
+        Some(ResponseRepr::Negative { service: 0x22, nrc: 0x31 })
+    );
+    assert_eq!(
+        ResponseRepr::parse(&[0x62, 0xC0, 0x01]),
+        Some(ResponseRepr::Positive { service: 0x22, data: &[0xC0, 0x01] })
+    );
+    assert_eq!(ResponseRepr::parse(&[0x7F, 0x22]), None);
+    assert_eq!(ResponseRepr::parse(&[0x22]), None);
+    assert_eq!(ResponseRepr::parse(&[]), None);
+    assert_eq!(Nrc::from_u8(0x36), Some(Nrc::ExceededNumberOfAttempts));
+    assert_eq!(Nrc::InvalidKey.to_string(), "invalidKey (0x35)");
+}
+
+#[test]
+fn request_repr_both_ways() {
+    let dids = heapless::Vec::from_slice(&[0xC001, 0xC004]).unwrap();
+    let cases: [(RequestRepr, &[u8]); 6] = [
+        (RequestRepr::SessionControl { session: Session::Extended, suppress: true }, &[0x10, 0x83]),
+        (RequestRepr::TesterPresent { suppress: false }, &[0x3E, 0x00]),
+        (RequestRepr::RequestSeed { suppress: false }, &[0x27, 0x01]),
+        (RequestRepr::ReadData { dids }, &[0x22, 0xC0, 0x01, 0xC0, 0x04]),
+        (
+            RequestRepr::RoutineControl { sub: 0x01, routine: 0xC101, suppress: false },
+            &[0x31, 0x01, 0xC1, 0x01],
+        ),
+        (
+            RequestRepr::SendKey { key: [7; 16], suppress: false },
+            &[0x27, 0x02, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7, 7],
+        ),
+    ];
+    for (repr, bytes) in cases {
+        let mut buf = [0u8; 32];
+        let n = repr.emit(&mut buf).unwrap();
+        assert_eq!(&buf[..n], bytes);
+        assert_eq!(n, repr.buffer_len());
+        assert_eq!(RequestRepr::parse(bytes), Ok(repr));
+    }
+    assert_eq!(RequestRepr::parse(&[]), Err(Nrc::IncorrectMessageLengthOrInvalidFormat));
+    assert_eq!(RequestRepr::parse(&[0x11, 0x01]), Err(Nrc::ServiceNotSupported));
+    assert_eq!(RequestRepr::parse(&[0x10, 0x02]), Err(Nrc::SubFunctionNotSupported));
+    assert_eq!(RequestRepr::parse(&[0x22, 0xC0]), Err(Nrc::IncorrectMessageLengthOrInvalidFormat));
+    assert_eq!(
+        RequestRepr::parse(&[0x31, 0x01, 0xC1]),
+        Err(Nrc::IncorrectMessageLengthOrInvalidFormat)
+    );
+    assert!(RequestRepr::SendKey { key: [0; 16], suppress: false }.emit(&mut [0u8; 17]).is_none());
+}
+
+#[test]
+fn records_reject_malformed_bytes() {
+    assert!(StateRecord::parse(&[0, 0, 0, 0, 1, 0, 0, 0]).is_err());
+    assert!(StateRecord::parse(&[7, 0, 0, 0, 1, 0, 0, 0, 0]).is_err(), "state 7");
+    assert!(StateRecord::parse(&[0; 10]).is_err(), "trailing byte");
+    assert!(IntrinsicsRecord::parse(&[0; 17]).is_err());
+    let mut b = vec![2u8];
+    b.extend([0; 17]);
+    assert!(IntrinsicsRecord::parse(&b).is_err(), "model 2");
+    let mut b = vec![0u8; 17];
+    b.push(9);
+    b.extend([0; 36]);
+    assert!(IntrinsicsRecord::parse(&b).is_err(), "9 coefficients");
+    let mut b = vec![1u8; 17];
+    b.push(2);
+    b.extend([0; 7]);
+    assert!(IntrinsicsRecord::parse(&b).is_err(), "coefficients truncated");
+    assert!(ExtrinsicRecord::parse(&[0; 27]).is_err());
+    assert!(QualityRecord::parse(&[0; 10]).is_err());
+    assert!(Outcome::parse(&[4, 0, 0, 0]).is_err());
+}
+
+/// Client-side ISO-TP + server-side ISO-TP + server, frames moved in memory.
+struct Bench {
+    client: Box<IsoTp>,
+    tp: Box<IsoTp>,
+    server: TestServer,
+    now: Instant,
+}
+
+impl Bench {
+    fn new() -> Self {
+        Bench {
+            client: Box::new(IsoTp::new(Config::new(0x7A0, 0x7A8))),
+            tp: Box::new(IsoTp::new(Config::new(0x7A8, 0x7A0))),
+            server: server(FakeBackend::calibrated()),
+            now: Instant::from_micros(0),
+        }
+    }
+
+    fn request(&mut self, req: &[u8]) -> Option<Vec<u8>> {
+        self.client.send(req).unwrap();
+        for _ in 0..1000 {
+            self.now = self.now + Duration::from_micros(10);
+            while let Some(f) = self.client.poll_transmit(self.now) {
+                self.client.frame_sent(self.now);
+                if let Some(Event::Received(_)) = self.tp.on_frame(&f, self.now) {
+                    match self.server.handle(self.tp.received(), self.now) {
+                        Some(r) => self.tp.send(&r).unwrap(),
+                        None => return None,
+                    }
+                }
+            }
+            while let Some(f) = self.tp.poll_transmit(self.now) {
+                self.tp.frame_sent(self.now);
+                if let Some(Event::Received(_)) = self.client.on_frame(&f, self.now) {
+                    return Some(self.client.received().to_vec());
+                }
+            }
+        }
+        panic!("no answer to {req:02X?}");
+    }
+}
+
+#[test]
+fn flood_of_requests_through_isotp_and_server() {
+    let mut bench = Bench::new();
+    let requests: [&[u8]; 4] = [
+        &[0x22, 0xC0, 0x02],
+        &[0x3E, 0x00],
+        &[0x22, 0xC0, 0x01, 0xC0, 0x03, 0xC0, 0x04],
+        &[0x22, 0xF1, 0x90],
+    ];
+    let start = std::time::Instant::now();
+    let mut bytes = 0usize;
+    for i in 0..10_000 {
+        let req = requests[i % requests.len()];
+        let r = bench.request(req).unwrap();
+        match i % 4 {
+            0 => assert_eq!(r.len(), 3 + 18 + 20),
+            1 => assert_eq!(r, [0x7E, 0x00]),
+            2 => assert_eq!(r.len(), 1 + 11 + 30 + 11),
+            _ => assert_eq!(r, [0x7F, 0x22, 0x31]),
+        }
+        bytes += r.len();
+    }
+    let dt = start.elapsed();
+    println!(
+        "10000 UDS requests through ISO-TP + server in {:.1} ms: {:.0} requests/s ({bytes} response bytes)",
+        dt.as_secs_f64() * 1e3,
+        10_000.0 / dt.as_secs_f64()
+    );
+}
