@@ -86,6 +86,56 @@ pub struct LidarSpec {
     pub translation: [f64; 3],
 }
 
+/// The quality gate's thresholds (`[quality]`, every key optional).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct QualitySpec {
+    /// Largest RMS corner reprojection error (px).
+    pub max_corner_rms_px: f64,
+    /// Largest RMS of the hole term (px).
+    pub max_hole_rms_px: f64,
+    /// Fewest complete boards the camera must see in every frame (default: `board.count`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub min_boards: Option<u32>,
+    /// Fewest boards seen by both sensors, over all frames (LiDAR rooms).
+    pub min_lidar_boards: u32,
+    /// Smallest fraction of the image (a 4×4 grid of cells) holding detected corners.
+    pub min_coverage: f64,
+    /// Largest 1σ of fx and fy relative to their value.
+    pub max_sigma_focal_rel: f64,
+    /// Largest 1σ of cx and cy (px).
+    pub max_sigma_principal_px: f64,
+    /// Largest 1σ of the extrinsic rotation (degrees) and translation (m).
+    pub max_sigma_rotation_deg: f64,
+    pub max_sigma_translation_m: f64,
+    /// Largest change from the calibration in force (focal relative, principal point px,
+    /// rotation degrees, translation m).
+    pub max_change_focal_rel: f64,
+    pub max_change_principal_px: f64,
+    pub max_change_rotation_deg: f64,
+    pub max_change_translation_m: f64,
+}
+
+impl Default for QualitySpec {
+    fn default() -> Self {
+        QualitySpec {
+            max_corner_rms_px: 0.5,
+            max_hole_rms_px: 5.0,
+            min_boards: None,
+            min_lidar_boards: 2,
+            min_coverage: 0.35,
+            max_sigma_focal_rel: 0.01,
+            max_sigma_principal_px: 10.0,
+            max_sigma_rotation_deg: 0.2,
+            max_sigma_translation_m: 0.03,
+            max_change_focal_rel: 0.03,
+            max_change_principal_px: 25.0,
+            max_change_rotation_deg: 2.0,
+            max_change_translation_m: 0.1,
+        }
+    }
+}
+
 /// A whole room file.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -94,6 +144,8 @@ pub struct Room {
     pub camera: CameraSpec,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lidar: Option<LidarSpec>,
+    #[serde(default)]
+    pub quality: QualitySpec,
 }
 
 /// What is wrong with a room; every variant names the key it is about.
