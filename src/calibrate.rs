@@ -16,6 +16,7 @@
 //! 4. **Gate** (`target::QualitySpec`): residuals, boards, coverage, σ, and the change from
 //!    the calibration in force.
 
+use crate::detect::{ChessboardDetector, DetectError, GreyImage};
 use crate::geometry::{Camera, CameraModel, Se3, Vec2, Vec3};
 use crate::result::{
     BoardDetection, CalibrationResult, CameraResult, Extrinsic, Quality, Status, Uncertainty,
@@ -82,6 +83,32 @@ pub struct Calibration {
     pub boards: Vec<UsedBoard>,
     /// Solver iterations over all stages.
     pub iterations: usize,
+}
+
+/// The detectors of a room, with their workspaces (made once, reused for every frame).
+pub struct Detectors {
+    chess: ChessboardDetector,
+}
+
+impl Detectors {
+    /// Detectors for the room's board and camera.
+    pub fn new(room: &Room) -> Result<Self, DetectError> {
+        Ok(Detectors { chess: ChessboardDetector::new(room.camera.width, room.camera.height, &room.board)? })
+    }
+
+    /// Every complete board in the frame (incomplete ones are not used).
+    pub fn detect_image(&mut self, image: &GreyImage) -> Result<Vec<CameraBoard>, DetectError> {
+        let mut found = Vec::new();
+        self.chess.detect(&image.data, &mut found)?;
+        Ok(found
+            .iter()
+            .filter(|b| b.complete)
+            .map(|b| CameraBoard {
+                corners: b.corners.iter().map(|c| Vec2::new(c.x, c.y)).collect(),
+                sigma_px: median(b.corners.iter().map(|c| c.sigma)),
+            })
+            .collect())
+    }
 }
 
 /// Runs association, start, joint solve and gate on one set of detections.
