@@ -35,6 +35,8 @@ pub mod solve;
 pub mod target;
 
 #[cfg(feature = "std")]
+pub mod detect;
+#[cfg(feature = "std")]
 pub mod result;
 #[cfg(feature = "std")]
 pub mod room;

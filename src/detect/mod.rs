@@ -1,0 +1,2 @@
+//! Detection.
+pub mod holes;
