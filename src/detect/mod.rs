@@ -1,10 +1,12 @@
-//! Detection: image → every checkerboard's ordered sub-pixel corners (std).
+//! Detection (std): image → every checkerboard's ordered sub-pixel corners; cloud →
+//! every board and its hole centres.
 //!
 //! [`ChessboardDetector`] finds every board of the room's pattern in one grey frame with
 //! a workspace sized once per image size; [`load_grey`] decodes a PNG or JPEG file to the
 //! 8-bit grey frame the detector takes.
 
 pub mod chessboard;
+pub mod holes;
 
 use std::path::{Path, PathBuf};
 

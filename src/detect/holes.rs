@@ -1,0 +1,976 @@
+//! LiDAR board detection: every board of the room in a sweep (XYZ only, no region of
+//! interest), its pose and its hole centres with an uncertainty each.
+//!
+//! Steps, all on buffers kept in a [`HoleDetector`] and reused from sweep to sweep:
+//!
+//! 1. **Voxels**: points binned in 10 cm voxels; each voxel's local plane comes from the
+//!    moments of its 3×3×3 neighbourhood (closed-form 3×3 eigen solve).
+//! 2. **Plane segments**: planar voxels grown into regions (normals within 15°, coplanar
+//!    centroids); a region is kept when its extent fits the board outline, so floor,
+//!    walls, ceiling and poles drop out here. Its plane is refitted on the points.
+//! 3. **Ray projection**: each inlier is moved along its own beam onto the fitted plane.
+//!    The beam direction is exact and the range noise lies along it, so the projected
+//!    points carry no range noise in the plane (the key to millimetre hole centres).
+//! 4. **Mask search** (the paper's idea): the board model (outline minus holes) is slid
+//!    over the projected points in (x, y, yaw); the score counts points on solid board
+//!    and penalises points inside holes or outside the outline. Coarse, medium and fine
+//!    grids; the final estimate is the centroid of the fine grid's top plateau (every pose
+//!    the points cannot tell from the best), its spread the pose covariance. Scan lines
+//!    leave and re-enter the board at the hole edges, so the plateau is small exactly when
+//!    the holes and the outline are well crossed.
+//! 5. **Checks**: scan lines (clustered by elevation angle) crossing each hole are counted;
+//!    a board with fewer than two holes crossed by two lines, a wide plateau, or points
+//!    where the holes should be (a crate face) is refused with a [`Refusal`] instead of
+//!    guessed. Every hole — well seen or not — is placed through the rigid board model.
+//!
+//! **Frames and hole order.** `pose` maps board → LiDAR (board x right, y down, z into the
+//! board). A board whose hole pattern is symmetric under a 180° in-plane turn (the usual
+//! four holes on a rectangle) cannot be told from its turned self by LiDAR alone; the
+//! detector then picks the in-plane orientation whose board y axis points as close as
+//! possible to the LiDAR's −z (down), so x points to the right as seen from the sensor
+//! and an upright board gets the room's hole order. The association step may turn a
+//! board by 180° about its z axis (reordering the holes 0↔3, 1↔2 for the usual pattern)
+//! when the camera says otherwise; see [`LidarBoard::turned`].
+
+use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
+use std::path::{Path, PathBuf};
+
+use crate::geometry::{Mat3, Se3, Vec3};
+use crate::lidar::{pcd, Point};
+use crate::target::{BoardSpec, Room, MAX_HOLES};
+
+/// Tuning of the detector; [`HoleConfig::default`] suits 16–128-ring spinning LiDARs
+/// and boards of about a metre at 2–10 m.
+#[derive(Clone, Debug, PartialEq)]
+pub struct HoleConfig {
+    /// Voxel edge (m).
+    pub voxel_m: f64,
+    /// Points nearer or farther than this are ignored (m).
+    pub range_m: (f64, f64),
+    /// Largest angle between the normals of neighbouring voxels in one segment (degrees).
+    pub normal_angle_deg: f64,
+    /// Largest distance of a point from its segment's plane (m); about 3σ of range noise.
+    pub plane_tolerance_m: f64,
+    /// How much a segment may exceed the board outline (m).
+    pub size_tolerance_m: f64,
+    /// Fewest points on a board.
+    pub min_points: usize,
+    /// Largest pose uncertainty (1σ of the plateau, m) for a board to be placed.
+    pub max_sigma_m: f64,
+}
+
+impl Default for HoleConfig {
+    fn default() -> Self {
+        HoleConfig {
+            voxel_m: 0.1,
+            range_m: (0.5, 40.0),
+            normal_angle_deg: 15.0,
+            plane_tolerance_m: 0.07,
+            size_tolerance_m: 0.12,
+            min_points: 40,
+            max_sigma_m: 0.01,
+        }
+    }
+}
+
+/// One board found in the cloud.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LidarBoard {
+    /// Hole centres in the LiDAR frame (m), in the room's hole order (see the module doc
+    /// on the 180° ambiguity).
+    pub holes: heapless::Vec<Vec3, MAX_HOLES>,
+    /// 1σ uncertainty of each hole centre (m, radial in the plane plus the plane's own).
+    pub hole_sigma_m: heapless::Vec<f64, MAX_HOLES>,
+    /// Scan lines (distinct elevations) that cross each hole.
+    pub hole_scan_lines: heapless::Vec<u16, MAX_HOLES>,
+    /// Board → LiDAR.
+    pub pose: Se3,
+    /// Unit plane normal in the LiDAR frame, pointing away from the sensor (board z).
+    pub normal: Vec3,
+    /// Points on the board plane.
+    pub inliers: usize,
+    /// RMS distance of the inliers from the plane (m).
+    pub plane_rms_m: f64,
+    /// 1σ of the in-plane pose: x, y (m) and yaw (rad).
+    pub pose_sigma: [f64; 3],
+}
+
+impl LidarBoard {
+    /// The same board turned by 180° about its z axis, holes renumbered to match: what the
+    /// association step uses when the camera shows the board the other way round.
+    pub fn turned(&self, spec: &BoardSpec) -> LidarBoard {
+        let mut out = self.clone();
+        let flip = Mat3::from_diagonal(&Vec3::new(-1.0, -1.0, 1.0));
+        out.pose.rotation = self.pose.rotation * flip;
+        for (k, h) in spec.holes.iter().enumerate() {
+            let mirrored = nearest_hole(spec, -h[0], -h[1]);
+            out.holes[k] = self.holes[mirrored];
+            out.hole_sigma_m[k] = self.hole_sigma_m[mirrored];
+            out.hole_scan_lines[k] = self.hole_scan_lines[mirrored];
+        }
+        out
+    }
+}
+
+/// Why a board-sized plane was not placed.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Refusal {
+    /// Too few points on the plane.
+    TooFewPoints { points: usize },
+    /// Points lie where the holes would be: no hole pattern (a crate face, a door...).
+    NoHolePattern { points_in_holes: usize },
+    /// Fewer than two holes crossed by at least two scan lines each.
+    HolesUnseen { holes_with_two_lines: usize },
+    /// The points do not pin the in-plane pose down (an outline edge or the holes unseen).
+    Unconstrained { sigma_m: f64 },
+}
+
+impl core::fmt::Display for Refusal {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            Refusal::TooFewPoints { points } => write!(f, "only {points} points on the plane"),
+            Refusal::NoHolePattern { points_in_holes } => {
+                write!(f, "{points_in_holes} points where the holes should be: not a board")
+            }
+            Refusal::HolesUnseen { holes_with_two_lines } => write!(
+                f,
+                "only {holes_with_two_lines} hole(s) crossed by two or more scan lines (need 2)"
+            ),
+            Refusal::Unconstrained { sigma_m } => {
+                write!(f, "in-plane position undetermined (σ {:.1} mm)", sigma_m * 1e3)
+            }
+        }
+    }
+}
+
+/// A board-sized plane that was not placed, for diagnostics.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RefusedBoard {
+    /// Centroid of the plane's points (LiDAR frame).
+    pub centroid: Vec3,
+    pub normal: Vec3,
+    pub points: usize,
+    /// Scan lines crossing each hole at the best pose (empty when not counted).
+    pub hole_scan_lines: heapless::Vec<u16, MAX_HOLES>,
+    /// The mask search's best guess (board → LiDAR) when it ran; not to be trusted.
+    pub best_guess: Option<Se3>,
+    pub reason: Refusal,
+}
+
+/// Why `detect_file` failed.
+#[derive(Debug, thiserror::Error)]
+pub enum DetectError {
+    #[error(transparent)]
+    Pcd(#[from] pcd::PcdError),
+    #[error("{file}: the room's board has no holes to find in a cloud")]
+    NoHoles { file: PathBuf },
+}
+
+/// Reads a PCD cloud and finds every board of `room` in it (the `roomcal detect --cloud`
+/// entry point).
+pub fn detect_file(room: &Room, path: &Path) -> Result<Vec<LidarBoard>, DetectError> {
+    if room.board.holes.is_empty() {
+        return Err(DetectError::NoHoles { file: path.to_owned() });
+    }
+    let points = pcd::read(path)?;
+    let mut detector = HoleDetector::new(&room.board, HoleConfig::default());
+    let mut out = Vec::new();
+    detector.detect(&points, &mut out);
+    Ok(out)
+}
+
+/// The detector's workspace: every buffer is kept and reused from sweep to sweep, so after
+/// the first sweep of a size no allocation happens.
+#[derive(Debug)]
+pub struct HoleDetector {
+    spec: BoardSpec,
+    config: HoleConfig,
+    mask: Mask,
+    yaws: Vec<f64>,
+    pts: Vec<Vec3>,
+    keys: Vec<(u64, u32)>,
+    voxels: Vec<Voxel>,
+    map: HashMap<u64, u32, BuildHasherDefault<KeyHasher>>,
+    label: Vec<u32>,
+    stamp: Vec<u32>,
+    queue: Vec<u32>,
+    region: Vec<u32>,
+    seg: Vec<Vec3>,
+    flat: Vec<[f64; 2]>,
+    sample: Vec<[f64; 2]>,
+    lines: Vec<(f64, u32)>,
+    refused: Vec<RefusedBoard>,
+    used: Vec<Vec3>,
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+struct Voxel {
+    key: u64,
+    start: u32,
+    end: u32,
+    m: Moments,
+    normal: Vec3,
+    centroid: Vec3,
+    planar: bool,
+}
+
+/// Point count, sum and sum of outer products.
+#[derive(Clone, Copy, Debug, Default)]
+struct Moments {
+    n: f64,
+    s: Vec3,
+    ss: [f64; 6],
+}
+
+impl HoleDetector {
+    /// A detector for boards of `spec`.
+    pub fn new(spec: &BoardSpec, config: HoleConfig) -> Self {
+        let mut yaws = Vec::new();
+        let turns: &[f64] = if symmetric(spec) { &[0.0] } else { &[0.0, 180.0] };
+        for &turn in turns {
+            for k in -20..=20 {
+                yaws.push((turn + 2.0 * k as f64).to_radians());
+            }
+        }
+        HoleDetector {
+            spec: spec.clone(),
+            mask: Mask::new(spec),
+            yaws,
+            config,
+            pts: Vec::new(),
+            keys: Vec::new(),
+            voxels: Vec::new(),
+            map: HashMap::default(),
+            label: Vec::new(),
+            stamp: Vec::new(),
+            queue: Vec::new(),
+            region: Vec::new(),
+            seg: Vec::new(),
+            flat: Vec::new(),
+            sample: Vec::new(),
+            lines: Vec::new(),
+            refused: Vec::new(),
+            used: Vec::new(),
+        }
+    }
+
+    /// Board-sized planes of the last `detect` that were not placed, with the reason.
+    pub fn refused(&self) -> &[RefusedBoard] {
+        &self.refused
+    }
+
+    /// Finds every board in `points` (LiDAR frame; several sweeps of a static scene may be
+    /// concatenated) and writes them to `out` (cleared first).
+    pub fn detect(&mut self, points: &[Point], out: &mut Vec<LidarBoard>) {
+        out.clear();
+        self.refused.clear();
+        self.voxelise(points);
+        self.local_planes();
+        self.segment(out);
+    }
+
+    fn voxelise(&mut self, points: &[Point]) {
+        let (near, far) = self.config.range_m;
+        self.pts.clear();
+        self.keys.clear();
+        let inv = 1.0 / self.config.voxel_m;
+        for p in points {
+            let v = Vec3::new(p.x as f64, p.y as f64, p.z as f64);
+            let r = v.norm();
+            if !r.is_finite() || r < near || r > far {
+                continue;
+            }
+            let key = voxel_key(&(v * inv));
+            self.keys.push((key, self.pts.len() as u32));
+            self.pts.push(v);
+        }
+        self.keys.sort_unstable();
+        self.voxels.clear();
+        self.map.clear();
+        let mut i = 0;
+        while i < self.keys.len() {
+            let key = self.keys[i].0;
+            let start = i;
+            let mut m = Moments::default();
+            while i < self.keys.len() && self.keys[i].0 == key {
+                m.add(&self.pts[self.keys[i].1 as usize]);
+                i += 1;
+            }
+            self.map.insert(key, self.voxels.len() as u32);
+            let v = Voxel { key, start: start as u32, end: i as u32, m, ..Voxel::default() };
+            self.voxels.push(v);
+        }
+    }
+
+    /// Plane of every voxel's 3×3×3 neighbourhood.
+    fn local_planes(&mut self) {
+        let spread2 = 0.04 * 0.04;
+        for i in 0..self.voxels.len() {
+            let key = self.voxels[i].key;
+            let mut m = Moments::default();
+            for nk in neighbour_keys(key) {
+                if let Some(&j) = self.map.get(&nk) {
+                    m.merge(&self.voxels[j as usize].m);
+                }
+            }
+            let v = &mut self.voxels[i];
+            v.planar = false;
+            if m.n < 6.0 {
+                continue;
+            }
+            let (centroid, cov) = m.mean_cov();
+            let (l, normal) = smallest_eigen(&cov);
+            v.centroid = centroid;
+            v.normal = normal;
+            let t = self.config.plane_tolerance_m / 2.0;
+            v.planar = l[0] < t * t && l[1] > spread2 && l[0] < 0.3 * l[1];
+        }
+    }
+
+    /// Grows planar voxels into segments and examines the board-sized ones.
+    fn segment(&mut self, out: &mut Vec<LidarBoard>) {
+        let nv = self.voxels.len();
+        self.label.clear();
+        self.label.resize(nv, u32::MAX);
+        self.stamp.clear();
+        self.stamp.resize(nv, u32::MAX);
+        let cos_max = self.config.normal_angle_deg.to_radians().cos();
+        let tol = self.config.plane_tolerance_m;
+        let diag = self.spec.width.hypot(self.spec.height) + 2.0 * self.config.size_tolerance_m;
+        self.used.clear();
+        for seed in 0..nv {
+            if !self.voxels[seed].planar || self.label[seed] != u32::MAX {
+                continue;
+            }
+            let id = seed as u32;
+            self.region.clear();
+            self.queue.clear();
+            self.queue.push(id);
+            self.label[seed] = id;
+            let mut too_big = false;
+            let c0 = self.voxels[seed].centroid;
+            while let Some(i) = self.queue.pop() {
+                let vi = self.voxels[i as usize];
+                self.region.push(i);
+                if (vi.centroid - c0).norm() > diag + 0.3 {
+                    too_big = true;
+                }
+                for nk in neighbour_keys(vi.key) {
+                    let Some(&j) = self.map.get(&nk) else { continue };
+                    let vj = &self.voxels[j as usize];
+                    if !vj.planar || self.label[j as usize] != u32::MAX {
+                        continue;
+                    }
+                    let coplanar = vi.normal.dot(&vj.normal).abs() > cos_max
+                        && vi.normal.dot(&(vj.centroid - vi.centroid)).abs() < tol
+                        && vj.normal.dot(&(vi.centroid - vj.centroid)).abs() < tol;
+                    if coplanar {
+                        self.label[j as usize] = id;
+                        self.queue.push(j);
+                    }
+                }
+            }
+            if !too_big {
+                self.examine(id, out);
+            }
+        }
+    }
+
+    /// Fits the plane of one region and, when it is board-sized, places the board.
+    fn examine(&mut self, id: u32, out: &mut Vec<LidarBoard>) {
+        let spec = self.spec.clone();
+        let mut m = Moments::default();
+        for &i in &self.region {
+            m.merge(&self.voxels[i as usize].m);
+        }
+        if m.n < self.config.min_points as f64 {
+            return;
+        }
+        let (c, cov) = m.mean_cov();
+        let (_, mut n) = smallest_eigen(&cov);
+        // Points of the region's voxels and their neighbours near the plane: the edge
+        // voxels that were not planar enough to join still hold board points.
+        self.seg.clear();
+        for r in 0..self.region.len() {
+            let key = self.voxels[self.region[r] as usize].key;
+            for nk in neighbour_keys(key) {
+                let Some(&j) = self.map.get(&nk) else { continue };
+                if self.stamp[j as usize] == id {
+                    continue;
+                }
+                self.stamp[j as usize] = id;
+                let v = self.voxels[j as usize];
+                for &(_, p) in &self.keys[v.start as usize..v.end as usize] {
+                    let p = self.pts[p as usize];
+                    if n.dot(&(p - c)).abs() < self.config.plane_tolerance_m {
+                        self.seg.push(p);
+                    }
+                }
+            }
+        }
+        let (mut c, mut rms) = (c, 0.0);
+        for _ in 0..2 {
+            let Some((c2, n2, rms2)) = fit_plane(&self.seg) else { return };
+            let keep = (3.0 * rms2).clamp(0.01, self.config.plane_tolerance_m);
+            self.seg.retain(|p| n2.dot(&(p - c2)).abs() < keep);
+            (c, n, rms) = (c2, n2, rms2);
+        }
+        if n.dot(&c) < 0.0 {
+            n = -n;
+        }
+        let points = self.seg.len();
+        if points < self.config.min_points {
+            return;
+        }
+        // Board frame candidates: y as close to LiDAR down as the plane allows.
+        let down = Vec3::new(0.0, 0.0, -1.0);
+        let mut ey = down - n * n.dot(&down);
+        if ey.norm() < 0.2 {
+            ey = Vec3::new(-1.0, 0.0, 0.0) - n * (-n.x);
+        }
+        let ey = ey.normalize();
+        let ex = ey.cross(&n);
+        // Ray projection onto the plane n·p = d.
+        let d = n.dot(&c);
+        self.flat.clear();
+        self.lines.clear();
+        for p in &self.seg {
+            let s = n.dot(p);
+            if s.abs() < 1e-6 {
+                continue;
+            }
+            let q = p * (d / s) - c;
+            self.flat.push([q.dot(&ex), q.dot(&ey)]);
+            let elevation = p.z.atan2(p.x.hypot(p.y));
+            self.lines.push((elevation, self.flat.len() as u32 - 1));
+        }
+        if !self.extent_fits(&spec) {
+            return;
+        }
+        let refuse = |reason| RefusedBoard {
+            centroid: c,
+            normal: n,
+            points,
+            hole_scan_lines: heapless::Vec::new(),
+            best_guess: None,
+            reason,
+        };
+        if self.flat.len() < self.config.min_points {
+            self.refused.push(refuse(Refusal::TooFewPoints { points }));
+            return;
+        }
+        let fit = self.search();
+        let in_holes = self.points_in_holes(&fit);
+        if in_holes > 3 + self.flat.len() / 100 {
+            self.refused.push(refuse(Refusal::NoHolePattern { points_in_holes: in_holes }));
+            return;
+        }
+        let lines = self.scan_lines_per_hole(&fit);
+        let seen = lines.iter().filter(|&&l| l >= 2).count();
+        if seen < 2 {
+            let mut r = refuse(Refusal::HolesUnseen { holes_with_two_lines: seen });
+            r.hole_scan_lines = lines;
+            r.best_guess = Some(self.pose(&fit, (c, ex, ey, n)));
+            self.refused.push(r);
+            return;
+        }
+        let sigma_xy = fit.cov[0].max(fit.cov[4]).sqrt();
+        if sigma_xy > self.config.max_sigma_m || fit.at_window_edge {
+            let sigma_m = if fit.at_window_edge { f64::INFINITY } else { sigma_xy };
+            self.refused.push(refuse(Refusal::Unconstrained { sigma_m }));
+            return;
+        }
+        let plane_sigma = rms / (points as f64).sqrt();
+        out.push(self.board(&fit, (c, ex, ey, n), plane_sigma, rms, lines));
+    }
+
+    /// Whether the projected points fit inside the board outline at some yaw.
+    fn extent_fits(&self, spec: &BoardSpec) -> bool {
+        let tol = self.config.size_tolerance_m;
+        let mut best = (f64::MAX, 0.0, 0.0);
+        for k in -15..=15 {
+            let (s, co) = (k as f64 * 3.0).to_radians().sin_cos();
+            let mut lo = [f64::MAX; 2];
+            let mut hi = [f64::MIN; 2];
+            for p in &self.flat {
+                let (u, v) = (co * p[0] + s * p[1], -s * p[0] + co * p[1]);
+                lo = [lo[0].min(u), lo[1].min(v)];
+                hi = [hi[0].max(u), hi[1].max(v)];
+            }
+            let (a, b) = (hi[0] - lo[0], hi[1] - lo[1]);
+            if a * b < best.0 {
+                best = (a * b, a, b);
+            }
+        }
+        let (_, a, b) = best;
+        // Every scan line across the board spans its width, so the width must be there;
+        // the height may be covered only in part.
+        a <= spec.width + tol && b <= spec.height + tol && a >= 0.6 * spec.width
+    }
+
+    /// Coarse, medium and fine mask search over (x, y, yaw).
+    fn search(&mut self) -> Fit {
+        let stride = (self.flat.len() / 600).max(1);
+        self.sample.clear();
+        self.sample.extend(self.flat.iter().step_by(stride));
+        let (hw, hh) = (self.spec.width / 2.0, self.spec.height / 2.0);
+        let mut best = (i64::MIN, [0.0; 3]);
+        for &yaw in &self.yaws {
+            let (s, c) = yaw.sin_cos();
+            // Board centre (in the plane frame) such that the board covers the points.
+            let mut lo = [f64::MAX; 2];
+            let mut hi = [f64::MIN; 2];
+            for p in &self.sample {
+                let (u, v) = (c * p[0] + s * p[1], -s * p[0] + c * p[1]);
+                lo = [lo[0].min(u), lo[1].min(v)];
+                hi = [hi[0].max(u), hi[1].max(v)];
+            }
+            let range = |lo: f64, hi: f64, half: f64| {
+                let (a, b) = (hi - half - 0.04, lo + half + 0.04);
+                if a <= b {
+                    (a, b)
+                } else {
+                    let m = 0.5 * (lo + hi);
+                    (m - 0.04, m + 0.04)
+                }
+            };
+            let (ur, vr) = (range(lo[0], hi[0], hw), range(lo[1], hi[1], hh));
+            let mut u = ur.0;
+            while u <= ur.1 {
+                let mut v = vr.0;
+                while v <= vr.1 {
+                    // The centre in rotated coordinates back to the plane frame.
+                    let t = [c * u - s * v, s * u + c * v];
+                    let score = self.mask.score(&self.sample, t, yaw);
+                    if score > best.0 {
+                        best = (score, [t[0], t[1], yaw]);
+                    }
+                    v += 0.02;
+                }
+                u += 0.02;
+            }
+        }
+        let medium = self.grid(best.1, [0.005, 0.005, 0.25f64.to_radians()], 5);
+        let fine = self.grid(medium.pose, [0.0015, 0.0015, 0.05f64.to_radians()], 8);
+        // A plateau still wide at the fine step: widen the window once.
+        if fine.at_window_edge {
+            return self.grid(fine.pose, [0.004, 0.004, 0.15f64.to_radians()], 8);
+        }
+        fine
+    }
+
+    /// Scores the (2k+1)³ grid around `centre`; returns the plateau centroid and spread.
+    fn grid(&self, centre: [f64; 3], step: [f64; 3], k: i32) -> Fit {
+        let span = (2 * k + 1) as usize;
+        let mut scores = [0i64; 17 * 17 * 17];
+        let mut max = i64::MIN;
+        for a in 0..span {
+            for b in 0..span {
+                for g in 0..span {
+                    let off = |i: usize, s: f64| (i as i32 - k) as f64 * s;
+                    let t = [centre[0] + off(a, step[0]), centre[1] + off(b, step[1])];
+                    let yaw = centre[2] + off(g, step[2]);
+                    let sc = self.mask.score(&self.flat, t, yaw);
+                    scores[(a * span + b) * span + g] = sc;
+                    max = max.max(sc);
+                }
+            }
+        }
+        // Weights fall by e per penalty unit below the best: the plateau dominates.
+        let mut w_sum = 0.0;
+        let mut mean = [0.0; 3];
+        let mut second = [0.0; 6];
+        let mut edge = false;
+        for a in 0..span {
+            for b in 0..span {
+                for g in 0..span {
+                    let sc = scores[(a * span + b) * span + g];
+                    let w = ((sc - max) as f64).exp();
+                    if w < 1e-6 {
+                        continue;
+                    }
+                    let x = [
+                        (a as i32 - k) as f64 * step[0],
+                        (b as i32 - k) as f64 * step[1],
+                        (g as i32 - k) as f64 * step[2],
+                    ];
+                    if w > 0.1 && [a, b, g].iter().any(|&i| i == 0 || i == span - 1) {
+                        edge = true;
+                    }
+                    w_sum += w;
+                    for i in 0..3 {
+                        mean[i] += w * x[i];
+                    }
+                    let mut n = 0;
+                    for i in 0..3 {
+                        for j in i..3 {
+                            second[n] += w * x[i] * x[j];
+                            n += 1;
+                        }
+                    }
+                }
+            }
+        }
+        for m in mean.iter_mut() {
+            *m /= w_sum;
+        }
+        let mut cov = [0.0; 9];
+        let mut n = 0;
+        for i in 0..3 {
+            for j in i..3 {
+                // A one-cell plateau still has the grid's own quantisation spread.
+                let q = if i == j { step[i] * step[i] / 12.0 } else { 0.0 };
+                let c = second[n] / w_sum - mean[i] * mean[j] + q;
+                cov[i * 3 + j] = c;
+                cov[j * 3 + i] = c;
+                n += 1;
+            }
+        }
+        let pose = [centre[0] + mean[0], centre[1] + mean[1], centre[2] + mean[2]];
+        Fit { pose, cov, at_window_edge: edge }
+    }
+
+    /// Points clearly inside a hole at the fitted pose.
+    fn points_in_holes(&self, fit: &Fit) -> usize {
+        let r = (self.spec.hole_radius - 0.015).max(0.5 * self.spec.hole_radius);
+        self.flat
+            .iter()
+            .filter(|p| {
+                let (x, y) = to_board(fit.pose, p);
+                self.spec.holes.iter().any(|h| (x - h[0]).hypot(y - h[1]) < r)
+            })
+            .count()
+    }
+
+    /// Scan lines (clusters of elevation angle) that leave and re-enter the board across
+    /// each hole.
+    fn scan_lines_per_hole(&mut self, fit: &Fit) -> heapless::Vec<u16, MAX_HOLES> {
+        let mut counts: heapless::Vec<u16, MAX_HOLES> = heapless::Vec::new();
+        for _ in 0..self.spec.holes.len() {
+            let _ = counts.push(0);
+        }
+        self.lines.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        let gap = 0.06f64.to_radians();
+        let r = self.spec.hole_radius;
+        let band = 0.06;
+        let mut start = 0;
+        while start < self.lines.len() {
+            let mut end = start + 1;
+            while end < self.lines.len() && self.lines[end].0 - self.lines[end - 1].0 < gap {
+                end += 1;
+            }
+            // Mean spacing of the line's points across the board.
+            let (mut lo, mut hi) = (f64::MAX, f64::MIN);
+            for &(_, i) in &self.lines[start..end] {
+                let (x, _) = to_board(fit.pose, &self.flat[i as usize]);
+                (lo, hi) = (lo.min(x), hi.max(x));
+            }
+            let spacing = (hi - lo) / (end - start).max(2) as f64;
+            for (k, h) in self.spec.holes.iter().enumerate() {
+                // Nearest points on either side of the hole along board x.
+                let (mut left, mut right) = (None::<(f64, f64)>, None::<(f64, f64)>);
+                for &(_, i) in &self.lines[start..end] {
+                    let (x, y) = to_board(fit.pose, &self.flat[i as usize]);
+                    let (dx, dy) = (x - h[0], y - h[1]);
+                    let dist = dx.hypot(dy);
+                    if dist < r - SLACK || dist > r + band {
+                        continue;
+                    }
+                    if dx < 0.0 && left.is_none_or(|l| dx > l.0) {
+                        left = Some((dx, dy));
+                    } else if dx >= 0.0 && right.is_none_or(|l| dx < l.0) {
+                        right = Some((dx, dy));
+                    }
+                }
+                if let (Some(a), Some(b)) = (left, right) {
+                    // A gap wider than the line's sampling whose chord meets the hole
+                    // (allowing for the pose's own error on a grazing line).
+                    let wide = (b.0 - a.0).hypot(b.1 - a.1) > 1.5 * spacing;
+                    if wide && segment_distance(a, b) < r + SLACK {
+                        counts[k] += 1;
+                    }
+                }
+            }
+            start = end;
+        }
+        counts
+    }
+
+    /// Board → LiDAR for an in-plane pose in the plane frame (c; ex, ey, n).
+    fn pose(&self, fit: &Fit, (c, ex, ey, n): (Vec3, Vec3, Vec3, Vec3)) -> Se3 {
+        let [tx, ty, yaw] = fit.pose;
+        let (s, co) = yaw.sin_cos();
+        let bx = ex * co + ey * s;
+        let by = -ex * s + ey * co;
+        Se3 { rotation: Mat3::from_columns(&[bx, by, n]), translation: c + ex * tx + ey * ty }
+    }
+
+    fn board(
+        &self,
+        fit: &Fit,
+        (c, ex, ey, n): (Vec3, Vec3, Vec3, Vec3),
+        plane_sigma: f64,
+        rms: f64,
+        lines: heapless::Vec<u16, MAX_HOLES>,
+    ) -> LidarBoard {
+        let pose = self.pose(fit, (c, ex, ey, n));
+        let (s, co) = fit.pose[2].sin_cos();
+        let mut holes = heapless::Vec::new();
+        let mut sigma = heapless::Vec::new();
+        let cv = &fit.cov;
+        for h in &self.spec.holes {
+            let _ = holes.push(pose.act(&Vec3::new(h[0], h[1], 0.0)));
+            // Hole offset in the plane frame; its Jacobian wrt (tx, ty, yaw).
+            let (px, py) = (co * h[0] - s * h[1], s * h[0] + co * h[1]);
+            let j = [[1.0, 0.0, -py], [0.0, 1.0, px]];
+            let mut var = 0.0;
+            for row in &j {
+                for a in 0..3 {
+                    for b in 0..3 {
+                        var += row[a] * cv[a * 3 + b] * row[b];
+                    }
+                }
+            }
+            let _ = sigma.push((var + plane_sigma * plane_sigma).sqrt());
+        }
+        LidarBoard {
+            holes,
+            hole_sigma_m: sigma,
+            hole_scan_lines: lines,
+            pose,
+            normal: n,
+            inliers: self.seg.len(),
+            plane_rms_m: rms,
+            pose_sigma: [cv[0].sqrt(), cv[4].sqrt(), cv[8].sqrt()],
+        }
+    }
+}
+
+/// Result of a grid search: pose (x, y, yaw) in the plane frame, its covariance
+/// (row-major 3×3) and whether the plateau reached the window's edge.
+#[derive(Clone, Copy, Debug)]
+struct Fit {
+    pose: [f64; 3],
+    cov: [f64; 9],
+    at_window_edge: bool,
+}
+
+/// The board model rasterised at 2 mm: +1 on solid board, −3 in a hole, −1 outside.
+#[derive(Clone, Debug)]
+struct Mask {
+    cells: Vec<i8>,
+    cols: usize,
+    rows: usize,
+    origin: [f64; 2],
+}
+
+const MASK_STEP: f64 = 0.002;
+const MASK_MARGIN: f64 = 0.3;
+const HOLE_PENALTY: i8 = -3;
+const OUTSIDE_PENALTY: i8 = -1;
+
+impl Mask {
+    fn new(spec: &BoardSpec) -> Self {
+        let origin = [-spec.width / 2.0 - MASK_MARGIN, -spec.height / 2.0 - MASK_MARGIN];
+        let cols = ((spec.width + 2.0 * MASK_MARGIN) / MASK_STEP).ceil() as usize;
+        let rows = ((spec.height + 2.0 * MASK_MARGIN) / MASK_STEP).ceil() as usize;
+        let mut cells = vec![OUTSIDE_PENALTY; cols * rows];
+        let r2 = spec.hole_radius * spec.hole_radius;
+        for row in 0..rows {
+            for col in 0..cols {
+                let x = origin[0] + (col as f64 + 0.5) * MASK_STEP;
+                let y = origin[1] + (row as f64 + 0.5) * MASK_STEP;
+                let inside = x.abs() <= spec.width / 2.0 && y.abs() <= spec.height / 2.0;
+                let hole = spec.holes.iter().any(|h| (x - h[0]).powi(2) + (y - h[1]).powi(2) < r2);
+                cells[row * cols + col] = match (inside, hole) {
+                    (true, false) => 1,
+                    (true, true) => HOLE_PENALTY,
+                    _ => OUTSIDE_PENALTY,
+                };
+            }
+        }
+        Mask { cells, cols, rows, origin }
+    }
+
+    /// Sum of mask values under the points for board centre `t` and `yaw` (plane frame).
+    fn score(&self, points: &[[f64; 2]], t: [f64; 2], yaw: f64) -> i64 {
+        let (s, c) = yaw.sin_cos();
+        let inv = 1.0 / MASK_STEP;
+        let mut total = 0i64;
+        for p in points {
+            let (dx, dy) = (p[0] - t[0], p[1] - t[1]);
+            let x = c * dx + s * dy;
+            let y = -s * dx + c * dy;
+            let col = ((x - self.origin[0]) * inv) as isize;
+            let row = ((y - self.origin[1]) * inv) as isize;
+            total +=
+                if col >= 0 && row >= 0 && (col as usize) < self.cols && (row as usize) < self.rows
+                {
+                    self.cells[row as usize * self.cols + col as usize] as i64
+                } else {
+                    OUTSIDE_PENALTY as i64
+                };
+        }
+        total
+    }
+}
+
+/// How far a scan line's gap may miss a hole and still count as crossing it (m): the
+/// pose's own error on a grazing line.
+const SLACK: f64 = 0.01;
+
+/// Board-frame coordinates of plane-frame point `p` for pose (x, y, yaw).
+fn to_board(pose: [f64; 3], p: &[f64; 2]) -> (f64, f64) {
+    let (s, c) = pose[2].sin_cos();
+    let (dx, dy) = (p[0] - pose[0], p[1] - pose[1]);
+    (c * dx + s * dy, -s * dx + c * dy)
+}
+
+/// Distance from the origin to the segment a–b.
+fn segment_distance(a: (f64, f64), b: (f64, f64)) -> f64 {
+    let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+    let l2 = dx * dx + dy * dy;
+    let t = if l2 > 0.0 { (-(a.0 * dx + a.1 * dy) / l2).clamp(0.0, 1.0) } else { 0.0 };
+    (a.0 + t * dx).hypot(a.1 + t * dy)
+}
+
+/// Whether the hole pattern maps onto itself under a 180° turn.
+fn symmetric(spec: &BoardSpec) -> bool {
+    spec.holes.iter().all(|h| {
+        let k = nearest_hole(spec, -h[0], -h[1]);
+        (spec.holes[k][0] + h[0]).hypot(spec.holes[k][1] + h[1]) < 1e-3
+    })
+}
+
+fn nearest_hole(spec: &BoardSpec, x: f64, y: f64) -> usize {
+    let mut best = (f64::MAX, 0);
+    for (k, h) in spec.holes.iter().enumerate() {
+        let d = (h[0] - x).hypot(h[1] - y);
+        if d < best.0 {
+            best = (d, k);
+        }
+    }
+    best.1
+}
+
+/// Least-squares plane of `points`: centroid, unit normal, RMS distance.
+fn fit_plane(points: &[Vec3]) -> Option<(Vec3, Vec3, f64)> {
+    if points.len() < 3 {
+        return None;
+    }
+    let mut m = Moments::default();
+    for p in points {
+        m.add(p);
+    }
+    let (c, cov) = m.mean_cov();
+    let (l, n) = smallest_eigen(&cov);
+    Some((c, n, l[0].max(0.0).sqrt()))
+}
+
+impl Moments {
+    fn add(&mut self, p: &Vec3) {
+        self.n += 1.0;
+        self.s += p;
+        let s = &mut self.ss;
+        s[0] += p.x * p.x;
+        s[1] += p.x * p.y;
+        s[2] += p.x * p.z;
+        s[3] += p.y * p.y;
+        s[4] += p.y * p.z;
+        s[5] += p.z * p.z;
+    }
+
+    fn merge(&mut self, o: &Moments) {
+        self.n += o.n;
+        self.s += o.s;
+        for (a, b) in self.ss.iter_mut().zip(&o.ss) {
+            *a += b;
+        }
+    }
+
+    fn mean_cov(&self) -> (Vec3, Mat3) {
+        let c = self.s / self.n;
+        let s = &self.ss;
+        let n = self.n;
+        let xx = s[0] / n - c.x * c.x;
+        let xy = s[1] / n - c.x * c.y;
+        let xz = s[2] / n - c.x * c.z;
+        let yy = s[3] / n - c.y * c.y;
+        let yz = s[4] / n - c.y * c.z;
+        let zz = s[5] / n - c.z * c.z;
+        (c, Mat3::new(xx, xy, xz, xy, yy, yz, xz, yz, zz))
+    }
+}
+
+/// Eigenvalues (ascending) of a symmetric 3×3 matrix and the unit eigenvector of the
+/// smallest, in closed form (trigonometric solution of the characteristic cubic).
+fn smallest_eigen(a: &Mat3) -> ([f64; 3], Vec3) {
+    let p1 = a[(0, 1)].powi(2) + a[(0, 2)].powi(2) + a[(1, 2)].powi(2);
+    let q = a.trace() / 3.0;
+    let p2 = (a[(0, 0)] - q).powi(2) + (a[(1, 1)] - q).powi(2) + (a[(2, 2)] - q).powi(2) + 2.0 * p1;
+    let p = (p2 / 6.0).sqrt();
+    if p < 1e-15 {
+        return ([q; 3], Vec3::z());
+    }
+    let b = (a - Mat3::identity() * q) / p;
+    let r = (b.determinant() / 2.0).clamp(-1.0, 1.0);
+    let phi = r.acos() / 3.0;
+    let l_max = q + 2.0 * p * phi.cos();
+    let l_min = q + 2.0 * p * (phi + 2.0 * core::f64::consts::PI / 3.0).cos();
+    let l_mid = 3.0 * q - l_max - l_min;
+    let m = a - Mat3::identity() * l_min;
+    let (r0, r1, r2) = (
+        m.row(0).transpose().into_owned(),
+        m.row(1).transpose().into_owned(),
+        m.row(2).transpose().into_owned(),
+    );
+    let cands = [r0.cross(&r1), r0.cross(&r2), r1.cross(&r2)];
+    let mut best = cands[0];
+    for c in &cands[1..] {
+        if c.norm_squared() > best.norm_squared() {
+            best = *c;
+        }
+    }
+    let nrm = best.norm();
+    let v = if nrm > 0.0 { best / nrm } else { Vec3::z() };
+    ([l_min, l_mid, l_max], v)
+}
+
+const KEY_BIAS: i64 = 1 << 20;
+const KEY_MASK: u64 = (1 << 21) - 1;
+
+fn voxel_key(v: &Vec3) -> u64 {
+    let f = |x: f64| ((x.floor() as i64 + KEY_BIAS) as u64) & KEY_MASK;
+    (f(v.x) << 42) | (f(v.y) << 21) | f(v.z)
+}
+
+/// The 27 keys of a voxel's 3×3×3 neighbourhood (itself included).
+fn neighbour_keys(key: u64) -> impl Iterator<Item = u64> {
+    let (x, y, z) = ((key >> 42) & KEY_MASK, (key >> 21) & KEY_MASK, key & KEY_MASK);
+    (0..27u64).map(move |i| {
+        let (dx, dy, dz) = (i % 3, (i / 3) % 3, i / 9);
+        let f = |c: u64, d: u64| (c + d).wrapping_sub(1) & KEY_MASK;
+        (f(x, dx) << 42) | (f(y, dy) << 21) | f(z, dz)
+    })
+}
+
+/// A multiplicative hasher for voxel keys (std's SipHash is needlessly slow here and
+/// the keys are not attacker-controlled).
+#[derive(Default, Clone, Copy, Debug)]
+pub struct KeyHasher(u64);
+
+impl Hasher for KeyHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0.rotate_left(5) ^ b as u64).wrapping_mul(0x517c_c1b7_2722_0a95);
+        }
+    }
+    fn write_u64(&mut self, v: u64) {
+        let h = v.wrapping_mul(0x9e37_79b9_7f4a_7c15);
+        self.0 = h ^ (h >> 32);
+    }
+}
