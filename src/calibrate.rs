@@ -16,6 +16,7 @@
 //! 4. **Gate** (`target::QualitySpec`): residuals, boards, coverage, σ, and the change from
 //!    the calibration in force.
 
+use crate::detect::holes::{HoleConfig, HoleDetector};
 use crate::detect::{ChessboardDetector, DetectError, GreyImage};
 use crate::geometry::{Camera, CameraModel, Se3, Vec2, Vec3};
 use crate::result::{
@@ -81,19 +82,51 @@ pub struct Calibration {
     /// LiDAR → camera (rooms with a LiDAR).
     pub lidar_to_camera: Option<Se3>,
     pub boards: Vec<UsedBoard>,
+    /// The room's hole centres in the board frame (m).
+    pub holes_board: Vec<Vec3>,
     /// Solver iterations over all stages.
     pub iterations: usize,
+}
+
+impl Calibration {
+    /// A used board's hole centres in the camera frame, placed by its solved pose.
+    pub fn holes_in_camera(&self, board: &UsedBoard) -> Vec<Vec3> {
+        self.holes_board.iter().map(|h| board.pose.act(h)).collect()
+    }
 }
 
 /// The detectors of a room, with their workspaces (made once, reused for every frame).
 pub struct Detectors {
     chess: ChessboardDetector,
+    holes: HoleDetector,
+    found_holes: Vec<crate::detect::holes::LidarBoard>,
 }
 
 impl Detectors {
     /// Detectors for the room's board and camera.
     pub fn new(room: &Room) -> Result<Self, DetectError> {
-        Ok(Detectors { chess: ChessboardDetector::new(room.camera.width, room.camera.height, &room.board)? })
+        Ok(Detectors {
+            chess: ChessboardDetector::new(room.camera.width, room.camera.height, &room.board)?,
+            holes: HoleDetector::new(&room.board, HoleConfig::default()),
+            found_holes: Vec::new(),
+        })
+    }
+
+    /// Every board the LiDAR places in the cloud, with its hole centres.
+    pub fn detect_cloud(&mut self, points: &[crate::lidar::Point]) -> Vec<LidarBoard> {
+        self.holes.detect(points, &mut self.found_holes);
+        self.found_holes
+            .iter()
+            .map(|b| LidarBoard {
+                holes: b.holes.to_vec(),
+                sigma_m: median(b.hole_sigma_m.iter().copied()),
+            })
+            .collect()
+    }
+
+    /// Why boards seen in the last cloud were not placed (for the operator).
+    pub fn refused_in_cloud(&self) -> &[crate::detect::holes::RefusedBoard] {
+        self.holes.refused()
     }
 
     /// Every complete board in the frame (incomplete ones are not used).
@@ -131,6 +164,7 @@ pub fn calibrate(
             camera: fallback_camera,
             lidar_to_camera: None,
             boards: Vec::new(),
+            holes_board: Vec::new(),
             iterations: 0,
         },
     }
@@ -251,6 +285,7 @@ fn solve_all(
         camera: params.camera,
         lidar_to_camera: with_lidar.then_some(params.lidar_to_camera),
         boards,
+        holes_board: holes_board.clone(),
         iterations,
     })
 }

@@ -37,9 +37,9 @@ pub mod target;
 #[cfg(feature = "std")]
 pub mod calibrate;
 #[cfg(feature = "std")]
-pub mod report;
-#[cfg(feature = "std")]
 pub mod detect;
+#[cfg(feature = "std")]
+pub mod report;
 #[cfg(feature = "std")]
 pub mod result;
 #[cfg(feature = "std")]

@@ -24,12 +24,58 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Calibrate the camera (and the LiDAR→camera extrinsic) from image/cloud pairs.
+    Calibrate(CalibrateArgs),
+    /// Detect the boards in one image and/or one cloud and write them as JSON.
+    Detect(DetectArgs),
     /// Render a synthetic calibration room with ground truth (image.png, cloud.pcd, truth.json).
     Simulate(SimulateArgs),
     /// Decode a LiDAR packet capture (pcap/pcapng) into a PCD cloud (x y z intensity ring).
     Decode(DecodeArgs),
     /// Ask the daemon over CAN (UDS on ISO-TP): status, results, start a run, roll back.
     Query(QueryArgs),
+}
+
+#[derive(Args)]
+struct CalibrateArgs {
+    /// The room file.
+    #[arg(long)]
+    room: PathBuf,
+    /// A camera frame (PNG or JPEG); repeat for several. Image i pairs with cloud i.
+    #[arg(long, required = true)]
+    image: Vec<PathBuf>,
+    /// A LiDAR cloud (PCD, or a pcap/pcapng capture of the room's model); repeat for several.
+    #[arg(long)]
+    cloud: Vec<PathBuf>,
+    /// The result file (JSON); an OpenCV-style YAML is written beside it.
+    #[arg(long, default_value = "result.json")]
+    out: PathBuf,
+    /// Draw the overlay report (PNG): LiDAR points, corners, both sensors' hole centres.
+    #[arg(long)]
+    report: Option<PathBuf>,
+    /// Intrinsics from the corners first, then the extrinsic with them fixed.
+    #[arg(long)]
+    two_stage: bool,
+    /// The calibration in force (a result file or the store's current.json), for the
+    /// quality gate's change limits.
+    #[arg(long)]
+    current: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct DetectArgs {
+    /// The room file.
+    #[arg(long)]
+    room: PathBuf,
+    /// A camera frame (PNG or JPEG).
+    #[arg(long)]
+    image: Option<PathBuf>,
+    /// A LiDAR cloud (PCD or pcap/pcapng).
+    #[arg(long)]
+    cloud: Option<PathBuf>,
+    /// Where to write the detections (JSON).
+    #[arg(long)]
+    out: PathBuf,
 }
 
 #[derive(Args)]
@@ -143,6 +189,8 @@ fn bad_input(error: impl Into<anyhow::Error>) -> Failure {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let outcome = match cli.command {
+        Command::Calibrate(args) => calibrate(args),
+        Command::Detect(args) => detect(args),
         Command::Simulate(args) => simulate(args),
         Command::Decode(args) => decode(args),
         Command::Query(args) => query(args),
@@ -244,5 +292,249 @@ fn query(args: QueryArgs) -> Result<(), Failure> {
         .with_context(|| format!("query {} over {}", args.command, args.endpoint))
         .map_err(|error| Failure { code: 1, error })?;
     println!("{answer}");
+    Ok(())
+}
+
+/// A frame read from disk and checked against the room's camera.
+fn load_image(
+    room: &roomcal::target::Room,
+    path: &std::path::Path,
+) -> Result<roomcal::detect::GreyImage, Failure> {
+    let image = roomcal::detect::load_grey(path).map_err(bad_input)?;
+    if (image.width, image.height) != (room.camera.width, room.camera.height) {
+        return Err(bad_input(anyhow::anyhow!(
+            "image {}: {}x{} pixels, the room's camera is {}x{}",
+            path.display(),
+            image.width,
+            image.height,
+            room.camera.width,
+            room.camera.height
+        )));
+    }
+    Ok(image)
+}
+
+/// A cloud read from disk: PCD, or a capture decoded as the room's LiDAR model.
+fn load_cloud(
+    room: &roomcal::target::Room,
+    path: &std::path::Path,
+) -> Result<Vec<roomcal::lidar::Point>, Failure> {
+    use roomcal::lidar::Model;
+    let model = room.lidar.as_ref().and_then(|l| match l.model {
+        LidarModel::Pandar64 => Some(Model::Pandar64),
+        LidarModel::Pandar40p => Some(Model::Pandar40p),
+        LidarModel::Vlp16 => Some(Model::Vlp16),
+        LidarModel::Vlp32c => Some(Model::Vlp32c),
+        LidarModel::Hdl32e => Some(Model::Hdl32e),
+        LidarModel::Pcd => None,
+    });
+    roomcal::lidar::read_cloud(path, model).map_err(bad_input)
+}
+
+fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
+    use roomcal::calibrate::{CalibrateOptions, Detectors, FrameDetections};
+    let room = roomcal::room::load(&args.room).map_err(bad_input)?;
+    if !args.cloud.is_empty() && args.cloud.len() != args.image.len() {
+        return Err(bad_input(anyhow::anyhow!(
+            "{} images and {} clouds: image i pairs with cloud i, give as many of each",
+            args.image.len(),
+            args.cloud.len()
+        )));
+    }
+    if !args.cloud.is_empty() && room.lidar.is_none() {
+        return Err(bad_input(anyhow::anyhow!(
+            "{}: clouds given but the room has no [lidar] table",
+            args.room.display()
+        )));
+    }
+    let current = match &args.current {
+        Some(path) => Some(
+            std::fs::read_to_string(path)
+                .map_err(anyhow::Error::from)
+                .and_then(|text| Ok(serde_json::from_str(&text)?))
+                .with_context(|| format!("current calibration {}", path.display()))
+                .map_err(bad_input)?,
+        ),
+        None => None,
+    };
+    let mut detectors = Detectors::new(&room).map_err(bad_input)?;
+    let (mut images, mut clouds, mut frames) = (Vec::new(), Vec::new(), Vec::new());
+    for (i, image_path) in args.image.iter().enumerate() {
+        let image = load_image(&room, image_path)?;
+        let mut frame = FrameDetections {
+            camera: detectors.detect_image(&image).map_err(bad_input)?,
+            lidar: Vec::new(),
+        };
+        if let Some(cloud_path) = args.cloud.get(i) {
+            let cloud = load_cloud(&room, cloud_path)?;
+            frame.lidar = detectors.detect_cloud(&cloud);
+            for refused in detectors.refused_in_cloud() {
+                eprintln!(
+                    "{}: a board-sized plane was not placed: {refused:?}",
+                    cloud_path.display()
+                );
+            }
+            clouds.push(cloud);
+        }
+        images.push(image);
+        frames.push(frame);
+    }
+    // Room without a LiDAR, or images only: intrinsics only.
+    let mut room = room;
+    if args.cloud.is_empty() {
+        room.lidar = None;
+    }
+    let run = roomcal::calibrate::calibrate(
+        &room,
+        &frames,
+        &CalibrateOptions { two_stage: args.two_stage, current },
+    );
+    write_result(&args.out, &run.result)?;
+    if let Some(report) = &args.report {
+        write_report(report, &images, &clouds, &run)?;
+    }
+    print_summary(&args, &frames, &run);
+    match run.result.status {
+        roomcal::result::Status::Accepted => Ok(()),
+        roomcal::result::Status::Rejected => Err(Failure {
+            code: 3,
+            error: anyhow::anyhow!(
+                "rejected: {}",
+                run.result.reason.as_deref().unwrap_or("no reason given")
+            ),
+        }),
+    }
+}
+
+fn write_result(
+    path: &std::path::Path,
+    result: &roomcal::result::CalibrationResult,
+) -> Result<(), Failure> {
+    let json = serde_json::to_string_pretty(result).expect("results serialise") + "\n";
+    let yaml_path = path.with_extension("yaml");
+    std::fs::write(path, json)
+        .and_then(|()| std::fs::write(&yaml_path, result.to_opencv_yaml()))
+        .with_context(|| format!("writing {} and {}", path.display(), yaml_path.display()))
+        .map_err(bad_input)
+}
+
+fn write_report(
+    path: &std::path::Path,
+    images: &[roomcal::detect::GreyImage],
+    clouds: &[Vec<roomcal::lidar::Point>],
+    run: &roomcal::calibrate::Calibration,
+) -> Result<(), Failure> {
+    let Some(first) = images.first() else { return Ok(()) };
+    let boards: Vec<roomcal::report::ReportBoard<'_>> = run
+        .boards
+        .iter()
+        .filter(|b| b.frame == 0)
+        .map(|b| roomcal::report::ReportBoard {
+            corners: &b.corners,
+            holes_camera: run.holes_in_camera(b),
+            holes_lidar: &b.holes_lidar,
+        })
+        .collect();
+    let cloud: Vec<&[roomcal::lidar::Point]> =
+        clouds.first().map(|c| c.as_slice()).into_iter().collect();
+    roomcal::report::overlay(
+        &first.data,
+        &run.camera,
+        run.lidar_to_camera.as_ref(),
+        &cloud,
+        &boards,
+    )
+    .save(path)
+    .with_context(|| format!("writing the report {}", path.display()))
+    .map_err(bad_input)
+}
+
+fn print_summary(
+    args: &CalibrateArgs,
+    frames: &[roomcal::calibrate::FrameDetections],
+    run: &roomcal::calibrate::Calibration,
+) {
+    let r = &run.result;
+    let c = &r.camera;
+    let u = &r.uncertainty;
+    let seen: usize = frames.iter().map(|f| f.camera.len()).sum();
+    let placed: usize = frames.iter().map(|f| f.lidar.len()).sum();
+    println!("roomcal calibrate: {} frame(s), {seen} complete camera boards, {placed} LiDAR boards placed", frames.len());
+    println!(
+        "  status      {:?}{}",
+        r.status,
+        r.reason.as_ref().map_or(String::new(), |why| format!(": {why}"))
+    );
+    println!("  fx fy       {:.3} {:.3} px   (σ {:.3} {:.3})", c.fx, c.fy, u.fx, u.fy);
+    println!("  cx cy       {:.3} {:.3} px   (σ {:.3} {:.3})", c.cx, c.cy, u.cx, u.cy);
+    println!(
+        "  distortion  {:?}",
+        c.distortion.iter().map(|d| format!("{d:.5}")).collect::<Vec<_>>()
+    );
+    if let Some(e) = &r.lidar_to_camera {
+        let t = e.to_se3();
+        let rvec = roomcal::geometry::se3::so3_log(&t.rotation).map(f64::to_degrees);
+        println!(
+            "  rotation    [{:.4} {:.4} {:.4}]° (rotation vector, σ {:.4}°)",
+            rvec.x, rvec.y, rvec.z, u.rotation_deg
+        );
+        println!(
+            "  translation [{:.4} {:.4} {:.4}] m (σ {:.1} mm)",
+            e.translation[0],
+            e.translation[1],
+            e.translation[2],
+            u.translation_m * 1000.0
+        );
+    }
+    println!("  residuals   corners {:.3} px RMS, holes {:.3} px RMS, {} boards used, {} solver iterations", r.quality.corner_rms_px, r.quality.hole_rms_px, r.quality.boards, run.iterations);
+    println!(
+        "  written     {} (+ {})",
+        args.out.display(),
+        args.out.with_extension("yaml").display()
+    );
+}
+
+fn detect(args: DetectArgs) -> Result<(), Failure> {
+    use roomcal::result::{BoardDetection, Detections};
+    let room = roomcal::room::load(&args.room).map_err(bad_input)?;
+    if args.image.is_none() && args.cloud.is_none() {
+        return Err(bad_input(anyhow::anyhow!("give --image, --cloud or both")));
+    }
+    let mut detectors = roomcal::calibrate::Detectors::new(&room).map_err(bad_input)?;
+    let mut out = Detections::default();
+    if let Some(path) = &args.image {
+        let image = load_image(&room, path)?;
+        for board in detectors.detect_image(&image).map_err(bad_input)? {
+            out.boards.push(BoardDetection {
+                frame: 0,
+                corners_px: board.corners.iter().map(|c| [c.x, c.y]).collect(),
+                holes_lidar: Vec::new(),
+            });
+        }
+    }
+    if let Some(path) = &args.cloud {
+        let cloud = load_cloud(&room, path)?;
+        for board in detectors.detect_cloud(&cloud) {
+            out.boards.push(BoardDetection {
+                frame: 0,
+                corners_px: Vec::new(),
+                holes_lidar: board.holes.iter().map(|h| [h.x, h.y, h.z]).collect(),
+            });
+        }
+        for refused in detectors.refused_in_cloud() {
+            eprintln!("{}: a board-sized plane was not placed: {refused:?}", path.display());
+        }
+    }
+    let json = serde_json::to_string_pretty(&out).expect("detections serialise") + "\n";
+    std::fs::write(&args.out, json)
+        .with_context(|| format!("writing {}", args.out.display()))
+        .map_err(bad_input)?;
+    let cameras = out.boards.iter().filter(|b| !b.corners_px.is_empty()).count();
+    println!(
+        "{} camera boards, {} LiDAR boards -> {}",
+        cameras,
+        out.boards.len() - cameras,
+        args.out.display()
+    );
     Ok(())
 }

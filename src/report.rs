@@ -84,8 +84,19 @@ fn put(image: &mut RgbImage, x: i64, y: i64, colour: Rgb<u8>) {
     }
 }
 
+/// Integer pixel of a mark, `None` far outside the image (projections of points behind
+/// a wide lens can land anywhere).
+fn anchor(image: &RgbImage, at: &Vec2) -> Option<(i64, i64)> {
+    let margin = 64.0;
+    let inside = at.x > -margin
+        && at.y > -margin
+        && at.x < image.width() as f64 + margin
+        && at.y < image.height() as f64 + margin;
+    inside.then(|| (at.x.round() as i64, at.y.round() as i64))
+}
+
 fn dot(image: &mut RgbImage, at: &Vec2, radius: i64, colour: Rgb<u8>) {
-    let (cx, cy) = (at.x.round() as i64, at.y.round() as i64);
+    let Some((cx, cy)) = anchor(image, at) else { return };
     for dy in -radius..=radius {
         for dx in -radius..=radius {
             put(image, cx + dx, cy + dy, colour);
@@ -94,7 +105,7 @@ fn dot(image: &mut RgbImage, at: &Vec2, radius: i64, colour: Rgb<u8>) {
 }
 
 fn cross(image: &mut RgbImage, at: &Vec2, size: i64, colour: Rgb<u8>) {
-    let (cx, cy) = (at.x.round() as i64, at.y.round() as i64);
+    let Some((cx, cy)) = anchor(image, at) else { return };
     for d in -size..=size {
         put(image, cx + d, cy, colour);
         put(image, cx, cy + d, colour);
@@ -102,9 +113,17 @@ fn cross(image: &mut RgbImage, at: &Vec2, size: i64, colour: Rgb<u8>) {
 }
 
 fn ring(image: &mut RgbImage, at: &Vec2, radius: f64, colour: Rgb<u8>) {
+    if anchor(image, at).is_none() {
+        return;
+    }
     let steps = (radius * 8.0) as usize;
     for k in 0..steps {
         let a = k as f64 / steps as f64 * std::f64::consts::TAU;
-        put(image, (at.x + radius * a.cos()).round() as i64, (at.y + radius * a.sin()).round() as i64, colour);
+        put(
+            image,
+            (at.x + radius * a.cos()).round() as i64,
+            (at.y + radius * a.sin()).round() as i64,
+            colour,
+        );
     }
 }
