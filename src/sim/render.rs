@@ -171,26 +171,32 @@ fn gaussian_blur(image: &mut [f32], w: usize, h: usize, sigma: f64) {
     let norm: f32 = kernel.iter().sum();
     let kernel: Vec<f32> = kernel.iter().map(|k| k / norm).collect();
     let mut tmp = vec![0f32; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            tmp[y * w + x] = kernel
+    // Rows (neighbours one apart), then columns (neighbours a row apart).
+    convolve_lines(image, &mut tmp, &kernel, h, w, w, 1);
+    convolve_lines(&tmp, image, &kernel, w, h, 1, w);
+}
+
+/// Convolves `lines` lines of `len` samples (line `i` starts at `i · line_step`,
+/// samples `step` apart) with a centred kernel, clamping at the ends.
+fn convolve_lines(
+    src: &[f32],
+    dst: &mut [f32],
+    kernel: &[f32],
+    lines: usize,
+    len: usize,
+    line_step: usize,
+    step: usize,
+) {
+    let radius = (kernel.len() / 2) as isize;
+    for line in 0..lines {
+        let at = |k: usize| line * line_step + k * step;
+        for i in 0..len {
+            dst[at(i)] = kernel
                 .iter()
                 .enumerate()
                 .map(|(k, kv)| {
-                    let xx = (x as isize + k as isize - radius).clamp(0, w as isize - 1) as usize;
-                    kv * image[y * w + xx]
-                })
-                .sum();
-        }
-    }
-    for y in 0..h {
-        for x in 0..w {
-            image[y * w + x] = kernel
-                .iter()
-                .enumerate()
-                .map(|(k, kv)| {
-                    let yy = (y as isize + k as isize - radius).clamp(0, h as isize - 1) as usize;
-                    kv * tmp[yy * w + x]
+                    let j = (i as isize + k as isize - radius).clamp(0, len as isize - 1) as usize;
+                    kv * src[at(j)]
                 })
                 .sum();
         }
