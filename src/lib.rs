@@ -35,8 +35,14 @@ pub mod solve;
 pub mod target;
 
 #[cfg(feature = "std")]
+pub mod capture;
+#[cfg(feature = "daemon")]
+pub mod daemon;
+#[cfg(feature = "std")]
 pub mod result;
 #[cfg(feature = "std")]
 pub mod room;
 #[cfg(feature = "std")]
 pub mod sim;
+#[cfg(feature = "std")]
+pub mod store;
