@@ -37,6 +37,10 @@ pub mod target;
 #[cfg(feature = "std")]
 pub mod calibrate;
 #[cfg(feature = "std")]
+pub mod capture;
+#[cfg(feature = "daemon")]
+pub mod daemon;
+#[cfg(feature = "std")]
 pub mod detect;
 #[cfg(feature = "std")]
 pub mod report;
@@ -46,3 +50,5 @@ pub mod result;
 pub mod room;
 #[cfg(feature = "std")]
 pub mod sim;
+#[cfg(feature = "std")]
+pub mod store;

@@ -1,0 +1,217 @@
+//! Camera input (std): the [`FrameSource`] trait, grey frames, replay of image files,
+//! pixel-format conversion, and (feature `v4l2`) V4L2 devices.
+//!
+//! Sources are synchronous: replay is paced by the caller from [`FrameSource::period`],
+//! a device blocks in `next_frame` until its next buffer (the daemon runs it on a
+//! blocking thread). A source that fails is reopened by the caller with [`Backoff`].
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+pub mod pixel;
+
+/// An 8-bit grey image, row-major without padding, with its capture time.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GreyFrame {
+    pub width: u32,
+    pub height: u32,
+    pub pixels: Vec<u8>,
+    /// Seconds on the source's clock (device timestamp, or replay time).
+    pub time: f64,
+}
+
+/// Errors of camera sources; each names the device or file.
+#[derive(Debug, thiserror::Error)]
+pub enum CaptureError {
+    #[error("camera {device}: no such device")]
+    NoDevice { device: String },
+    #[error("camera {device}: {message}")]
+    Device { device: String, message: String },
+    #[error("camera {device}: {source}")]
+    Pixel { device: String, source: pixel::PixelError },
+    #[error("image {path}: {message}")]
+    Image { path: PathBuf, message: String },
+    #[error("replay {path}: no PNG or JPEG images found")]
+    Empty { path: PathBuf },
+    #[error("camera source `{0}`: expected v4l2:DEVICE or replay:PATH")]
+    BadSource(String),
+}
+
+/// Grey frames from a camera or a replay.
+pub trait FrameSource: Send {
+    /// What this source reads (device path or replay path), for messages.
+    fn name(&self) -> &str;
+    /// The next frame; blocks until a device delivers one.
+    fn next_frame(&mut self) -> Result<GreyFrame, CaptureError>;
+    /// Interval the caller should wait between frames (replay), `None` for devices that
+    /// pace themselves.
+    fn period(&self) -> Option<Duration>;
+}
+
+/// The mean of several frames of the same size (a static scene: averaging lowers the
+/// noise before detection); `None` if there are none or their sizes differ.
+pub fn average_frames(frames: &[GreyFrame]) -> Option<GreyFrame> {
+    let first = frames.first()?;
+    if frames.iter().any(|f| f.width != first.width || f.height != first.height) {
+        return None;
+    }
+    let n = frames.len() as u32;
+    let mut sum = vec![0u32; first.pixels.len()];
+    for f in frames {
+        for (s, &p) in sum.iter_mut().zip(&f.pixels) {
+            *s += u32::from(p);
+        }
+    }
+    let pixels = sum.iter().map(|&s| ((s + n / 2) / n) as u8).collect();
+    let time = frames.iter().map(|f| f.time).sum::<f64>() / f64::from(n);
+    Some(GreyFrame { width: first.width, height: first.height, pixels, time })
+}
+
+/// Exponential backoff for reopening a failed device: `initial`, doubling up to `max`,
+/// back to `initial` after a success. Pure: the caller sleeps.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Backoff {
+    initial: Duration,
+    max: Duration,
+    next: Duration,
+}
+
+impl Backoff {
+    /// A backoff from `initial` to `max`.
+    pub fn new(initial: Duration, max: Duration) -> Self {
+        Backoff { initial, max, next: initial }
+    }
+
+    /// The delay before the next attempt (and doubles the following one).
+    pub fn next_delay(&mut self) -> Duration {
+        let d = self.next;
+        self.next = (self.next * 2).min(self.max);
+        d
+    }
+
+    /// Call after a success.
+    pub fn reset(&mut self) {
+        self.next = self.initial;
+    }
+}
+
+impl Default for Backoff {
+    /// 0.5 s doubling to 30 s.
+    fn default() -> Self {
+        Backoff::new(Duration::from_millis(500), Duration::from_secs(30))
+    }
+}
+
+/// Replay of an image file or a folder of PNG/JPEG images (sorted by name), looped.
+/// Every image is decoded to grey when the source opens.
+#[derive(Debug)]
+pub struct ImageReplay {
+    name: String,
+    frames: Vec<GreyFrame>,
+    next: usize,
+    served: u64,
+    period: Duration,
+}
+
+impl ImageReplay {
+    /// Opens `path` (a file, or a folder of images) replayed every `period`.
+    pub fn open(path: &Path, period: Duration) -> Result<Self, CaptureError> {
+        let files = image_files(path)?;
+        let mut frames = Vec::with_capacity(files.len());
+        for file in &files {
+            frames.push(load_grey(file)?);
+        }
+        if frames.is_empty() {
+            return Err(CaptureError::Empty { path: path.to_path_buf() });
+        }
+        Ok(ImageReplay { name: path.display().to_string(), frames, next: 0, served: 0, period })
+    }
+
+    /// Number of distinct images.
+    pub fn len(&self) -> usize {
+        self.frames.len()
+    }
+
+    /// Never true for an opened replay.
+    pub fn is_empty(&self) -> bool {
+        self.frames.is_empty()
+    }
+}
+
+impl FrameSource for ImageReplay {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn next_frame(&mut self) -> Result<GreyFrame, CaptureError> {
+        let mut frame = self.frames[self.next % self.frames.len()].clone();
+        frame.time = self.served as f64 * self.period.as_secs_f64();
+        self.next = (self.next + 1) % self.frames.len();
+        self.served += 1;
+        Ok(frame)
+    }
+
+    fn period(&self) -> Option<Duration> {
+        Some(self.period)
+    }
+}
+
+/// Decodes a PNG or JPEG file to grey (colour is converted to luma).
+pub fn load_grey(path: &Path) -> Result<GreyFrame, CaptureError> {
+    let img = image::open(path)
+        .map_err(|e| CaptureError::Image { path: path.to_path_buf(), message: e.to_string() })?
+        .into_luma8();
+    Ok(GreyFrame { width: img.width(), height: img.height(), pixels: img.into_raw(), time: 0.0 })
+}
+
+/// The image itself, or a folder's PNG/JPEG files sorted by name.
+fn image_files(path: &Path) -> Result<Vec<PathBuf>, CaptureError> {
+    let err = |e: std::io::Error| CaptureError::Image {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    };
+    let meta = std::fs::metadata(path).map_err(err)?;
+    if !meta.is_dir() {
+        return Ok(vec![path.to_path_buf()]);
+    }
+    let mut files = Vec::new();
+    for entry in std::fs::read_dir(path).map_err(err)? {
+        let p = entry.map_err(err)?.path();
+        let ext = p.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+        if matches!(ext.as_str(), "png" | "jpg" | "jpeg") {
+            files.push(p);
+        }
+    }
+    files.sort();
+    Ok(files)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(v: u8, time: f64) -> GreyFrame {
+        GreyFrame { width: 2, height: 1, pixels: vec![v, 255 - v], time }
+    }
+
+    #[test]
+    fn average_rounds_and_rejects_mixed_sizes() {
+        let avg = average_frames(&[frame(10, 0.0), frame(13, 1.0)]).unwrap();
+        assert_eq!(avg.pixels, vec![12, 244]);
+        assert_eq!(avg.time, 0.5);
+        let mut odd = frame(1, 0.0);
+        odd.width = 1;
+        odd.pixels.truncate(1);
+        assert!(average_frames(&[frame(1, 0.0), odd]).is_none());
+        assert!(average_frames(&[]).is_none());
+    }
+
+    #[test]
+    fn backoff_doubles_caps_and_resets() {
+        let mut b = Backoff::new(Duration::from_millis(100), Duration::from_millis(350));
+        let d: Vec<u128> = (0..4).map(|_| b.next_delay().as_millis()).collect();
+        assert_eq!(d, [100, 200, 350, 350]);
+        b.reset();
+        assert_eq!(b.next_delay().as_millis(), 100);
+    }
+}

@@ -1,0 +1,306 @@
+//! The daemon configuration file (TOML), exactly as DESIGN.md's "Daemon configuration",
+//! plus optional tuning keys with defaults. Relative paths are resolved against the
+//! directory of the configuration file.
+//!
+//! Extra keys (all optional): `[camera] replay_fps` (10); `[lidar] multicast` (an IPv4
+//! group to join), `replay_speed` (1.0); `[trigger] min_boards` (the room's board
+//! count, `board.count`), `still_m` (0.01),
+//! `leave_s` (3.0), `frames` (5, averaged), `sweeps` (3, accumulated),
+//! `detect_interval_s` (1.0), `capture_timeout_s` (10.0); `keep` (16, history bound).
+
+use std::net::{Ipv4Addr, SocketAddr};
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+use super::trigger::{Mode, TriggerConfig};
+
+/// Where camera frames come from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum CameraSource {
+    /// A V4L2 device (`v4l2:/dev/video0`).
+    V4l2(PathBuf),
+    /// An image file or a folder of them, looped (`replay:PATH`).
+    Replay(PathBuf),
+}
+
+/// Where LiDAR sweeps come from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum LidarSource {
+    /// Live packets (`udp:0.0.0.0:2368`).
+    Udp(SocketAddr),
+    /// A pcap/pcapng capture, or a PCD file or folder (`replay:PATH`).
+    Replay(PathBuf),
+}
+
+/// The UDS service on CAN.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ServiceConfig {
+    /// `socketcan:IFACE` or `socketcand:HOST:PORT[/CHANNEL]`.
+    pub transport: String,
+    pub request_id: u32,
+    pub response_id: u32,
+    pub secret_file: PathBuf,
+}
+
+/// The whole configuration, paths resolved.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Config {
+    pub room: PathBuf,
+    pub store: PathBuf,
+    pub keep: usize,
+    pub camera: CameraSource,
+    pub replay_fps: f64,
+    pub lidar: LidarSource,
+    pub multicast: Option<Ipv4Addr>,
+    pub replay_speed: f64,
+    /// `min_boards` here is 0 when the file does not set it: the daemon then uses the
+    /// room's board count.
+    pub trigger: TriggerConfig,
+    /// Frames averaged and sweeps accumulated per run.
+    pub frames: usize,
+    pub sweeps: usize,
+    pub detect_interval_s: f64,
+    pub capture_timeout_s: f64,
+    pub service: Option<ServiceConfig>,
+}
+
+/// Why the configuration cannot be used; names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("{path}: {source}")]
+    Read { path: PathBuf, source: std::io::Error },
+    #[error("{path}: {message}")]
+    Invalid { path: PathBuf, message: String },
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawConfig {
+    room: PathBuf,
+    store: PathBuf,
+    #[serde(default = "default_keep")]
+    keep: usize,
+    camera: RawCamera,
+    lidar: RawLidar,
+    #[serde(default)]
+    trigger: RawTrigger,
+    service: Option<RawService>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCamera {
+    source: String,
+    #[serde(default = "default_fps")]
+    replay_fps: f64,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawLidar {
+    source: String,
+    multicast: Option<Ipv4Addr>,
+    #[serde(default = "one")]
+    replay_speed: f64,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct RawTrigger {
+    mode: Mode,
+    settle_s: f64,
+    min_boards: Option<usize>,
+    still_m: f32,
+    leave_s: f64,
+    frames: usize,
+    sweeps: usize,
+    detect_interval_s: f64,
+    capture_timeout_s: f64,
+}
+
+impl Default for RawTrigger {
+    fn default() -> Self {
+        let t = TriggerConfig::default();
+        RawTrigger {
+            mode: t.mode,
+            settle_s: t.settle_s,
+            min_boards: None,
+            still_m: t.still_m,
+            leave_s: t.leave_s,
+            frames: 5,
+            sweeps: 3,
+            detect_interval_s: 1.0,
+            capture_timeout_s: 10.0,
+        }
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawService {
+    transport: String,
+    #[serde(default = "default_request_id")]
+    request_id: u32,
+    #[serde(default = "default_response_id")]
+    response_id: u32,
+    secret_file: PathBuf,
+}
+
+fn default_keep() -> usize {
+    crate::store::DEFAULT_KEEP
+}
+fn default_fps() -> f64 {
+    10.0
+}
+fn one() -> f64 {
+    1.0
+}
+fn default_request_id() -> u32 {
+    crate::service::DEFAULT_REQUEST_ID
+}
+fn default_response_id() -> u32 {
+    crate::service::DEFAULT_RESPONSE_ID
+}
+
+/// Reads and checks the configuration file at `path`.
+pub fn load(path: &Path) -> Result<Config, ConfigError> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|source| ConfigError::Read { path: path.to_path_buf(), source })?;
+    parse(&text, path)
+}
+
+/// Parses configuration text; `path` names it and anchors relative paths.
+pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
+    let invalid = |message: String| ConfigError::Invalid { path: path.to_path_buf(), message };
+    let raw: RawConfig = toml::from_str(text).map_err(|e| invalid(e.to_string()))?;
+    let base = path.parent().unwrap_or(Path::new("."));
+    let resolve = |p: &Path| if p.is_absolute() { p.to_path_buf() } else { base.join(p) };
+    let camera = if let Some(dev) = raw.camera.source.strip_prefix("v4l2:") {
+        CameraSource::V4l2(PathBuf::from(dev))
+    } else if let Some(p) = raw.camera.source.strip_prefix("replay:") {
+        CameraSource::Replay(resolve(Path::new(p)))
+    } else {
+        return Err(invalid(format!(
+            "camera.source `{}`: expected v4l2:DEVICE or replay:PATH",
+            raw.camera.source
+        )));
+    };
+    let lidar =
+        if let Some(a) = raw.lidar.source.strip_prefix("udp:") {
+            LidarSource::Udp(a.parse().map_err(|_| {
+                invalid(format!("lidar.source `{}`: bad address", raw.lidar.source))
+            })?)
+        } else if let Some(p) = raw.lidar.source.strip_prefix("replay:") {
+            LidarSource::Replay(resolve(Path::new(p)))
+        } else {
+            return Err(invalid(format!(
+                "lidar.source `{}`: expected udp:ADDR:PORT or replay:PATH",
+                raw.lidar.source
+            )));
+        };
+    let t = raw.trigger;
+    let positive = [
+        ("trigger.settle_s", t.settle_s),
+        ("trigger.detect_interval_s", t.detect_interval_s),
+        ("trigger.capture_timeout_s", t.capture_timeout_s),
+        ("camera.replay_fps", raw.camera.replay_fps),
+    ];
+    for (key, v) in positive {
+        if !(v.is_finite() && v >= 0.0) || (key != "trigger.settle_s" && v == 0.0) {
+            return Err(invalid(format!("{key} = {v}: must be a positive number")));
+        }
+    }
+    if t.frames == 0 || t.sweeps == 0 {
+        return Err(invalid("trigger.frames and trigger.sweeps must be at least 1".into()));
+    }
+    if let Some(s) = &raw.service {
+        crate::service::transport::Endpoint::parse(&s.transport)
+            .map_err(|e| invalid(format!("service.transport: {e}")))?;
+    }
+    Ok(Config {
+        room: resolve(&raw.room),
+        store: resolve(&raw.store),
+        keep: raw.keep,
+        camera,
+        replay_fps: raw.camera.replay_fps,
+        lidar,
+        multicast: raw.lidar.multicast,
+        replay_speed: raw.lidar.replay_speed,
+        trigger: TriggerConfig {
+            mode: t.mode,
+            min_boards: t.min_boards.unwrap_or(0),
+            settle_s: t.settle_s,
+            still_m: t.still_m,
+            leave_s: t.leave_s,
+        },
+        frames: t.frames,
+        sweeps: t.sweeps,
+        detect_interval_s: t.detect_interval_s,
+        capture_timeout_s: t.capture_timeout_s,
+        service: raw.service.map(|s| ServiceConfig {
+            transport: s.transport,
+            request_id: s.request_id,
+            response_id: s.response_id,
+            secret_file: resolve(&s.secret_file),
+        }),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const DESIGN: &str = r#"
+room = "room.toml"                 # relative to this file
+store = "/var/lib/roomcal"         # the vehicle config store (a directory)
+
+[camera]
+source = "v4l2:/dev/video0"        # or "replay:PATH" (an image file or a folder of them, looped)
+[lidar]
+source = "udp:0.0.0.0:2368"        # or "replay:PATH" (pcap replayed at its own pace, or PCD)
+[trigger]
+mode = "auto"                      # auto: room seen + vehicle still; manual: only on request
+settle_s = 2.0
+[service]
+transport = "socketcan:can0"       # or "socketcand:127.0.0.1:29536"
+request_id = 0x7A0
+response_id = 0x7A8
+secret_file = "/etc/roomcal/secret"
+"#;
+
+    #[test]
+    fn design_example_parses_with_paths_resolved() {
+        let c = parse(DESIGN, Path::new("/etc/roomcal/roomcal.toml")).unwrap();
+        assert_eq!(c.room, PathBuf::from("/etc/roomcal/room.toml"));
+        assert_eq!(c.store, PathBuf::from("/var/lib/roomcal"));
+        assert_eq!(c.camera, CameraSource::V4l2("/dev/video0".into()));
+        assert_eq!(c.lidar, LidarSource::Udp("0.0.0.0:2368".parse().unwrap()));
+        assert_eq!(c.trigger.mode, Mode::Auto);
+        assert_eq!(c.trigger.settle_s, 2.0);
+        let s = c.service.unwrap();
+        assert_eq!((s.request_id, s.response_id), (0x7A0, 0x7A8));
+    }
+
+    #[test]
+    fn replay_paths_resolve_and_errors_name_the_file() {
+        let text = DESIGN
+            .replace("v4l2:/dev/video0", "replay:frames")
+            .replace("udp:0.0.0.0:2368", "replay:../caps/a.pcap")
+            .replace("\"auto\"", "\"manual\"");
+        let c = parse(&text, Path::new("cfg/roomcal.toml")).unwrap();
+        assert_eq!(c.camera, CameraSource::Replay("cfg/frames".into()));
+        assert_eq!(c.lidar, LidarSource::Replay("cfg/../caps/a.pcap".into()));
+        assert_eq!(c.trigger.mode, Mode::Manual);
+        let bad = DESIGN.replace("v4l2:/dev/video0", "usb:0");
+        let e = parse(&bad, Path::new("x.toml")).unwrap_err().to_string();
+        assert!(e.contains("x.toml") && e.contains("usb:0"), "{e}");
+        let bad = DESIGN.replace("settle_s = 2.0", "settle_s = 2.0\nsettle = 1");
+        assert!(parse(&bad, Path::new("x.toml")).is_err(), "unknown keys are errors");
+        let bad = DESIGN.replace("socketcan:can0", "can0");
+        assert!(parse(&bad, Path::new("x.toml"))
+            .unwrap_err()
+            .to_string()
+            .contains("service.transport"));
+    }
+}

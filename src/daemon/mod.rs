@@ -1,0 +1,635 @@
+//! The vehicle daemon (tokio), in the style of mini-redis: [`run`] loads nothing itself —
+//! it takes a [`Config`] (see [`config::load`]), an injected [`Calibrator`] and a
+//! shutdown future, and runs until the future resolves (or, with `once`, until the first
+//! run ends).
+//!
+//! Tasks: the camera (latest frame in a `watch` channel; replay paced by tokio's clock,
+//! a failing device reopened with exponential backoff), the LiDAR (sweeps on a small
+//! channel), the UDS service (when configured), and the control loop here: a cheap board
+//! count about once a second and the sweep-to-sweep motion drive the [`trigger`]; a run
+//! averages `frames` frames, accumulates `sweeps` sweeps, calibrates on a blocking thread
+//! and commits to the [`Store`] (accepted) or keeps the result among the rejected runs.
+//! systemd: READY=1 once the sources are open, STATUS= on every state change, WATCHDOG=1
+//! at half the watchdog interval (all no-ops without `NOTIFY_SOCKET`).
+
+pub mod backend;
+pub mod config;
+pub mod motion;
+pub mod sources;
+pub mod trigger;
+
+use std::future::Future;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use tokio::sync::{mpsc, watch};
+
+use crate::capture::{average_frames, Backoff, CaptureError, FrameSource, GreyFrame, ImageReplay};
+use crate::lidar::{Calibration, Model, Point};
+use crate::result::{CalibrationResult, Status};
+use crate::service::uds::{DaemonState, Outcome};
+use crate::store::{Store, StoreError};
+use crate::target::LidarModel;
+
+pub use backend::{DaemonBackend, Shared};
+pub use config::{CameraSource, Config, LidarSource};
+use motion::{sweep_motion, RangeImage};
+use sources::{AnySweepSource, OwnedSweep, SweepError, SweepSource};
+use trigger::{Action, Trigger, Verdict};
+
+/// The calibration pipeline, injected (the real one is `calibrate.rs`; tests use a fake).
+/// Called on a blocking thread.
+pub trait Calibrator: Send + 'static {
+    /// A cheap detection pass: how many boards `frame` shows (about once a second).
+    fn count_boards(&mut self, frame: &GreyFrame) -> usize;
+    /// A full run on averaged frames and accumulated sweeps (frame *i* pairs with sweep
+    /// *i*); `current` is the calibration in force, for the gate's change check.
+    fn calibrate(
+        &mut self,
+        frames: &[GreyFrame],
+        sweeps: &[Vec<Point>],
+        current: Option<&CalibrationResult>,
+    ) -> CalibrationOutcome;
+}
+
+/// How a calibration run ended.
+#[derive(Clone, Debug, PartialEq)]
+pub enum CalibrationOutcome {
+    /// A result, accepted or rejected by the quality gate (`status`).
+    Done(Box<CalibrationResult>),
+    /// The run could not produce a result (too few boards, ...).
+    Failed(String),
+}
+
+/// Options of a run of the daemon.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RunOptions {
+    /// Stop after the first calibration run ends (`roomcal daemon --once`).
+    pub once: bool,
+}
+
+/// What a finished daemon run did.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RunSummary {
+    /// Calibration runs that ended.
+    pub runs: u64,
+    pub accepted: u64,
+    pub rejected: u64,
+    pub failed: u64,
+    /// The generation in force at exit (0: none).
+    pub generation: u32,
+}
+
+/// Errors that stop the daemon; each names its input.
+#[derive(Debug, thiserror::Error)]
+pub enum DaemonError {
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    #[error(transparent)]
+    Capture(#[from] CaptureError),
+    #[error(transparent)]
+    Sweeps(#[from] SweepError),
+    #[error("room {path}: {message}")]
+    Room { path: String, message: String },
+    #[error("service: {0}")]
+    Service(String),
+}
+
+/// Asks a running daemon for things (the library side of `roomcal query start`).
+#[derive(Clone)]
+pub struct DaemonHandle {
+    requests: mpsc::Sender<()>,
+    shared: Arc<Mutex<Shared>>,
+}
+
+impl DaemonHandle {
+    /// Requests a calibration run (manual mode's trigger); `false` if one is already queued
+    /// or the daemon has stopped.
+    pub fn request_calibration(&self) -> bool {
+        self.requests.try_send(()).is_ok()
+    }
+
+    /// The daemon's state and the calibration in force.
+    pub fn shared(&self) -> Shared {
+        self.shared.lock().map(|s| s.clone()).unwrap_or_default()
+    }
+}
+
+/// A daemon ready to run, and its handle.
+pub struct Daemon<C: Calibrator> {
+    config: Config,
+    calibrator: C,
+    options: RunOptions,
+    requests_tx: mpsc::Sender<()>,
+    requests: mpsc::Receiver<()>,
+    shared: Arc<Mutex<Shared>>,
+}
+
+impl<C: Calibrator> Daemon<C> {
+    /// Prepares a daemon; nothing is opened yet.
+    pub fn new(config: Config, calibrator: C, options: RunOptions) -> (Self, DaemonHandle) {
+        let (requests_tx, requests) = mpsc::channel(1);
+        let shared = Arc::new(Mutex::new(Shared::default()));
+        let handle = DaemonHandle { requests: requests_tx.clone(), shared: shared.clone() };
+        (Daemon { config, calibrator, options, requests_tx, requests, shared }, handle)
+    }
+
+    /// Runs until `shutdown` resolves (or the first run ends, with `once`).
+    pub async fn run(
+        self,
+        shutdown: impl Future<Output = ()> + Send,
+    ) -> Result<RunSummary, DaemonError> {
+        run_daemon(self, shutdown).await
+    }
+}
+
+/// Runs the daemon (see the module docs) until `shutdown` resolves.
+pub async fn run<C: Calibrator>(
+    config: Config,
+    calibrator: C,
+    options: RunOptions,
+    shutdown: impl Future<Output = ()> + Send,
+) -> Result<RunSummary, DaemonError> {
+    Daemon::new(config, calibrator, options).0.run(shutdown).await
+}
+
+/// Installs a `tracing` subscriber writing to stderr (journald records it under systemd);
+/// `RUST_LOG` filters (default `info`). Call once, from `main`.
+pub fn init_logging() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let _ =
+        tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).try_init();
+}
+
+/// Unix seconds now (the daemon's clock for store records).
+pub(crate) fn unix_now() -> u64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs())
+}
+
+/// Opens the configured camera.
+pub fn open_camera(config: &Config) -> Result<Box<dyn FrameSource>, CaptureError> {
+    match &config.camera {
+        CameraSource::Replay(path) => {
+            let period = Duration::from_secs_f64(1.0 / config.replay_fps);
+            Ok(Box::new(ImageReplay::open(path, period)?))
+        }
+        CameraSource::V4l2(dev) => open_v4l2(dev),
+    }
+}
+
+#[cfg(feature = "v4l2")]
+fn open_v4l2(dev: &std::path::Path) -> Result<Box<dyn FrameSource>, CaptureError> {
+    Ok(Box::new(crate::capture::v4l2::V4l2Source::open(dev)?))
+}
+
+#[cfg(not(feature = "v4l2"))]
+fn open_v4l2(dev: &std::path::Path) -> Result<Box<dyn FrameSource>, CaptureError> {
+    let device = dev.display().to_string();
+    if !dev.exists() {
+        return Err(CaptureError::NoDevice { device });
+    }
+    Err(CaptureError::Device { device, message: "roomcal was built without feature `v4l2`".into() })
+}
+
+fn load_room(config: &Config) -> Result<crate::target::Room, DaemonError> {
+    crate::room::load(&config.room).map_err(|e| DaemonError::Room {
+        path: config.room.display().to_string(),
+        message: e.to_string(),
+    })
+}
+
+/// The LiDAR calibration for the room's model (nominal tables).
+fn lidar_calibration(config: &Config) -> Result<Calibration, DaemonError> {
+    let room = load_room(config)?;
+    let model = match room.lidar.map(|l| l.model) {
+        Some(LidarModel::Pandar64) => Model::Pandar64,
+        Some(LidarModel::Pandar40p) => Model::Pandar40p,
+        Some(LidarModel::Vlp16) => Model::Vlp16,
+        Some(LidarModel::Vlp32c) => Model::Vlp32c,
+        Some(LidarModel::Hdl32e) => Model::Hdl32e,
+        Some(LidarModel::Pcd) | None => Model::Vlp16,
+    };
+    Ok(Calibration::nominal(model))
+}
+
+/// Opens the configured LiDAR source.
+pub async fn open_lidar(config: &Config) -> Result<AnySweepSource, DaemonError> {
+    let period = Duration::from_millis(100);
+    Ok(match &config.lidar {
+        LidarSource::Udp(addr) => {
+            let cal = lidar_calibration(config)?;
+            AnySweepSource::Packets(sources::udp(*addr, config.multicast, cal).await?)
+        }
+        LidarSource::Replay(path) => {
+            let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+            if ext == "pcap" || ext == "pcapng" {
+                let cal = lidar_calibration(config)?;
+                AnySweepSource::Packets(sources::pcap_replay(path, cal, config.replay_speed)?)
+            } else {
+                AnySweepSource::Pcd(sources::PcdReplay::open(path, period)?)
+            }
+        }
+    })
+}
+
+/// Camera task: publishes every frame; reopens a failed source with backoff.
+async fn camera_task(config: Config, tx: watch::Sender<Option<Arc<GreyFrame>>>) {
+    let mut backoff = Backoff::default();
+    loop {
+        let mut source = match open_camera(&config) {
+            Ok(s) => s,
+            Err(e) => {
+                let d = backoff.next_delay();
+                tracing::error!("{e}; retrying in {:.1} s", d.as_secs_f64());
+                tokio::time::sleep(d).await;
+                continue;
+            }
+        };
+        loop {
+            let period = source.period();
+            // Devices block until their next buffer: keep them off the runtime's threads.
+            let got = if period.is_some() {
+                source.next_frame().map(|f| (source, f))
+            } else {
+                let joined =
+                    tokio::task::spawn_blocking(move || source.next_frame().map(|f| (source, f)))
+                        .await;
+                match joined {
+                    Ok(r) => r,
+                    Err(_) => break,
+                }
+            };
+            match got {
+                Ok((s, frame)) => {
+                    source = s;
+                    backoff.reset();
+                    if tx.send(Some(Arc::new(frame))).is_err() {
+                        return;
+                    }
+                    if let Some(p) = period {
+                        tokio::time::sleep(p).await;
+                    }
+                }
+                Err(e) => {
+                    let d = backoff.next_delay();
+                    tracing::error!("{e}; reopening in {:.1} s", d.as_secs_f64());
+                    tokio::time::sleep(d).await;
+                    break;
+                }
+            }
+        }
+    }
+}
+
+/// LiDAR task: forwards sweeps; reopens a failed source with backoff.
+async fn lidar_task(config: Config, tx: mpsc::Sender<OwnedSweep>) {
+    let mut backoff = Backoff::default();
+    loop {
+        let mut source = match open_lidar(&config).await {
+            Ok(s) => s,
+            Err(e) => {
+                let d = backoff.next_delay();
+                tracing::error!("{e}; retrying in {:.1} s", d.as_secs_f64());
+                tokio::time::sleep(d).await;
+                continue;
+            }
+        };
+        loop {
+            match source.next_sweep().await {
+                Ok(s) => {
+                    backoff.reset();
+                    if tx.send(s).await.is_err() {
+                        return;
+                    }
+                }
+                Err(e) => {
+                    let d = backoff.next_delay();
+                    tracing::error!("{e}; reopening in {:.1} s", d.as_secs_f64());
+                    tokio::time::sleep(d).await;
+                    break;
+                }
+            }
+        }
+    }
+}
+
+/// Service task: the UDS server on the configured transport; reconnects with backoff.
+async fn service_task(
+    cfg: config::ServiceConfig,
+    backend: DaemonBackend,
+    mut stop: watch::Receiver<bool>,
+) {
+    use crate::service::{driver, isotp, transport::Endpoint, uds};
+    let secret = match crate::service::client::read_secret(&cfg.secret_file) {
+        Ok(s) => s,
+        Err(e) => {
+            tracing::error!("service disabled: {e}");
+            return;
+        }
+    };
+    let Ok(endpoint) = Endpoint::parse(&cfg.transport) else {
+        return; // checked when the configuration was loaded
+    };
+    let Ok(seeds) = driver::OsRandom::open() else {
+        tracing::error!("service disabled: /dev/urandom cannot be opened");
+        return;
+    };
+    let mut server = uds::Server::new(backend, seeds, &secret, uds::ServerConfig::default());
+    let tp = isotp::Config::new(cfg.response_id, cfg.request_id);
+    let mut backoff = Backoff::default();
+    while !*stop.borrow() {
+        match endpoint.connect().await {
+            Ok(mut t) => {
+                backoff.reset();
+                tracing::info!("service on {}", cfg.transport);
+                let mut s = stop.clone();
+                let stopped = async move {
+                    let _ = s.wait_for(|v| *v).await;
+                };
+                if let Err(e) = driver::serve(&mut t, &mut server, tp, stopped).await {
+                    tracing::warn!("service: {e}");
+                }
+            }
+            Err(e) => tracing::warn!("service: {e}"),
+        }
+        let d = backoff.next_delay();
+        tokio::select! {
+            _ = tokio::time::sleep(d) => {}
+            _ = stop.wait_for(|v| *v) => return,
+        }
+    }
+}
+
+/// sd_notify, ignoring errors (no-op without `NOTIFY_SOCKET`).
+fn notify(state: &[sd_notify::NotifyState<'_>]) {
+    let _ = sd_notify::notify(false, state);
+}
+
+/// What the control loop holds during a run.
+#[derive(Default)]
+struct RunBuffers {
+    frames: Vec<GreyFrame>,
+    sweeps: Vec<Vec<Point>>,
+    deadline: Option<tokio::time::Instant>,
+}
+
+async fn run_daemon<C: Calibrator>(
+    d: Daemon<C>,
+    shutdown: impl Future<Output = ()> + Send,
+) -> Result<RunSummary, DaemonError> {
+    let Daemon { mut config, calibrator, options, requests_tx, mut requests, shared } = d;
+    let room = load_room(&config)?;
+    if config.trigger.min_boards == 0 {
+        config.trigger.min_boards = room.board.count.max(1) as usize;
+    }
+    let store = Store::open(&config.store, config.keep)?;
+    let current = store.current()?;
+    if let Some(r) = &current {
+        tracing::info!(generation = r.generation, "calibration in force");
+    }
+    set_shared(&shared, |s| s.current = current);
+    let calibrator = Arc::new(Mutex::new(calibrator));
+
+    let (frame_tx, mut frames) = watch::channel(None::<Arc<GreyFrame>>);
+    let (sweep_tx, mut sweeps) = mpsc::channel::<OwnedSweep>(4);
+    let (stop_tx, stop_rx) = watch::channel(false);
+    let mut tasks = tokio::task::JoinSet::new();
+    tasks.spawn(camera_task(config.clone(), frame_tx));
+    tasks.spawn(lidar_task(config.clone(), sweep_tx));
+    if let Some(svc) = config.service.clone() {
+        let backend = DaemonBackend::new(shared.clone(), requests_tx.clone(), store.clone());
+        tasks.spawn(service_task(svc, backend, stop_rx));
+    }
+    drop(requests_tx);
+    notify(&[sd_notify::NotifyState::Ready, sd_notify::NotifyState::Status("idle")]);
+
+    let start = tokio::time::Instant::now();
+    let now_s = || start.elapsed().as_secs_f64();
+    let mut trigger = Trigger::new(config.trigger);
+    let mut detect = tokio::time::interval(Duration::from_secs_f64(config.detect_interval_s));
+    detect.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut watchdog_usec = 0u64;
+    let watchdog_on = sd_notify::watchdog_enabled(false, &mut watchdog_usec);
+    let wd_period = Duration::from_micros(if watchdog_on {
+        (watchdog_usec / 2).max(1000)
+    } else {
+        3_600_000_000
+    });
+    let mut watchdog = tokio::time::interval(wd_period);
+    let (mut image_prev, mut image_next) = (RangeImage::new(360, 128), RangeImage::new(360, 128));
+    let mut have_prev = false;
+    let mut scratch = Vec::new();
+    let mut run = RunBuffers::default();
+    let mut solving: Option<tokio::task::JoinHandle<CalibrationOutcome>> = None;
+    let mut summary = RunSummary::default();
+    let mut last_state = DaemonState::Idle;
+    tokio::pin!(shutdown);
+
+    loop {
+        let capturing = trigger.phase() == trigger::Phase::Capturing;
+        let mut action = Action::None;
+        let mut outcome: Option<CalibrationOutcome> = None;
+        tokio::select! {
+            _ = &mut shutdown => break,
+            _ = watchdog.tick(), if watchdog_on => notify(&[sd_notify::NotifyState::Watchdog]),
+            _ = detect.tick(), if !capturing && solving.is_none() => {
+                let frame = frames.borrow().clone();
+                if let Some(frame) = frame {
+                    let cal = calibrator.clone();
+                    let boards = tokio::task::spawn_blocking(move || {
+                        cal.lock().map_or(0, |mut c| c.count_boards(&frame))
+                    }).await.unwrap_or(0);
+                    action = trigger.on_boards(now_s(), boards);
+                }
+            }
+            _ = sleep_until_opt(run.deadline), if capturing => {
+                outcome = Some(CalibrationOutcome::Failed(format!(
+                    "capture timed out with {} of {} frames and {} of {} sweeps",
+                    run.frames.len(), config.frames, run.sweeps.len(), config.sweeps
+                )));
+            }
+            Ok(()) = frames.changed(), if capturing => {
+                let frame = frames.borrow_and_update().clone();
+                if let Some(f) = frame {
+                    if run.frames.len() < config.frames {
+                        run.frames.push((*f).clone());
+                    }
+                }
+            }
+            Some(sweep) = sweeps.recv() => {
+                image_next.fill(&sweep.points);
+                if have_prev {
+                    if let Some(m) = sweep_motion(&image_prev, &image_next, &mut scratch) {
+                        action = trigger.on_motion(now_s(), m);
+                    }
+                }
+                std::mem::swap(&mut image_prev, &mut image_next);
+                have_prev = true;
+                if capturing && run.sweeps.len() < config.sweeps {
+                    run.sweeps.push(sweep.points);
+                }
+            }
+            Some(()) = requests.recv() => {
+                let (accepted, a) = trigger.request();
+                if !accepted {
+                    tracing::info!("calibration request ignored: a run is in progress");
+                }
+                action = a;
+            }
+            joined = async {
+                match solving.as_mut() {
+                    Some(h) => h.await,
+                    None => std::future::pending().await,
+                }
+            }, if solving.is_some() => {
+                solving = None;
+                outcome = Some(joined.unwrap_or_else(|e| CalibrationOutcome::Failed(format!("calibrator panicked: {e}"))));
+            }
+        }
+        if action == Action::Capture {
+            tracing::info!("capturing {} frames and {} sweeps", config.frames, config.sweeps);
+            run = RunBuffers {
+                deadline: Some(
+                    tokio::time::Instant::now() + Duration::from_secs_f64(config.capture_timeout_s),
+                ),
+                ..RunBuffers::default()
+            };
+            // The frame in the channel now may predate the trigger: wait for fresh ones.
+            frames.borrow_and_update();
+        }
+        if trigger.phase() == trigger::Phase::Capturing
+            && run.frames.len() >= config.frames
+            && run.sweeps.len() >= config.sweeps
+        {
+            trigger.on_captured();
+            solving = Some(start_solve(&calibrator, &shared, std::mem::take(&mut run)));
+        }
+        if let Some(outcome) = outcome {
+            let verdict = finish_run(&store, &shared, outcome, &mut summary).await;
+            trigger.on_outcome(verdict);
+            if options.once {
+                publish_state(&shared, trigger.state(), &mut last_state);
+                break;
+            }
+        }
+        publish_state(&shared, trigger.state(), &mut last_state);
+    }
+    let _ = stop_tx.send(true);
+    notify(&[sd_notify::NotifyState::Stopping]);
+    // Give the service a moment to finish its exchange, then stop the sources.
+    let _ = tokio::time::timeout(Duration::from_millis(200), async {
+        while tasks.len() > 1 {
+            if tasks.join_next().await.is_none() {
+                break;
+            }
+        }
+    })
+    .await;
+    tasks.shutdown().await;
+    summary.generation =
+        shared.lock().ok().and_then(|s| s.current.as_ref().map(|r| r.generation)).unwrap_or(0);
+    Ok(summary)
+}
+
+async fn sleep_until_opt(at: Option<tokio::time::Instant>) {
+    match at {
+        Some(t) => tokio::time::sleep_until(t).await,
+        None => std::future::pending().await,
+    }
+}
+
+fn set_shared(shared: &Arc<Mutex<Shared>>, f: impl FnOnce(&mut Shared)) {
+    if let Ok(mut s) = shared.lock() {
+        f(&mut s);
+    }
+}
+
+fn publish_state(shared: &Arc<Mutex<Shared>>, state: DaemonState, last: &mut DaemonState) {
+    if state != *last {
+        *last = state;
+        tracing::info!("state: {}", state.name());
+        set_shared(shared, |s| s.state = state);
+        notify(&[sd_notify::NotifyState::Status(state.name())]);
+    }
+}
+
+/// Averages the frames, accumulates the sweeps, calibrates on a blocking thread.
+fn start_solve<C: Calibrator>(
+    calibrator: &Arc<Mutex<C>>,
+    shared: &Arc<Mutex<Shared>>,
+    run: RunBuffers,
+) -> tokio::task::JoinHandle<CalibrationOutcome> {
+    let cal = calibrator.clone();
+    let current = shared.lock().ok().and_then(|s| s.current.as_ref().map(|r| r.result.clone()));
+    tokio::task::spawn_blocking(move || {
+        let Some(frame) = average_frames(&run.frames) else {
+            return CalibrationOutcome::Failed("frames of different sizes".into());
+        };
+        let cloud: Vec<Point> = run.sweeps.into_iter().flatten().collect();
+        match cal.lock() {
+            Ok(mut c) => c.calibrate(&[frame], &[cloud], current.as_ref()),
+            Err(_) => CalibrationOutcome::Failed("calibrator poisoned by an earlier panic".into()),
+        }
+    })
+}
+
+/// Stores the outcome (accepted → new generation; rejected → kept aside) and reports it.
+async fn finish_run(
+    store: &Store,
+    shared: &Arc<Mutex<Shared>>,
+    outcome: CalibrationOutcome,
+    summary: &mut RunSummary,
+) -> Verdict {
+    summary.runs += 1;
+    let now = unix_now();
+    let store = store.clone();
+    let stored = tokio::task::spawn_blocking(move || match outcome {
+        CalibrationOutcome::Done(r) if r.status == Status::Accepted => {
+            store.commit(&r, now).map(|rec| (Verdict::Accepted, Some(rec)))
+        }
+        CalibrationOutcome::Done(r) => {
+            tracing::warn!(
+                "calibration rejected: {}",
+                r.reason.as_deref().unwrap_or("no reason given")
+            );
+            store.record_rejected(&r, now).map(|_| (Verdict::Rejected, None))
+        }
+        CalibrationOutcome::Failed(why) => {
+            tracing::error!("calibration failed: {why}");
+            Ok((Verdict::Error, None))
+        }
+    })
+    .await;
+    let (verdict, record) = match stored {
+        Ok(Ok(v)) => v,
+        Ok(Err(e)) => {
+            tracing::error!("store: {e}");
+            (Verdict::Error, None)
+        }
+        Err(e) => {
+            tracing::error!("store task: {e}");
+            (Verdict::Error, None)
+        }
+    };
+    match verdict {
+        Verdict::Accepted => summary.accepted += 1,
+        Verdict::Rejected => summary.rejected += 1,
+        Verdict::Error => summary.failed += 1,
+    }
+    set_shared(shared, |s| {
+        if let Some(rec) = record {
+            tracing::info!(generation = rec.generation, "calibration accepted and in force");
+            s.current = Some(rec);
+        }
+        let state = match verdict {
+            Verdict::Accepted => DaemonState::Accepted,
+            Verdict::Rejected => DaemonState::Rejected,
+            Verdict::Error => DaemonState::Error,
+        };
+        s.runs += 1;
+        s.last =
+            Some(Outcome { state, generation: s.current.as_ref().map_or(0, |r| r.generation) });
+    });
+    verdict
+}

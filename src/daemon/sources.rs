@@ -1,0 +1,235 @@
+//! LiDAR sweep sources for the daemon (tokio): live UDP packets (optionally multicast),
+//! pcap replay at the capture's own pace, and PCD replay (a file or a folder, looped).
+//! Packet sources run a task that feeds a [`SweepAssembler`] and hands finished sweeps
+//! over a small channel; a full channel drops sweeps instead of stalling the socket.
+
+use std::future::Future;
+use std::net::{Ipv4Addr, SocketAddr};
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use tokio::sync::mpsc;
+use tokio::task::JoinHandle;
+
+use crate::lidar::pcap::{read_udp, ReplayPacer};
+use crate::lidar::{pcd, Calibration, Point, SweepAssembler, SweepConfig};
+
+/// One sweep (or one replayed cloud), owned.
+#[derive(Clone, Debug, PartialEq)]
+pub struct OwnedSweep {
+    pub points: Vec<Point>,
+    /// Time of the first point (the sensor's clock), or replay time for PCD.
+    pub time: f64,
+}
+
+/// Errors of sweep sources; each names the socket or file.
+#[derive(Debug, thiserror::Error)]
+pub enum SweepError {
+    #[error("lidar udp {addr}: {source}")]
+    Udp { addr: String, source: std::io::Error },
+    #[error("lidar replay {path}: {message}")]
+    Replay { path: PathBuf, message: String },
+    #[error("lidar {0}: source ended")]
+    Ended(String),
+}
+
+/// Sweeps from a sensor or a replay.
+pub trait SweepSource: Send {
+    /// What this source reads, for messages.
+    fn name(&self) -> &str;
+    /// The next sweep.
+    fn next_sweep(&mut self) -> impl Future<Output = Result<OwnedSweep, SweepError>> + Send;
+}
+
+/// Points a sweep buffer holds: a dual-return 64-laser unit at 5 Hz (3600 firings).
+const SWEEP_CAPACITY: usize = 2 * 64 * 3600;
+
+/// A packet source: a task assembling sweeps, and the channel it fills.
+pub struct PacketSweeps {
+    name: String,
+    rx: mpsc::Receiver<Result<OwnedSweep, SweepError>>,
+    task: JoinHandle<()>,
+}
+
+impl Drop for PacketSweeps {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
+impl SweepSource for PacketSweeps {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    async fn next_sweep(&mut self) -> Result<OwnedSweep, SweepError> {
+        self.rx.recv().await.unwrap_or_else(|| Err(SweepError::Ended(self.name.clone())))
+    }
+}
+
+/// Assembles payloads into sweeps sent on `tx` (dropped when the receiver lags).
+struct Feeder<'b> {
+    asm: SweepAssembler<'b>,
+    tx: mpsc::Sender<Result<OwnedSweep, SweepError>>,
+}
+
+impl Feeder<'_> {
+    fn push(&mut self, port: u16, payload: &[u8]) {
+        let tx = &self.tx;
+        self.asm.push(port, payload, &mut |s| {
+            if s.complete {
+                let _ =
+                    tx.try_send(Ok(OwnedSweep { points: s.points.to_vec(), time: s.start_time }));
+            }
+        });
+    }
+}
+
+/// Live UDP: binds `addr` (joining `group` on all interfaces if given).
+pub async fn udp(
+    addr: SocketAddr,
+    group: Option<Ipv4Addr>,
+    cal: Calibration,
+) -> Result<PacketSweeps, SweepError> {
+    let err = |source| SweepError::Udp { addr: addr.to_string(), source };
+    let socket = tokio::net::UdpSocket::bind(addr).await.map_err(err)?;
+    if let Some(g) = group {
+        socket.join_multicast_v4(g, Ipv4Addr::UNSPECIFIED).map_err(err)?;
+    }
+    let (tx, rx) = mpsc::channel(4);
+    let name = format!("udp {addr}");
+    let task_name = name.clone();
+    let task = tokio::spawn(async move {
+        let mut buf = vec![Point::default(); SWEEP_CAPACITY];
+        let config = SweepConfig { data_port: addr.port(), ..SweepConfig::for_calibration(&cal) };
+        let mut feeder = Feeder { asm: SweepAssembler::new(cal, config, &mut buf), tx };
+        let mut packet = vec![0u8; 2048];
+        loop {
+            match socket.recv_from(&mut packet).await {
+                Ok((n, _)) => feeder.push(addr.port(), &packet[..n]),
+                Err(source) => {
+                    let e = SweepError::Udp { addr: task_name.clone(), source };
+                    let _ = feeder.tx.send(Err(e)).await;
+                    return;
+                }
+            }
+        }
+    });
+    Ok(PacketSweeps { name, rx, task })
+}
+
+/// Replays a pcap/pcapng capture at its own pace (`speed` × real time), looped. Pacing
+/// uses tokio's clock, so paused-clock tests run it instantly.
+pub fn pcap_replay(path: &Path, cal: Calibration, speed: f64) -> Result<PacketSweeps, SweepError> {
+    let (datagrams, _) = read_udp(path)
+        .map_err(|e| SweepError::Replay { path: path.to_path_buf(), message: e.to_string() })?;
+    let Some(first) = datagrams.first() else {
+        return Err(SweepError::Replay {
+            path: path.to_path_buf(),
+            message: "no UDP datagrams".into(),
+        });
+    };
+    let pacer = ReplayPacer::new(first.timestamp_ns).with_speed(speed);
+    let (tx, rx) = mpsc::channel(4);
+    let task = tokio::spawn(async move {
+        let mut buf = vec![Point::default(); SWEEP_CAPACITY];
+        let config = SweepConfig::for_calibration(&cal);
+        let mut feeder = Feeder { asm: SweepAssembler::new(cal, config, &mut buf), tx };
+        loop {
+            let start = tokio::time::Instant::now();
+            for d in &datagrams {
+                let due = start + pacer.delay_until(d.timestamp_ns);
+                if due > tokio::time::Instant::now() {
+                    tokio::time::sleep_until(due).await;
+                }
+                feeder.push(d.dst.port(), &d.payload);
+            }
+            if feeder.tx.is_closed() {
+                return;
+            }
+            // The loop restarts one packet interval later, never in a busy loop.
+            tokio::time::sleep(Duration::from_millis(1)).await;
+        }
+    });
+    Ok(PacketSweeps { name: format!("replay {}", path.display()), rx, task })
+}
+
+/// Replays a PCD file or a folder of them (sorted by name), one cloud every `period`, looped.
+pub struct PcdReplay {
+    name: String,
+    clouds: Vec<Vec<Point>>,
+    next: usize,
+    served: u64,
+    period: Duration,
+}
+
+impl PcdReplay {
+    /// Loads every cloud of `path`.
+    pub fn open(path: &Path, period: Duration) -> Result<Self, SweepError> {
+        let err = |message: String| SweepError::Replay { path: path.to_path_buf(), message };
+        let files = if path.is_dir() {
+            let mut v: Vec<PathBuf> = std::fs::read_dir(path)
+                .map_err(|e| err(e.to_string()))?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| p.extension().is_some_and(|x| x.eq_ignore_ascii_case("pcd")))
+                .collect();
+            v.sort();
+            v
+        } else {
+            vec![path.to_path_buf()]
+        };
+        let mut clouds = Vec::new();
+        for f in &files {
+            clouds.push(pcd::read(f).map_err(|e| err(e.to_string()))?);
+        }
+        if clouds.is_empty() {
+            return Err(err("no PCD files".into()));
+        }
+        Ok(PcdReplay {
+            name: format!("replay {}", path.display()),
+            clouds,
+            next: 0,
+            served: 0,
+            period,
+        })
+    }
+}
+
+impl SweepSource for PcdReplay {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    async fn next_sweep(&mut self) -> Result<OwnedSweep, SweepError> {
+        if self.served > 0 {
+            tokio::time::sleep(self.period).await;
+        }
+        let points = self.clouds[self.next].clone();
+        self.next = (self.next + 1) % self.clouds.len();
+        let time = self.served as f64 * self.period.as_secs_f64();
+        self.served += 1;
+        Ok(OwnedSweep { points, time })
+    }
+}
+
+/// Any of the sweep sources, as the configuration chooses.
+pub enum AnySweepSource {
+    Packets(PacketSweeps),
+    Pcd(PcdReplay),
+}
+
+impl SweepSource for AnySweepSource {
+    fn name(&self) -> &str {
+        match self {
+            AnySweepSource::Packets(s) => s.name(),
+            AnySweepSource::Pcd(s) => s.name(),
+        }
+    }
+
+    async fn next_sweep(&mut self) -> Result<OwnedSweep, SweepError> {
+        match self {
+            AnySweepSource::Packets(s) => s.next_sweep().await,
+            AnySweepSource::Pcd(s) => s.next_sweep().await,
+        }
+    }
+}

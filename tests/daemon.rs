@@ -1,0 +1,280 @@
+//! Daemon end to end on tokio's paused clock with a fake calibrator: replay sources →
+//! auto-trigger → store written → once-mode exit; a rejected run leaves current.json
+//! untouched; manual mode waits for a request; a missing camera device is retried, not
+//! fatal; the UDS backend answers from the store.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use roomcal::capture::GreyFrame;
+use roomcal::daemon::{self, config, CalibrationOutcome, Calibrator, Daemon, RunOptions};
+use roomcal::geometry::CameraModel;
+use roomcal::lidar::{pcd, Point};
+use roomcal::result::{CalibrationResult, CameraResult, Extrinsic, Quality, Status, Uncertainty};
+use roomcal::service::uds::{Backend, DaemonState, Refusal};
+use roomcal::store::Store;
+
+fn result(fx: f64, status: Status) -> CalibrationResult {
+    CalibrationResult {
+        status,
+        reason: (status == Status::Rejected).then(|| "hole RMS 4.2 px > 2 px".into()),
+        camera: CameraResult {
+            model: CameraModel::PinholeRadtan,
+            width: 64,
+            height: 48,
+            fx,
+            fy: fx,
+            cx: 32.0,
+            cy: 24.0,
+            distortion: vec![0.1, -0.01, 0.0, 0.0, 0.0],
+        },
+        lidar_to_camera: Some(Extrinsic {
+            rotation: [[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]],
+            translation: [0.05, 0.42, -0.28],
+        }),
+        uncertainty: Uncertainty::default(),
+        quality: Quality { corner_rms_px: 0.25, hole_rms_px: 0.5, boards: 6 },
+        boards: vec![],
+    }
+}
+
+/// Sees `boards` boards; answers every run with `status`; counts calls.
+struct Fake {
+    boards: usize,
+    status: Status,
+    counts: Arc<AtomicUsize>,
+    runs: Arc<AtomicUsize>,
+    frames_px: Arc<AtomicUsize>,
+}
+
+impl Calibrator for Fake {
+    fn count_boards(&mut self, _frame: &GreyFrame) -> usize {
+        self.counts.fetch_add(1, Ordering::SeqCst);
+        self.boards
+    }
+
+    fn calibrate(
+        &mut self,
+        frames: &[GreyFrame],
+        sweeps: &[Vec<Point>],
+        _current: Option<&CalibrationResult>,
+    ) -> CalibrationOutcome {
+        self.runs.fetch_add(1, Ordering::SeqCst);
+        self.frames_px.store(frames[0].pixels.len(), Ordering::SeqCst);
+        assert_eq!(sweeps.len(), 1);
+        CalibrationOutcome::Done(Box::new(result(500.0 + sweeps[0].len() as f64, self.status)))
+    }
+}
+
+fn fake(boards: usize, status: Status) -> (Fake, Arc<AtomicUsize>, Arc<AtomicUsize>) {
+    let counts = Arc::new(AtomicUsize::new(0));
+    let runs = Arc::new(AtomicUsize::new(0));
+    let f = Fake {
+        boards,
+        status,
+        counts: counts.clone(),
+        runs: runs.clone(),
+        frames_px: Arc::default(),
+    };
+    (f, counts, runs)
+}
+
+/// A scene folder: room.toml, one PNG, one PCD (a still room), roomcal.toml.
+fn scene(name: &str, extra: &str) -> (PathBuf, config::Config) {
+    let dir = std::env::temp_dir().join(format!("roomcal-daemon-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(dir.join("frames")).unwrap();
+    let room =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/room.toml")).unwrap();
+    std::fs::write(dir.join("room.toml"), room).unwrap();
+    image::GrayImage::from_fn(64, 48, |x, y| image::Luma([((x / 8 + y / 8) % 2 * 200) as u8]))
+        .save(dir.join("frames/a.png"))
+        .unwrap();
+    let mut pts = Vec::new();
+    for ring in 0..16u16 {
+        for i in 0..720 {
+            let a = (i as f32 * 0.5).to_radians();
+            let d = 6.0 + (2.0 * a).cos();
+            pts.push(Point {
+                x: d * a.cos(),
+                y: d * a.sin(),
+                z: f32::from(ring) * 0.1,
+                ring,
+                ..Point::default()
+            });
+        }
+    }
+    pcd::write(dir.join("cloud.pcd"), &pts, pcd::PcdFormat::Binary).unwrap();
+    let text = format!(
+        "room = \"room.toml\"\nstore = \"store\"\n[camera]\nsource = \"replay:frames\"\n\
+         [lidar]\nsource = \"replay:cloud.pcd\"\n[trigger]\nsettle_s = 2.0\nframes = 3\nsweeps = 2\n{extra}"
+    );
+    let path = dir.join("roomcal.toml");
+    std::fs::write(&path, &text).unwrap();
+    (dir.clone(), config::load(&path).unwrap())
+}
+
+fn current_bytes(dir: &Path) -> Option<Vec<u8>> {
+    std::fs::read(dir.join("store/current.json")).ok()
+}
+
+#[tokio::test(start_paused = true)]
+async fn replay_auto_trigger_stores_a_generation_and_exits_once() {
+    let (dir, cfg) = scene("auto", "");
+    let (cal, counts, runs) = fake(6, Status::Accepted);
+    let t0 = tokio::time::Instant::now();
+    let summary =
+        daemon::run(cfg, cal, RunOptions { once: true }, std::future::pending()).await.unwrap();
+    let took = t0.elapsed();
+    assert_eq!((summary.runs, summary.accepted, summary.generation), (1, 1, 1));
+    assert_eq!(runs.load(Ordering::SeqCst), 1);
+    // Settling needs 2 s of still sweeps after the room was seen; the board count runs ~1 Hz.
+    assert!(took >= Duration::from_secs(2) && took < Duration::from_secs(10), "{took:?}");
+    assert!(counts.load(Ordering::SeqCst) >= 2);
+    let store = Store::open(dir.join("store"), 4).unwrap();
+    let cur = store.current().unwrap().unwrap();
+    assert_eq!(cur.generation, 1);
+    // Two accumulated sweeps of 16 × 720 points.
+    assert_eq!(cur.result.camera.fx, 500.0 + 2.0 * 16.0 * 720.0);
+    assert!(dir.join("store/camera.yaml").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[tokio::test(start_paused = true)]
+async fn too_few_boards_never_trigger() {
+    let (dir, cfg) = scene("few", "");
+    let (cal, counts, runs) = fake(5, Status::Accepted); // the room has 6
+    let summary = daemon::run(
+        cfg,
+        cal,
+        RunOptions { once: true },
+        tokio::time::sleep(Duration::from_secs(30)),
+    )
+    .await
+    .unwrap();
+    assert_eq!(summary.runs, 0);
+    assert_eq!(runs.load(Ordering::SeqCst), 0);
+    assert!(counts.load(Ordering::SeqCst) >= 25, "about one detection pass a second");
+    assert!(current_bytes(&dir).is_none());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[tokio::test(start_paused = true)]
+async fn rejected_run_leaves_current_untouched() {
+    let (dir, cfg) = scene("rejected", "");
+    let store = Store::open(dir.join("store"), 4).unwrap();
+    store.commit(&result(900.0, Status::Accepted), 1_700_000_000).unwrap();
+    let before = current_bytes(&dir).unwrap();
+    let (cal, _, runs) = fake(6, Status::Rejected);
+    let summary =
+        daemon::run(cfg, cal, RunOptions { once: true }, std::future::pending()).await.unwrap();
+    assert_eq!((summary.runs, summary.rejected, summary.generation), (1, 1, 1));
+    assert_eq!(runs.load(Ordering::SeqCst), 1);
+    assert_eq!(current_bytes(&dir).unwrap(), before);
+    let rejected = store.rejected().unwrap();
+    assert_eq!(rejected.len(), 1);
+    assert_eq!(rejected[0].result.status, Status::Rejected);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[tokio::test(start_paused = true)]
+async fn manual_mode_runs_only_on_request_and_latches_in_auto() {
+    let (dir, cfg) = scene("manual", "mode = \"manual\"\n");
+    let (cal, _, runs) = fake(6, Status::Accepted);
+    let (d, handle) = Daemon::new(cfg, cal, RunOptions::default());
+    let task = tokio::spawn(d.run(tokio::time::sleep(Duration::from_secs(60))));
+    tokio::time::sleep(Duration::from_secs(20)).await;
+    assert_eq!(runs.load(Ordering::SeqCst), 0, "manual: no run without a request");
+    assert_eq!(handle.shared().state, DaemonState::RoomSeen);
+    assert!(handle.request_calibration());
+    tokio::time::sleep(Duration::from_secs(5)).await;
+    assert_eq!(runs.load(Ordering::SeqCst), 1);
+    assert_eq!(handle.shared().state, DaemonState::Accepted);
+    assert_eq!(handle.shared().current.unwrap().generation, 1);
+    let summary = task.await.unwrap().unwrap();
+    assert_eq!(summary.accepted, 1, "one run in 60 s");
+    let _ = std::fs::remove_dir_all(&dir);
+
+    // Auto mode: one run per visit, however long the vehicle stays.
+    let (dir, cfg) = scene("latch", "");
+    let (cal, _, runs) = fake(6, Status::Accepted);
+    let s =
+        daemon::run(cfg, cal, RunOptions::default(), tokio::time::sleep(Duration::from_secs(60)))
+            .await
+            .unwrap();
+    assert_eq!((s.runs, runs.load(Ordering::SeqCst)), (1, 1));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[tokio::test(start_paused = true)]
+async fn missing_camera_device_is_named_and_retried() {
+    let (dir, mut cfg) = scene("nodev", "");
+    cfg.camera = config::CameraSource::V4l2("/dev/video-roomcal-missing".into());
+    let err = daemon::open_camera(&cfg).err().unwrap().to_string();
+    assert!(err.contains("/dev/video-roomcal-missing"), "{err}");
+    let (cal, counts, _) = fake(6, Status::Accepted);
+    let s = daemon::run(
+        cfg,
+        cal,
+        RunOptions { once: true },
+        tokio::time::sleep(Duration::from_secs(120)),
+    )
+    .await
+    .unwrap();
+    assert_eq!(s.runs, 0);
+    assert_eq!(counts.load(Ordering::SeqCst), 0, "no frames, no detection");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn backend_answers_from_the_store_and_rolls_back() {
+    let dir = std::env::temp_dir().join(format!("roomcal-daemon-backend-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let store = Store::open(&dir, 4).unwrap();
+    store.commit(&result(800.0, Status::Accepted), 1_700_000_000).unwrap();
+    let rec = store.commit(&result(810.0, Status::Accepted), 1_700_000_100).unwrap();
+    let shared = Arc::new(std::sync::Mutex::new(daemon::Shared {
+        current: Some(rec),
+        ..Default::default()
+    }));
+    let (tx, mut rx) = tokio::sync::mpsc::channel(1);
+    let mut b = daemon::DaemonBackend::new(shared.clone(), tx, store.clone());
+    let st = b.state();
+    assert_eq!((st.state, st.generation, st.time), (DaemonState::Idle, 2, 1_700_000_100));
+    let k = b.intrinsics().unwrap();
+    assert_eq!((k.fx, k.cx, k.distortion.len()), (810.0, 32.0, 5));
+    let e = b.extrinsic().unwrap();
+    // The quaternion turns back into the stored rotation matrix.
+    let q = e.rotation.map(f64::from);
+    let r = roomcal::geometry::se3::quaternion_to_rotation(&q).unwrap();
+    let want = [[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]];
+    for (i, row) in want.iter().enumerate() {
+        for (j, w) in row.iter().enumerate() {
+            assert!((r[(i, j)] - w).abs() < 1e-6, "{:?} → {r}", e.rotation);
+        }
+    }
+    assert_eq!(e.translation, [0.05, 0.42, -0.28]);
+    assert_eq!(b.quality().unwrap().boards, 6);
+    // Start = a run request; finished once the daemon counts a run.
+    b.start_calibration().unwrap();
+    assert!(rx.try_recv().is_ok());
+    assert!(b.calibration_finished().is_none());
+    {
+        let mut s = shared.lock().unwrap();
+        s.runs = 1;
+        s.last =
+            Some(roomcal::service::uds::Outcome { state: DaemonState::Accepted, generation: 3 });
+    }
+    assert_eq!(b.calibration_finished().unwrap().generation, 3);
+    shared.lock().unwrap().state = DaemonState::Solving;
+    assert_eq!(b.start_calibration(), Err(Refusal::Busy));
+    shared.lock().unwrap().state = DaemonState::Idle;
+    // Rollback puts generation 1's calibration back as generation 3.
+    assert_eq!(b.rollback(), Ok(3));
+    assert_eq!(b.intrinsics().unwrap().fx, 800.0);
+    assert_eq!(store.current().unwrap().unwrap().restored_from, Some(1));
+    assert_eq!(b.rollback(), Err(Refusal::NotAvailable));
+    let _ = std::fs::remove_dir_all(&dir);
+}
