@@ -48,7 +48,7 @@ fn ring_gap_estimate(points: &[Point], guess: [f64; 3]) -> Option<([f64; 2], usi
             .iter()
             .filter(|p| p.ring == ring)
             .map(|p| [p.x as f64, p.y as f64, p.z as f64])
-            .filter(|p| (p[0] - guess[0]).abs() < 0.15 && (p[2] - guess[2]).abs() < 0.2)
+            .filter(|p| (p[0] - guess[0]).abs() < 0.15 && (p[2] - guess[2]).abs() < 0.14)
             .filter(|p| (p[1] - guess[1]).abs() < 0.3)
             .collect();
         if line.len() < 10 {
@@ -63,7 +63,9 @@ fn ring_gap_estimate(points: &[Point], guess: [f64; 3]) -> Option<([f64; 2], usi
             .filter(|w| ((w[0][1] + w[1][1]) / 2.0 - guess[1]).abs() < 0.1)
             .max_by(|a, b| (a[1][1] - a[0][1]).total_cmp(&(b[1][1] - b[0][1])));
         if let Some(w) = widest {
-            if w[1][1] - w[0][1] > 4.0 * typical {
+            // A hole's chord: wider than the sampling, no wider than the hole.
+            let gap = w[1][1] - w[0][1];
+            if gap > 4.0 * typical && gap < 0.26 {
                 mids.push((w[0][1] + w[1][1]) / 2.0);
                 zs.push((w[0][2] + w[1][2]) / 2.0);
             }

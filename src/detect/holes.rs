@@ -230,8 +230,8 @@ impl HoleDetector {
         let mut yaws = Vec::new();
         let turns: &[f64] = if symmetric(spec) { &[0.0] } else { &[0.0, 180.0] };
         for &turn in turns {
-            for k in -20..=20 {
-                yaws.push((turn + 2.0 * k as f64).to_radians());
+            for k in -10..=10 {
+                yaws.push((turn + 4.0 * k as f64).to_radians());
             }
         }
         HoleDetector {
@@ -495,7 +495,10 @@ impl HoleDetector {
             self.refused.push(refuse(Refusal::Unconstrained { sigma_m }));
             return;
         }
-        let plane_sigma = rms / (points as f64).sqrt();
+        // Plane uncertainty: offset along the normal and tilt about either in-plane axis.
+        let (su, sv) =
+            self.flat.iter().fold((0.0, 0.0), |(a, b), p| (a + p[0] * p[0], b + p[1] * p[1]));
+        let plane_sigma = [rms / (points as f64).sqrt(), rms / su.sqrt(), rms / sv.sqrt()];
         out.push(self.board(&fit, (c, ex, ey, n), plane_sigma, rms, lines));
     }
 
@@ -525,11 +528,11 @@ impl HoleDetector {
         fits
     }
 
-    /// Coarse mask search over (x, y, yaw) on a subsample: 2 cm and 2° steps.
+    /// Coarse mask search over (x, y, yaw) on a subsample: 2 cm and 4° steps.
     /// Yaws within 6° of the bounding rectangle's `yaw0` (and the same turned by 180°
     /// for an asymmetric hole pattern) are tried.
     fn coarse(&mut self) -> [f64; 3] {
-        let stride = (self.flat.len() / 300).max(1);
+        let stride = (self.flat.len() / 200).max(1);
         let (hw, hh) = (self.spec.width / 2.0, self.spec.height / 2.0);
         let mut best = (i64::MIN, [0.0; 3]);
         for &yaw in &self.yaws {
@@ -587,12 +590,12 @@ impl HoleDetector {
                 self.sample.push(*p);
             }
         }
-        let mut medium = self.grid(coarse, [0.005, 0.005, 0.25f64.to_radians()], 4);
+        let mut medium = self.grid(coarse, [0.005, 0.005, 0.5f64.to_radians()], 4);
         for _ in 0..2 {
             if !medium.at_window_edge {
                 break;
             }
-            medium = self.grid(medium.pose, [0.005, 0.005, 0.25f64.to_radians()], 4);
+            medium = self.grid(medium.pose, [0.005, 0.005, 0.5f64.to_radians()], 4);
         }
         let fine = self.grid(medium.pose, [0.0015, 0.0015, 0.06f64.to_radians()], 6);
         // A plateau wider than the fine window: a wide window at a coarser step.
@@ -752,7 +755,7 @@ impl HoleDetector {
         &self,
         fit: &Fit,
         (c, ex, ey, n): (Vec3, Vec3, Vec3, Vec3),
-        plane_sigma: f64,
+        plane_sigma: [f64; 3],
         rms: f64,
         lines: heapless::Vec<u16, MAX_HOLES>,
     ) -> LidarBoard {
@@ -774,7 +777,11 @@ impl HoleDetector {
                     }
                 }
             }
-            let _ = sigma.push((var + plane_sigma * plane_sigma).sqrt());
+            // The plane's offset, and its tilts times the hole's lever arm.
+            let (lu, lv) = (fit.pose[0] + px, fit.pose[1] + py);
+            let [offset, tilt_u, tilt_v] = plane_sigma;
+            var += offset * offset + (lu * tilt_u).powi(2) + (lv * tilt_v).powi(2);
+            let _ = sigma.push(var.sqrt());
         }
         LidarBoard {
             holes,
