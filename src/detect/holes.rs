@@ -466,6 +466,12 @@ impl HoleDetector {
         // Cheap early refusal: at the coarse pose (within 2 cm) fewer than two holes are
         // crossed by any scan line, so no refinement can make two of them well seen.
         let rough = Fit { pose: coarse, cov: [0.0; 9], at_window_edge: false };
+        // Points deep inside the holes even at the coarse pose: no hole pattern here.
+        let in_holes = self.points_in_holes(&rough, 0.035);
+        if in_holes > 3 + self.flat.len() / 100 {
+            self.refused.push(refuse(Refusal::NoHolePattern { points_in_holes: in_holes }));
+            return;
+        }
         let rough_lines = self.scan_lines_per_hole(&rough, 3.0 * SLACK);
         let crossed = rough_lines.iter().filter(|&&l| l >= 1).count();
         if crossed < 2 {
@@ -475,7 +481,7 @@ impl HoleDetector {
             return;
         }
         let fit = self.refine(coarse);
-        let in_holes = self.points_in_holes(&fit);
+        let in_holes = self.points_in_holes(&fit, 0.015);
         if in_holes > 3 + self.flat.len() / 100 {
             self.refused.push(refuse(Refusal::NoHolePattern { points_in_holes: in_holes }));
             return;
@@ -677,8 +683,8 @@ impl HoleDetector {
     }
 
     /// Points clearly inside a hole at the fitted pose.
-    fn points_in_holes(&self, fit: &Fit) -> usize {
-        let r = (self.spec.hole_radius - 0.015).max(0.5 * self.spec.hole_radius);
+    fn points_in_holes(&self, fit: &Fit, margin: f64) -> usize {
+        let r = (self.spec.hole_radius - margin).max(0.3 * self.spec.hole_radius);
         self.flat
             .iter()
             .filter(|p| {
