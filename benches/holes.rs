@@ -36,4 +36,46 @@ fn main() {
         detector.refused().len(),
         ms
     );
+    real_frame();
+}
+
+/// The same on the real OpenCalib frame (`../shared/data/holeboard-real`) when present.
+fn real_frame() {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../shared/data/holeboard-real/2022-01-18-15-25-03-449.pcd"
+    );
+    let Ok(points) = roomcal::lidar::pcd::read(path) else {
+        println!("holes (real): skipped, {path} is absent");
+        return;
+    };
+    let mut holes = heapless::Vec::new();
+    for h in [[-0.3, -0.3], [0.3, -0.3], [-0.3, 0.3], [0.3, 0.3]] {
+        let _ = holes.push(h);
+    }
+    let spec = roomcal::target::BoardSpec {
+        width: 1.2,
+        height: 1.2,
+        inner_corners: [2, 2],
+        square: 0.05,
+        hole_radius: 0.11,
+        holes,
+        count: 1,
+        checker_offset: [0.0, 0.0],
+    };
+    let mut detector = HoleDetector::new(&spec, HoleConfig::default());
+    let mut boards = Vec::new();
+    detector.detect(&points, &mut boards);
+    let runs = 20;
+    let start = Instant::now();
+    for _ in 0..runs {
+        detector.detect(&points, &mut boards);
+    }
+    let ms = start.elapsed().as_secs_f64() * 1e3 / runs as f64;
+    println!(
+        "holes (real OpenCalib frame): {} points, {} board(s), {} refused: {ms:.1} ms per sweep",
+        points.len(),
+        boards.len(),
+        detector.refused().len()
+    );
 }

@@ -564,6 +564,10 @@ impl HoleDetector {
                 }
             };
             let (ur, vr) = (range(lo[0], hi[0], hw), range(lo[1], hi[1], hh));
+            // At most ~400 centres per yaw: a wide window (little of the board seen)
+            // takes coarser steps; the medium grid recentres from there.
+            let area = (ur.1 - ur.0 + COARSE_STEP) * (vr.1 - vr.0 + COARSE_STEP);
+            let step = (area / 400.0).sqrt().clamp(COARSE_STEP, 2.0 * COARSE_STEP);
             let mut u = ur.0;
             while u <= ur.1 {
                 let mut v = vr.0;
@@ -573,9 +577,9 @@ impl HoleDetector {
                         // The centre back in the plane frame.
                         best = (score, [c * u - s * v, s * u + c * v, yaw]);
                     }
-                    v += COARSE_STEP;
+                    v += step;
                 }
-                u += COARSE_STEP;
+                u += step;
             }
         }
         best.1
