@@ -535,8 +535,8 @@ impl HoleDetector {
     }
 
     /// Coarse mask search over (x, y, yaw) on a subsample: 2 cm and 4° steps.
-    /// Yaws within 6° of the bounding rectangle's `yaw0` (and the same turned by 180°
-    /// for an asymmetric hole pattern) are tried.
+    /// Yaws ±40° about the "y down" convention (and the same turned by 180° for an
+    /// asymmetric hole pattern) are tried.
     fn coarse(&mut self) -> [f64; 3] {
         let stride = (self.flat.len() / 200).max(1);
         let (hw, hh) = (self.spec.width / 2.0, self.spec.height / 2.0);
@@ -1028,7 +1028,7 @@ fn neighbour_keys(key: u64) -> impl Iterator<Item = u64> {
 /// A multiplicative hasher for voxel keys (std's SipHash is needlessly slow here and
 /// the keys are not attacker-controlled).
 #[derive(Default, Clone, Copy, Debug)]
-pub struct KeyHasher(u64);
+struct KeyHasher(u64);
 
 impl Hasher for KeyHasher {
     fn finish(&self) -> u64 {
