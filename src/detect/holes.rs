@@ -187,6 +187,7 @@ pub struct HoleDetector {
     spec: BoardSpec,
     config: HoleConfig,
     mask: Mask,
+    coarse_mask: Mask,
     yaws: Vec<f64>,
     pts: Vec<Vec3>,
     keys: Vec<(u64, u32)>,
@@ -229,13 +230,14 @@ impl HoleDetector {
         let mut yaws = Vec::new();
         let turns: &[f64] = if symmetric(spec) { &[0.0] } else { &[0.0, 180.0] };
         for &turn in turns {
-            for k in -20..=20 {
-                yaws.push((turn + 2.0 * k as f64).to_radians());
+            for k in -10..=10 {
+                yaws.push((turn + 4.0 * k as f64).to_radians());
             }
         }
         HoleDetector {
             spec: spec.clone(),
-            mask: Mask::new(spec),
+            mask: Mask::new(spec, 0.002),
+            coarse_mask: Mask::new(spec, 0.01),
             yaws,
             config,
             pts: Vec::new(),
@@ -460,13 +462,31 @@ impl HoleDetector {
             self.refused.push(refuse(Refusal::TooFewPoints { points }));
             return;
         }
-        let fit = self.search();
-        let in_holes = self.points_in_holes(&fit);
+        let coarse = self.coarse();
+        // Cheap early refusal: at the coarse pose (within 2 cm) fewer than two holes are
+        // crossed by any scan line, so no refinement can make two of them well seen.
+        let rough = Fit { pose: coarse, cov: [0.0; 9], at_window_edge: false };
+        // Points deep inside the holes even at the coarse pose: no hole pattern here.
+        let in_holes = self.points_in_holes(&rough, 0.035);
         if in_holes > 3 + self.flat.len() / 100 {
             self.refused.push(refuse(Refusal::NoHolePattern { points_in_holes: in_holes }));
             return;
         }
-        let lines = self.scan_lines_per_hole(&fit);
+        let rough_lines = self.scan_lines_per_hole(&rough, 3.0 * SLACK);
+        let crossed = rough_lines.iter().filter(|&&l| l >= 1).count();
+        if crossed < 2 {
+            let mut r = refuse(Refusal::HolesUnseen { holes_with_two_lines: 0 });
+            r.hole_scan_lines = rough_lines;
+            self.refused.push(r);
+            return;
+        }
+        let fit = self.refine(coarse);
+        let in_holes = self.points_in_holes(&fit, 0.015);
+        if in_holes > 3 + self.flat.len() / 100 {
+            self.refused.push(refuse(Refusal::NoHolePattern { points_in_holes: in_holes }));
+            return;
+        }
+        let lines = self.scan_lines_per_hole(&fit, SLACK);
         let seen = lines.iter().filter(|&&l| l >= 2).count();
         if seen < 2 {
             let mut r = refuse(Refusal::HolesUnseen { holes_with_two_lines: seen });
@@ -481,14 +501,17 @@ impl HoleDetector {
             self.refused.push(refuse(Refusal::Unconstrained { sigma_m }));
             return;
         }
-        let plane_sigma = rms / (points as f64).sqrt();
+        // Plane uncertainty: offset along the normal and tilt about either in-plane axis.
+        let (su, sv) =
+            self.flat.iter().fold((0.0, 0.0), |(a, b), p| (a + p[0] * p[0], b + p[1] * p[1]));
+        let plane_sigma = [rms / (points as f64).sqrt(), rms / su.sqrt(), rms / sv.sqrt()];
         out.push(self.board(&fit, (c, ex, ey, n), plane_sigma, rms, lines));
     }
 
-    /// Whether the projected points fit inside the board outline at some yaw.
+    /// Whether the points' smallest bounding rectangle fits the board outline.
     fn extent_fits(&self, spec: &BoardSpec) -> bool {
         let tol = self.config.size_tolerance_m;
-        let mut best = (f64::MAX, 0.0, 0.0);
+        let mut best = (f64::MAX, 0.0, 0.0, 0);
         for k in -15..=15 {
             let (s, co) = (k as f64 * 3.0).to_radians().sin_cos();
             let mut lo = [f64::MAX; 2];
@@ -500,32 +523,37 @@ impl HoleDetector {
             }
             let (a, b) = (hi[0] - lo[0], hi[1] - lo[1]);
             if a * b < best.0 {
-                best = (a * b, a, b);
+                best = (a * b, a, b, k);
             }
         }
-        let (_, a, b) = best;
+        let (_, a, b, yaw) = best;
         // Every scan line across the board spans its width, so the width must be there;
         // the height may be covered only in part.
-        a <= spec.width + tol && b <= spec.height + tol && a >= 0.6 * spec.width
+        let fits = a <= spec.width + tol && b <= spec.height + tol && a >= 0.6 * spec.width;
+        let _ = yaw;
+        fits
     }
 
-    /// Coarse, medium and fine mask search over (x, y, yaw).
-    fn search(&mut self) -> Fit {
-        let stride = (self.flat.len() / 600).max(1);
-        self.sample.clear();
-        self.sample.extend(self.flat.iter().step_by(stride));
+    /// Coarse mask search over (x, y, yaw) on a subsample: 2 cm and 4° steps.
+    /// Yaws ±40° about the "y down" convention (and the same turned by 180° for an
+    /// asymmetric hole pattern) are tried.
+    fn coarse(&mut self) -> [f64; 3] {
+        let stride = (self.flat.len() / 200).max(1);
         let (hw, hh) = (self.spec.width / 2.0, self.spec.height / 2.0);
         let mut best = (i64::MIN, [0.0; 3]);
         for &yaw in &self.yaws {
             let (s, c) = yaw.sin_cos();
-            // Board centre (in the plane frame) such that the board covers the points.
+            // The points in board-aligned axes; the board centre is then a plain shift.
+            self.sample.clear();
             let mut lo = [f64::MAX; 2];
             let mut hi = [f64::MIN; 2];
-            for p in &self.sample {
+            for p in self.flat.iter().step_by(stride) {
                 let (u, v) = (c * p[0] + s * p[1], -s * p[0] + c * p[1]);
                 lo = [lo[0].min(u), lo[1].min(v)];
                 hi = [hi[0].max(u), hi[1].max(v)];
+                self.sample.push([u, v]);
             }
+            // Board centres for which the board covers the points.
             let range = |lo: f64, hi: f64, half: f64| {
                 let (a, b) = (hi - half - 0.04, lo + half + 0.04);
                 if a <= b {
@@ -536,24 +564,51 @@ impl HoleDetector {
                 }
             };
             let (ur, vr) = (range(lo[0], hi[0], hw), range(lo[1], hi[1], hh));
+            // At most ~400 centres per yaw: a wide window (little of the board seen)
+            // takes coarser steps; the medium grid recentres from there.
+            let area = (ur.1 - ur.0 + COARSE_STEP) * (vr.1 - vr.0 + COARSE_STEP);
+            let step = (area / 400.0).sqrt().clamp(COARSE_STEP, 2.0 * COARSE_STEP);
             let mut u = ur.0;
             while u <= ur.1 {
                 let mut v = vr.0;
                 while v <= vr.1 {
-                    // The centre in rotated coordinates back to the plane frame.
-                    let t = [c * u - s * v, s * u + c * v];
-                    let score = self.mask.score(&self.sample, t, yaw);
+                    let score = self.coarse_mask.score_shifted(&self.sample, u, v);
                     if score > best.0 {
-                        best = (score, [t[0], t[1], yaw]);
+                        // The centre back in the plane frame.
+                        best = (score, [c * u - s * v, s * u + c * v, yaw]);
                     }
-                    v += 0.02;
+                    v += step;
                 }
-                u += 0.02;
+                u += step;
             }
         }
-        let medium = self.grid(best.1, [0.005, 0.005, 0.25f64.to_radians()], 5);
-        let fine = self.grid(medium.pose, [0.0015, 0.0015, 0.05f64.to_radians()], 8);
-        // A plateau still wide at the fine step: widen the window once.
+        best.1
+    }
+
+    /// Medium and fine grids around the coarse pose. Only points near an edge of the
+    /// model can change their mask value within the windows; the rest add a constant.
+    fn refine(&mut self, coarse: [f64; 3]) -> Fit {
+        let (hw, hh, r) = (self.spec.width / 2.0, self.spec.height / 2.0, self.spec.hole_radius);
+        let near = 0.07;
+        self.sample.clear();
+        for p in &self.flat {
+            let (x, y) = to_board(coarse, p);
+            let outline = (x.abs() - hw).abs() < near || (y.abs() - hh).abs() < near;
+            let hole =
+                self.spec.holes.iter().any(|h| ((x - h[0]).hypot(y - h[1]) - r).abs() < near);
+            if outline || hole {
+                self.sample.push(*p);
+            }
+        }
+        let mut medium = self.grid(coarse, [0.005, 0.005, 0.5f64.to_radians()], 4);
+        for _ in 0..2 {
+            if !medium.at_window_edge {
+                break;
+            }
+            medium = self.grid(medium.pose, [0.005, 0.005, 0.5f64.to_radians()], 4);
+        }
+        let fine = self.grid(medium.pose, [0.0015, 0.0015, 0.06f64.to_radians()], 6);
+        // A plateau wider than the fine window: a wide window at a coarser step.
         if fine.at_window_edge {
             return self.grid(fine.pose, [0.004, 0.004, 0.15f64.to_radians()], 8);
         }
@@ -571,7 +626,7 @@ impl HoleDetector {
                     let off = |i: usize, s: f64| (i as i32 - k) as f64 * s;
                     let t = [centre[0] + off(a, step[0]), centre[1] + off(b, step[1])];
                     let yaw = centre[2] + off(g, step[2]);
-                    let sc = self.mask.score(&self.flat, t, yaw);
+                    let sc = self.mask.score(&self.sample, t, yaw);
                     scores[(a * span + b) * span + g] = sc;
                     max = max.max(sc);
                 }
@@ -632,8 +687,8 @@ impl HoleDetector {
     }
 
     /// Points clearly inside a hole at the fitted pose.
-    fn points_in_holes(&self, fit: &Fit) -> usize {
-        let r = (self.spec.hole_radius - 0.015).max(0.5 * self.spec.hole_radius);
+    fn points_in_holes(&self, fit: &Fit, margin: f64) -> usize {
+        let r = (self.spec.hole_radius - margin).max(0.3 * self.spec.hole_radius);
         self.flat
             .iter()
             .filter(|p| {
@@ -645,7 +700,7 @@ impl HoleDetector {
 
     /// Scan lines (clusters of elevation angle) that leave and re-enter the board across
     /// each hole.
-    fn scan_lines_per_hole(&mut self, fit: &Fit) -> heapless::Vec<u16, MAX_HOLES> {
+    fn scan_lines_per_hole(&mut self, fit: &Fit, slack: f64) -> heapless::Vec<u16, MAX_HOLES> {
         let mut counts: heapless::Vec<u16, MAX_HOLES> = heapless::Vec::new();
         for _ in 0..self.spec.holes.len() {
             let _ = counts.push(0);
@@ -674,7 +729,7 @@ impl HoleDetector {
                     let (x, y) = to_board(fit.pose, &self.flat[i as usize]);
                     let (dx, dy) = (x - h[0], y - h[1]);
                     let dist = dx.hypot(dy);
-                    if dist < r - SLACK || dist > r + band {
+                    if dist < r - slack || dist > r + band {
                         continue;
                     }
                     if dx < 0.0 && left.is_none_or(|l| dx > l.0) {
@@ -687,7 +742,7 @@ impl HoleDetector {
                     // A gap wider than the line's sampling whose chord meets the hole
                     // (allowing for the pose's own error on a grazing line).
                     let wide = (b.0 - a.0).hypot(b.1 - a.1) > 1.5 * spacing;
-                    if wide && segment_distance(a, b) < r + SLACK {
+                    if wide && segment_distance(a, b) < r + slack {
                         counts[k] += 1;
                     }
                 }
@@ -710,7 +765,7 @@ impl HoleDetector {
         &self,
         fit: &Fit,
         (c, ex, ey, n): (Vec3, Vec3, Vec3, Vec3),
-        plane_sigma: f64,
+        plane_sigma: [f64; 3],
         rms: f64,
         lines: heapless::Vec<u16, MAX_HOLES>,
     ) -> LidarBoard {
@@ -732,7 +787,11 @@ impl HoleDetector {
                     }
                 }
             }
-            let _ = sigma.push((var + plane_sigma * plane_sigma).sqrt());
+            // The plane's offset, and its tilts times the hole's lever arm.
+            let (lu, lv) = (fit.pose[0] + px, fit.pose[1] + py);
+            let [offset, tilt_u, tilt_v] = plane_sigma;
+            var += offset * offset + (lu * tilt_u).powi(2) + (lv * tilt_v).powi(2);
+            let _ = sigma.push(var.sqrt());
         }
         LidarBoard {
             holes,
@@ -756,31 +815,31 @@ struct Fit {
     at_window_edge: bool,
 }
 
-/// The board model rasterised at 2 mm: +1 on solid board, −3 in a hole, −1 outside.
+/// The board model rasterised (2 mm for the fine search, 1 cm for the coarse): +1 on solid board, −3 in a hole, −1 outside.
 #[derive(Clone, Debug)]
 struct Mask {
+    step: f64,
     cells: Vec<i8>,
     cols: usize,
     rows: usize,
     origin: [f64; 2],
 }
 
-const MASK_STEP: f64 = 0.002;
-const MASK_MARGIN: f64 = 0.3;
+const MASK_MARGIN: f64 = 0.15;
 const HOLE_PENALTY: i8 = -3;
 const OUTSIDE_PENALTY: i8 = -1;
 
 impl Mask {
-    fn new(spec: &BoardSpec) -> Self {
+    fn new(spec: &BoardSpec, step: f64) -> Self {
         let origin = [-spec.width / 2.0 - MASK_MARGIN, -spec.height / 2.0 - MASK_MARGIN];
-        let cols = ((spec.width + 2.0 * MASK_MARGIN) / MASK_STEP).ceil() as usize;
-        let rows = ((spec.height + 2.0 * MASK_MARGIN) / MASK_STEP).ceil() as usize;
+        let cols = ((spec.width + 2.0 * MASK_MARGIN) / step).ceil() as usize;
+        let rows = ((spec.height + 2.0 * MASK_MARGIN) / step).ceil() as usize;
         let mut cells = vec![OUTSIDE_PENALTY; cols * rows];
         let r2 = spec.hole_radius * spec.hole_radius;
         for row in 0..rows {
             for col in 0..cols {
-                let x = origin[0] + (col as f64 + 0.5) * MASK_STEP;
-                let y = origin[1] + (row as f64 + 0.5) * MASK_STEP;
+                let x = origin[0] + (col as f64 + 0.5) * step;
+                let y = origin[1] + (row as f64 + 0.5) * step;
                 let inside = x.abs() <= spec.width / 2.0 && y.abs() <= spec.height / 2.0;
                 let hole = spec.holes.iter().any(|h| (x - h[0]).powi(2) + (y - h[1]).powi(2) < r2);
                 cells[row * cols + col] = match (inside, hole) {
@@ -790,31 +849,42 @@ impl Mask {
                 };
             }
         }
-        Mask { cells, cols, rows, origin }
+        Mask { step, cells, cols, rows, origin }
+    }
+
+    /// Sum of mask values under board-aligned points for board centre (u, v).
+    fn score_shifted(&self, points: &[[f64; 2]], u: f64, v: f64) -> i64 {
+        let inv = 1.0 / self.step;
+        let (ox, oy) = ((self.origin[0] + u) * inv, (self.origin[1] + v) * inv);
+        points.iter().map(|p| self.at(p[0] * inv - ox, p[1] * inv - oy)).sum()
+    }
+
+    /// The cell value at fractional cell coordinates (col, row); outside beyond the grid.
+    fn at(&self, col: f64, row: f64) -> i64 {
+        if col >= 0.0 && row >= 0.0 && (col as usize) < self.cols && (row as usize) < self.rows {
+            self.cells[row as usize * self.cols + col as usize] as i64
+        } else {
+            OUTSIDE_PENALTY as i64
+        }
     }
 
     /// Sum of mask values under the points for board centre `t` and `yaw` (plane frame).
     fn score(&self, points: &[[f64; 2]], t: [f64; 2], yaw: f64) -> i64 {
         let (s, c) = yaw.sin_cos();
-        let inv = 1.0 / MASK_STEP;
+        let inv = 1.0 / self.step;
         let mut total = 0i64;
         for p in points {
             let (dx, dy) = (p[0] - t[0], p[1] - t[1]);
             let x = c * dx + s * dy;
             let y = -s * dx + c * dy;
-            let col = ((x - self.origin[0]) * inv) as isize;
-            let row = ((y - self.origin[1]) * inv) as isize;
-            total +=
-                if col >= 0 && row >= 0 && (col as usize) < self.cols && (row as usize) < self.rows
-                {
-                    self.cells[row as usize * self.cols + col as usize] as i64
-                } else {
-                    OUTSIDE_PENALTY as i64
-                };
+            total += self.at((x - self.origin[0]) * inv, (y - self.origin[1]) * inv);
         }
         total
     }
 }
+
+/// Translation step of the coarse search (m).
+const COARSE_STEP: f64 = 0.02;
 
 /// How far a scan line's gap may miss a hole and still count as crossing it (m): the
 /// pose's own error on a grazing line.
@@ -958,7 +1028,7 @@ fn neighbour_keys(key: u64) -> impl Iterator<Item = u64> {
 /// A multiplicative hasher for voxel keys (std's SipHash is needlessly slow here and
 /// the keys are not attacker-controlled).
 #[derive(Default, Clone, Copy, Debug)]
-pub struct KeyHasher(u64);
+struct KeyHasher(u64);
 
 impl Hasher for KeyHasher {
     fn finish(&self) -> u64 {
