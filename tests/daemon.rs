@@ -278,3 +278,12 @@ fn backend_answers_from_the_store_and_rolls_back() {
     assert_eq!(b.rollback(), Err(Refusal::NotAvailable));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn shipped_vehicle_config_parses() {
+    let path = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/config/roomcal.toml"));
+    let c = config::load(path).unwrap();
+    assert_eq!(c.room, path.parent().unwrap().join("room.toml"));
+    assert_eq!(c.camera, config::CameraSource::V4l2("/dev/video0".into()));
+    assert_eq!(c.service.unwrap().transport, "socketcan:can0");
+}
