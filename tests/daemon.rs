@@ -278,3 +278,46 @@ fn backend_answers_from_the_store_and_rolls_back() {
     assert_eq!(b.rollback(), Err(Refusal::NotAvailable));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn shipped_vehicle_config_parses() {
+    let path = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/config/roomcal.toml"));
+    let c = config::load(path).unwrap();
+    assert_eq!(c.room, path.parent().unwrap().join("room.toml"));
+    assert_eq!(c.camera, config::CameraSource::V4l2("/dev/video0".into()));
+    assert_eq!(c.service.unwrap().transport, "socketcan:can0");
+}
+
+/// CPU seconds (user + system) of this process so far, from /proc/self/stat.
+fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let fields: Vec<&str> = stat.rsplit_once(')')?.1.split_whitespace().collect();
+    let ticks: f64 = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0) // USER_HZ is 100 on Linux
+}
+
+/// Idle CPU of a replay run in real time (10 s, room not seen): run with `--ignored`.
+#[test]
+#[ignore]
+fn idle_cpu_of_a_replay_run() {
+    let (dir, cfg) = scene("idlecpu", "");
+    let (cal, counts, _) = fake(0, Status::Accepted);
+    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+    let before = cpu_seconds().unwrap();
+    let wall = std::time::Instant::now();
+    rt.block_on(async {
+        daemon::run(cfg, cal, RunOptions::default(), tokio::time::sleep(Duration::from_secs(10)))
+            .await
+    })
+    .unwrap();
+    let cpu = cpu_seconds().unwrap() - before;
+    let secs = wall.elapsed().as_secs_f64();
+    println!(
+        "idle replay run: {:.2} s CPU over {secs:.1} s = {:.1} % of a core ({} detection passes)",
+        cpu,
+        100.0 * cpu / secs,
+        counts.load(Ordering::SeqCst)
+    );
+    assert!(counts.load(Ordering::SeqCst) >= 8);
+    let _ = std::fs::remove_dir_all(&dir);
+}

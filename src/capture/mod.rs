@@ -9,6 +9,8 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 pub mod pixel;
+#[cfg(feature = "v4l2")]
+pub mod v4l2;
 
 /// An 8-bit grey image, row-major without padding, with its capture time.
 #[derive(Clone, Debug, PartialEq)]

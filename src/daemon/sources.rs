@@ -134,8 +134,11 @@ pub fn pcap_replay(path: &Path, cal: Calibration, speed: f64) -> Result<PacketSw
     let task = tokio::spawn(async move {
         let mut buf = vec![Point::default(); SWEEP_CAPACITY];
         let config = SweepConfig::for_calibration(&cal);
-        let mut feeder = Feeder { asm: SweepAssembler::new(cal, config, &mut buf), tx };
         loop {
+            // A fresh assembler per pass: the capture's clock jumps back when it loops, and
+            // an assembler would keep those packets as reordered ones, never cutting.
+            let mut feeder =
+                Feeder { asm: SweepAssembler::new(cal, config, &mut buf), tx: tx.clone() };
             let start = tokio::time::Instant::now();
             for d in &datagrams {
                 let due = start + pacer.delay_until(d.timestamp_ns);
