@@ -131,8 +131,13 @@ impl Detectors {
 
     /// Every complete board in the frame (incomplete ones are not used).
     pub fn detect_image(&mut self, image: &GreyImage) -> Result<Vec<CameraBoard>, DetectError> {
+        self.detect_pixels(&image.data)
+    }
+
+    /// Every complete board in a grey frame of the room camera's size (row-major).
+    pub fn detect_pixels(&mut self, pixels: &[u8]) -> Result<Vec<CameraBoard>, DetectError> {
         let mut found = Vec::new();
-        self.chess.detect(&image.data, &mut found)?;
+        self.chess.detect(pixels, &mut found)?;
         Ok(found
             .iter()
             .filter(|b| b.complete)

@@ -30,6 +30,9 @@ enum Command {
     Detect(DetectArgs),
     /// Render a synthetic calibration room with ground truth (image.png, cloud.pcd, truth.json).
     Simulate(SimulateArgs),
+    /// Run the vehicle daemon: notice the room, calibrate, write the store, serve UDS.
+    #[cfg(feature = "daemon")]
+    Daemon(DaemonArgs),
     /// Decode a LiDAR packet capture (pcap/pcapng) into a PCD cloud (x y z intensity ring).
     Decode(DecodeArgs),
     /// Ask the daemon over CAN (UDS on ISO-TP): status, results, start a run, roll back.
@@ -76,6 +79,17 @@ struct DetectArgs {
     /// Where to write the detections (JSON).
     #[arg(long)]
     out: PathBuf,
+}
+
+#[cfg(feature = "daemon")]
+#[derive(Args)]
+struct DaemonArgs {
+    /// The daemon configuration (TOML).
+    #[arg(long)]
+    config: PathBuf,
+    /// Exit after the first calibration run ends.
+    #[arg(long)]
+    once: bool,
 }
 
 #[derive(Args)]
@@ -192,6 +206,8 @@ fn main() -> ExitCode {
         Command::Calibrate(args) => calibrate(args),
         Command::Detect(args) => detect(args),
         Command::Simulate(args) => simulate(args),
+        #[cfg(feature = "daemon")]
+        Command::Daemon(args) => daemon(args),
         Command::Decode(args) => decode(args),
         Command::Query(args) => query(args),
     };
@@ -535,6 +551,34 @@ fn detect(args: DetectArgs) -> Result<(), Failure> {
         cameras,
         out.boards.len() - cameras,
         args.out.display()
+    );
+    Ok(())
+}
+
+#[cfg(feature = "daemon")]
+fn daemon(args: DaemonArgs) -> Result<(), Failure> {
+    use roomcal::daemon::{room_calibrator::RoomCalibrator, RunOptions};
+    roomcal::daemon::init_logging();
+    let config = roomcal::daemon::config::load(&args.config).map_err(bad_input)?;
+    let room = roomcal::room::load(&config.room).map_err(bad_input)?;
+    let calibrator = RoomCalibrator::new(room).map_err(bad_input)?;
+    let runtime = tokio::runtime::Runtime::new()
+        .context("starting the async runtime")
+        .map_err(|error| Failure { code: 1, error })?;
+    let shutdown = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    let summary = runtime
+        .block_on(roomcal::daemon::run(
+            config,
+            calibrator,
+            RunOptions { once: args.once },
+            shutdown,
+        ))
+        .map_err(|e| Failure { code: 1, error: e.into() })?;
+    println!(
+        "roomcal daemon: {} run(s): {} accepted, {} rejected, {} failed; generation {} in force",
+        summary.runs, summary.accepted, summary.rejected, summary.failed, summary.generation
     );
     Ok(())
 }

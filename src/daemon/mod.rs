@@ -15,6 +15,7 @@
 pub mod backend;
 pub mod config;
 pub mod motion;
+pub mod room_calibrator;
 pub mod sources;
 pub mod trigger;
 

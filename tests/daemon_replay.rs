@@ -1,0 +1,83 @@
+//! The daemon end to end in replay mode (the binary, real detectors and solver): it
+//! notices the fixture room, calibrates, writes `current.json` matching the truth; a
+//! room that expects one board more is rejected and leaves `current.json` untouched.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use roomcal::sim::Truth;
+
+fn root() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn fixture(file: &str) -> PathBuf {
+    root().join("fixtures/six-boards-pandar64").join(file)
+}
+
+/// A replay configuration in `dir` for `room`, its store in `dir/store`; the trigger
+/// fires on six boards whatever the room expects.
+fn config(dir: &Path, room: &Path) -> PathBuf {
+    let text = format!(
+        "room = {:?}\nstore = {:?}\n[camera]\nsource = \"replay:{}\"\n[lidar]\nsource = \"replay:{}\"\n[trigger]\nmode = \"auto\"\nsettle_s = 1.0\nsweeps = 1\nmin_boards = 6\n",
+        room,
+        dir.join("store"),
+        fixture("image.png").display(),
+        fixture("cloud.pcd").display()
+    );
+    let path = dir.join("roomcal.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+fn run_once(config: &Path) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_roomcal"))
+        .args(["daemon", "--config", config.to_str().unwrap(), "--once"])
+        .output()
+        .unwrap();
+    let text =
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{text}");
+    text
+}
+
+#[test]
+fn replay_daemon_calibrates_and_a_short_room_is_rejected() {
+    let dir = std::env::temp_dir().join(format!("roomcal-daemon-replay-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let text = run_once(&config(&dir, &fixture("room.toml")));
+    assert!(text.contains("1 accepted"), "{text}");
+    let current_path = dir.join("store/current.json");
+    let current: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&current_path).unwrap()).unwrap();
+    assert_eq!(current["status"], "accepted");
+    assert_eq!(current["generation"], 1);
+    let truth: Truth =
+        serde_json::from_str(&std::fs::read_to_string(fixture("truth.json")).unwrap()).unwrap();
+    let fx = current["camera"]["fx"].as_f64().unwrap();
+    let sigma_fx = current["uncertainty"]["fx"].as_f64().unwrap();
+    println!("daemon fx {fx:.2} (truth {:.2}, σ {sigma_fx:.2})", truth.camera.fx);
+    assert!((fx - truth.camera.fx).abs() < 4.0 * sigma_fx + 0.5);
+    let t = &current["lidar_to_camera"]["translation"];
+    let want = truth.lidar_to_camera.as_ref().unwrap().translation;
+    let shift: f64 = (0..3).map(|i| (t[i].as_f64().unwrap() - want[i]).powi(2)).sum::<f64>().sqrt();
+    let sigma_t = current["uncertainty"]["translation_m"].as_f64().unwrap();
+    assert!(shift < 4.0 * sigma_t + 0.002, "translation off by {shift} m (σ {sigma_t})");
+
+    // The same store, a room that expects seven boards while six stand in the scene: the
+    // run starts (the trigger is set to six) and the gate rejects it; current.json stays.
+    let before = std::fs::read(&current_path).unwrap();
+    let seven = dir.join("room7.toml");
+    std::fs::write(
+        &seven,
+        std::fs::read_to_string(fixture("room.toml")).unwrap().replace("count = 6", "count = 7"),
+    )
+    .unwrap();
+    let text = run_once(&config(&dir, &seven));
+    assert!(text.contains("0 accepted"), "{text}");
+    assert_eq!(
+        std::fs::read(&current_path).unwrap(),
+        before,
+        "a rejected run replaced current.json"
+    );
+}
