@@ -160,10 +160,9 @@ impl FrameSource for ImageReplay {
 
 /// Decodes a PNG or JPEG file to grey (colour is converted to luma).
 pub fn load_grey(path: &Path) -> Result<GreyFrame, CaptureError> {
-    let img = image::open(path)
-        .map_err(|e| CaptureError::Image { path: path.to_path_buf(), message: e.to_string() })?
-        .into_luma8();
-    Ok(GreyFrame { width: img.width(), height: img.height(), pixels: img.into_raw(), time: 0.0 })
+    let image = crate::detect::load_grey(path)
+        .map_err(|e| CaptureError::Image { path: path.to_path_buf(), message: e.to_string() })?;
+    Ok(GreyFrame { width: image.width, height: image.height, pixels: image.data, time: 0.0 })
 }
 
 /// The image itself, or a folder's PNG/JPEG files sorted by name.
