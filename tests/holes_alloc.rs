@@ -3,43 +3,15 @@
 //! thread while the detector runs). Also: a board-sized plane without holes (a crate face,
 //! a door) is refused, not placed.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-use std::path::Path;
-use std::sync::atomic::{AtomicUsize, Ordering};
+#[path = "common/counting_alloc.rs"]
+mod counting_alloc;
 
+use std::path::Path;
+
+use counting_alloc::count_allocations;
 use roomcal::detect::holes::{HoleConfig, HoleDetector, Refusal};
 use roomcal::lidar::Point;
 use roomcal::sim::{simulate, ImageNoise, SimOptions};
-
-struct Counting;
-
-static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
-
-thread_local! {
-    static COUNTING: Cell<bool> = const { Cell::new(false) };
-}
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        if COUNTING.with(|c| c.get()) {
-            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        }
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        if COUNTING.with(|c| c.get()) {
-            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        }
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
-#[global_allocator]
-static GLOBAL: Counting = Counting;
 
 fn room() -> roomcal::target::Room {
     roomcal::room::load(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/config/room.toml")))
@@ -60,11 +32,7 @@ fn second_sweep_allocates_nothing() {
     detector.detect(&cloud, &mut boards);
     let first = boards.clone();
     assert!(!first.is_empty());
-    ALLOCATIONS.store(0, Ordering::Relaxed);
-    COUNTING.with(|c| c.set(true));
-    detector.detect(&cloud, &mut boards);
-    COUNTING.with(|c| c.set(false));
-    let n = ALLOCATIONS.load(Ordering::Relaxed);
+    let ((), n) = count_allocations(|| detector.detect(&cloud, &mut boards));
     println!("allocations in the second detect: {n}");
     assert_eq!(n, 0);
     assert_eq!(boards, first, "the same sweep gives the same boards");

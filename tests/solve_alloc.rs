@@ -1,45 +1,16 @@
 //! Proves the joint solve and its covariance make no heap allocation: a counting global
 //! allocator, enabled only on this test's thread while the solver runs.
 
+#[path = "common/counting_alloc.rs"]
+mod counting_alloc;
 mod solve_common;
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use counting_alloc::count_allocations;
 
 use roomcal::geometry::{Camera, CameraModel};
 use roomcal::solve::ParamMask;
 use roomcal::solve::{covariance, BoardObservation, JointParams, JointProblem, LmOptions, Loss};
 use solve_common::*;
-
-struct Counting;
-
-static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
-
-thread_local! {
-    static COUNTING: Cell<bool> = const { Cell::new(false) };
-}
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        if COUNTING.with(|c| c.get()) {
-            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        }
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        if COUNTING.with(|c| c.get()) {
-            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        }
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
-
-#[global_allocator]
-static GLOBAL: Counting = Counting;
 
 #[test]
 fn joint_solve_makes_no_heap_allocation() {
@@ -75,16 +46,13 @@ fn joint_solve_makes_no_heap_allocation() {
     let options = LmOptions::default();
 
     // Sanity: the counter works on this thread.
-    COUNTING.with(|c| c.set(true));
-    drop(std::hint::black_box(vec![1u8; 16]));
-    COUNTING.with(|c| c.set(false));
-    assert_eq!(ALLOCATIONS.swap(0, Ordering::Relaxed), 1);
+    let ((), sanity) = count_allocations(|| drop(std::hint::black_box(vec![1u8; 16])));
+    assert_eq!(sanity, 1);
 
-    COUNTING.with(|c| c.set(true));
-    let report = p.solve(&mut params, &options);
-    let cov = covariance(&p, &params, ParamMask::free());
-    COUNTING.with(|c| c.set(false));
-    let count = ALLOCATIONS.load(Ordering::Relaxed);
+    let ((report, cov), count) = count_allocations(|| {
+        let report = p.solve(&mut params, &options);
+        (report, covariance(&p, &params, ParamMask::free()))
+    });
 
     let report = report.unwrap();
     assert!(report.iterations > 1, "the solve must actually iterate: {report:?}");
