@@ -214,10 +214,26 @@ fn main() -> ExitCode {
     match outcome {
         Ok(()) => ExitCode::SUCCESS,
         Err(Failure { code, error }) => {
-            eprintln!("roomcal: {error:#}");
+            eprintln!("roomcal: {}", describe(&error));
             ExitCode::from(code)
         }
     }
+}
+
+/// The error and its causes on one line, leaving out a cause its parent already quotes
+/// (our file errors put their source in their own message).
+fn describe(error: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in error.chain() {
+        let part = cause.to_string();
+        if !text.contains(&part) {
+            if !text.is_empty() {
+                text.push_str(": ");
+            }
+            text.push_str(&part);
+        }
+    }
+    text
 }
 
 fn simulate(args: SimulateArgs) -> Result<(), Failure> {
