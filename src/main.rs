@@ -351,15 +351,7 @@ fn load_cloud(
     room: &roomcal::target::Room,
     path: &std::path::Path,
 ) -> Result<Vec<roomcal::lidar::Point>, Failure> {
-    use roomcal::lidar::Model;
-    let model = room.lidar.as_ref().and_then(|l| match l.model {
-        LidarModel::Pandar64 => Some(Model::Pandar64),
-        LidarModel::Pandar40p => Some(Model::Pandar40p),
-        LidarModel::Vlp16 => Some(Model::Vlp16),
-        LidarModel::Vlp32c => Some(Model::Vlp32c),
-        LidarModel::Hdl32e => Some(Model::Hdl32e),
-        LidarModel::Pcd => None,
-    });
+    let model = room.lidar.as_ref().and_then(|l| l.model.packet_model());
     roomcal::lidar::read_cloud(path, model).map_err(bad_input)
 }
 

@@ -77,6 +77,21 @@ pub enum LidarModel {
     Pcd,
 }
 
+impl LidarModel {
+    /// The packet format this model speaks; `None` for point files.
+    pub fn packet_model(self) -> Option<crate::lidar::Model> {
+        use crate::lidar::Model;
+        match self {
+            LidarModel::Pandar64 => Some(Model::Pandar64),
+            LidarModel::Pandar40p => Some(Model::Pandar40p),
+            LidarModel::Vlp16 => Some(Model::Vlp16),
+            LidarModel::Vlp32c => Some(Model::Vlp32c),
+            LidarModel::Hdl32e => Some(Model::Hdl32e),
+            LidarModel::Pcd => None,
+        }
+    }
+}
+
 /// The LiDAR and its nominal mounting (`[lidar]`): `p_camera = rotation · p_lidar + translation`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

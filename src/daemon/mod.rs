@@ -30,7 +30,6 @@ use crate::lidar::{Calibration, Model, Point};
 use crate::result::{CalibrationResult, Status};
 use crate::service::uds::{DaemonState, Outcome};
 use crate::store::{Store, StoreError};
-use crate::target::LidarModel;
 
 pub use backend::{DaemonBackend, Shared};
 pub use config::{CameraSource, Config, LidarSource};
@@ -203,14 +202,7 @@ fn load_room(config: &Config) -> Result<crate::target::Room, DaemonError> {
 /// The LiDAR calibration for the room's model (nominal tables).
 fn lidar_calibration(config: &Config) -> Result<Calibration, DaemonError> {
     let room = load_room(config)?;
-    let model = match room.lidar.map(|l| l.model) {
-        Some(LidarModel::Pandar64) => Model::Pandar64,
-        Some(LidarModel::Pandar40p) => Model::Pandar40p,
-        Some(LidarModel::Vlp16) => Model::Vlp16,
-        Some(LidarModel::Vlp32c) => Model::Vlp32c,
-        Some(LidarModel::Hdl32e) => Model::Hdl32e,
-        Some(LidarModel::Pcd) | None => Model::Vlp16,
-    };
+    let model = room.lidar.and_then(|l| l.model.packet_model()).unwrap_or(Model::Vlp16);
     Ok(Calibration::nominal(model))
 }
 
