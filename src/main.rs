@@ -59,6 +59,9 @@ struct CalibrateArgs {
     /// Intrinsics from the corners first, then the extrinsic with them fixed.
     #[arg(long)]
     two_stage: bool,
+    /// Leave the LiDAR's board-plane points out of the solve (the paper's cost alone).
+    #[arg(long)]
+    without_planes: bool,
     /// The calibration in force (a result file or the store's current.json), for the
     /// quality gate's change limits.
     #[arg(long)]
@@ -411,7 +414,11 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
     let run = roomcal::calibrate::calibrate(
         &room,
         &frames,
-        &CalibrateOptions { two_stage: args.two_stage, current },
+        &CalibrateOptions {
+            two_stage: args.two_stage,
+            current,
+            without_planes: args.without_planes,
+        },
     );
     write_result(&args.out, &run.result)?;
     if let Some(report) = &args.report {
