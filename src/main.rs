@@ -28,6 +28,9 @@ enum Command {
     Calibrate(CalibrateArgs),
     /// Detect the boards in one image and/or one cloud and write them as JSON.
     Detect(DetectArgs),
+    /// Draw a cloud onto an image through a calibration (a result file) as a PNG: the
+    /// check by eye of any calibration on any scene, boards or none.
+    Overlay(OverlayArgs),
     /// Render a synthetic calibration room with ground truth (image.png, cloud.pcd, truth.json).
     Simulate(SimulateArgs),
     /// Run the vehicle daemon: notice the room, calibrate, write the store, serve UDS.
@@ -80,6 +83,22 @@ struct DetectArgs {
     #[arg(long)]
     cloud: Option<PathBuf>,
     /// Where to write the detections (JSON).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(Args)]
+struct OverlayArgs {
+    /// The calibration: a result file (`roomcal calibrate --out`, or the store's current.json).
+    #[arg(long)]
+    calibration: PathBuf,
+    /// The camera frame (PNG or JPEG), of the calibration's image size.
+    #[arg(long)]
+    image: PathBuf,
+    /// The LiDAR cloud (PCD).
+    #[arg(long)]
+    cloud: PathBuf,
+    /// Where to write the overlay (PNG).
     #[arg(long)]
     out: PathBuf,
 }
@@ -208,6 +227,7 @@ fn main() -> ExitCode {
     let outcome = match cli.command {
         Command::Calibrate(args) => calibrate(args),
         Command::Detect(args) => detect(args),
+        Command::Overlay(args) => overlay(args),
         Command::Simulate(args) => simulate(args),
         #[cfg(feature = "daemon")]
         Command::Daemon(args) => daemon(args),
@@ -523,6 +543,40 @@ fn print_summary(
         args.out.display(),
         args.out.with_extension("yaml").display()
     );
+}
+
+fn overlay(args: OverlayArgs) -> Result<(), Failure> {
+    let text = std::fs::read_to_string(&args.calibration)
+        .with_context(|| format!("reading {}", args.calibration.display()))
+        .map_err(bad_input)?;
+    let result: roomcal::result::CalibrationResult = serde_json::from_str(&text)
+        .with_context(|| format!("{}: not a calibration result", args.calibration.display()))
+        .map_err(bad_input)?;
+    let Some(extrinsic) = &result.lidar_to_camera else {
+        return Err(bad_input(anyhow::anyhow!(
+            "{}: the calibration has no LiDAR→camera extrinsic",
+            args.calibration.display()
+        )));
+    };
+    let camera = result.camera.to_camera();
+    let image = roomcal::detect::load_grey(&args.image).map_err(bad_input)?;
+    if (image.width, image.height) != (camera.width, camera.height) {
+        return Err(bad_input(anyhow::anyhow!(
+            "image {}: {}x{} pixels, the calibration's camera is {}x{}",
+            args.image.display(),
+            image.width,
+            image.height,
+            camera.width,
+            camera.height
+        )));
+    }
+    let cloud = roomcal::lidar::read_cloud(&args.cloud, None).map_err(bad_input)?;
+    roomcal::report::overlay(&image.data, &camera, Some(&extrinsic.to_se3()), &[&cloud], &[])
+        .save(&args.out)
+        .with_context(|| format!("writing the overlay {}", args.out.display()))
+        .map_err(bad_input)?;
+    println!("overlay of {} points written to {}", cloud.len(), args.out.display());
+    Ok(())
 }
 
 fn detect(args: DetectArgs) -> Result<(), Failure> {
