@@ -182,6 +182,10 @@ struct SimulateArgs {
     /// LiDAR model (default: the room's).
     #[arg(long, value_enum)]
     lidar: Option<LidarArg>,
+    /// Board arrangement: a grid over the image, or a row at the LiDAR's dense band plus
+    /// two boards in the top corners.
+    #[arg(long, value_enum, default_value = "grid")]
+    layout: LayoutArg,
     /// LiDAR range noise sigma (m).
     #[arg(long, default_value_t = sim::DEFAULT_RANGE_NOISE_M)]
     range_noise: f64,
@@ -210,6 +214,12 @@ enum LidarArg {
     Pandar64,
     Vlp32c,
     Vlp16,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum LayoutArg {
+    Grid,
+    Band,
 }
 
 /// An error with the exit code it maps to.
@@ -276,6 +286,10 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
             LidarArg::Vlp16 => LidarModel::Vlp16,
         }),
         range_noise_m: args.range_noise,
+        layout: match args.layout {
+            LayoutArg::Grid => sim::Layout::Grid,
+            LayoutArg::Band => sim::Layout::Band,
+        },
         image: sim::ImageNoise {
             supersample: args.supersample,
             blur_px: args.blur,
