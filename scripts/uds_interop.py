@@ -277,6 +277,7 @@ class RawTp:
     cases can-isotp would refuse to produce."""
 
     def __init__(self, port):
+        self.port = port
         self.bus = open_bus(port)
 
     def close(self):
@@ -419,6 +420,10 @@ def robustness(raw, flood):
     r = raw.request(bytes([0x22]) + bytes([0xC0, 0x01]) * 8)
     check("8 DIDs in one segmented request", r is not None and len(r) == 1 + 8 * 11,
           f"{len(r or b'')} bytes")
+    r = raw.request(bytes([0x22]) + bytes([0xC0, 0x02]) * 8)
+    k = split_rdbi(r or b"\x7F").get(0xC002, b"")
+    check("8 x 0xC002 in one request: 8 intrinsics records, no 0x14",
+          r is not None and r[0] == 0x62 and len(r) == 1 + 8 * (2 + len(k)), f"{len(r or b'')} bytes")
 
     # Flow control from the tester is honoured on a segmented response (0xC002, 41 bytes).
     raw.send([0x03, 0x22, 0xC0, 0x02])
@@ -501,7 +506,47 @@ def robustness(raw, flood):
     flood_check(raw, flood)
 
 
-def flood_check(raw, n, window=32):
+class Lean:
+    """A minimal socketcand rawmode client (bytes in, bytes out) for the flood: python-can
+    parses its receive buffer as a string, slice by slice, which caps it well below what
+    the daemon answers; this one keeps the measurement about the daemon."""
+
+    def __init__(self, port):
+        self.sock = socket.create_connection(("127.0.0.1", port), timeout=5)
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.buf = b""
+        for command in (None, b"< open can0 >", b"< rawmode >"):
+            if command:
+                self.sock.sendall(command)
+            want = b"< ok >" if command else b"< hi >"
+            while want not in self.buf:
+                self.buf += self.sock.recv(4096)
+            self.buf = self.buf[self.buf.index(want) + len(want):]
+
+    def send(self, frames):
+        self.sock.sendall(b"".join(b"< send 7A0 %X %s >" % (len(f), bytes(f).hex(" ").encode())
+                                   for f in frames))
+
+    def recv(self, timeout):
+        """Response frames (0x7A8) that arrived within `timeout` s (at least one if any)."""
+        self.sock.settimeout(timeout)
+        try:
+            self.buf += self.sock.recv(1 << 16)
+        except socket.timeout:
+            return []
+        *messages, self.buf = self.buf.split(b">")
+        out = []
+        for m in messages:
+            w = m.split()
+            if len(w) >= 4 and w[1] == b"frame" and w[2] == b"7A8":
+                out.append(bytes.fromhex(w[4].decode()) if len(w) > 4 else b"")
+        return out
+
+    def close(self):
+        self.sock.close()
+
+
+def flood_check(raw, n, window=64):
     """n requests as fast as the daemon answers them, at most `window` in flight, mixed
     with malformed frames (dropped); every answer checked in order; the rate measured."""
     kinds = [
@@ -511,28 +556,33 @@ def flood_check(raw, n, window=32):
         ([0x02, 0x22, 0xC0], b"\x7F\x22\x13"),
     ]
     junk = [[0x00, 0x3E], [0x21, 1, 2, 3], [0x30, 0, 0], [0x4F]]
-    raw.drain()
-    expected, sent, got, bad, lost = [], 0, 0, 0, 0
+    raw.close()  # a rawmode client sees every frame: python-can would only fall behind
+    lean = Lean(raw.port)
+    expected, sent, got, bad = [], 0, 0, 0
     t0 = time.monotonic()
-    while got + lost < n:
-        while sent < n and sent - got - lost < window:
+    while got < n:
+        batch = []
+        while sent < n and sent - got < window:
             frame, answer = kinds[sent % len(kinds)]
-            raw.send(frame)
+            batch.append(frame)
             expected.append(answer)
             if sent % 10 == 9:
-                raw.send(junk[(sent // 10) % len(junk)])
+                batch.append(junk[(sent // 10) % len(junk)])
             sent += 1
-        f = raw.recv(2.0)
-        if f is None:  # nothing for 2 s: whatever is in flight is lost
-            lost = sent - got
+        if batch:
+            lean.send(batch)
+        frames = lean.recv(2.0)
+        if not frames:  # nothing for 2 s: whatever is in flight is lost
             break
-        r = f[1:1 + (f[0] & 0x0F)] if f[0] >> 4 == 0 else None
-        if r != expected[got]:
-            bad += 1
-        got += 1
+        for f in frames:
+            r = f[1:1 + (f[0] & 0x0F)] if f and f[0] >> 4 == 0 else None
+            bad += got >= len(expected) or r != expected[got]
+            got += 1
     dt = time.monotonic() - t0
+    lean.close()
+    raw.bus = open_bus(raw.port)
     check(f"flood: {n} requests (+{n // 10} malformed frames), every answer right and in order",
-          got == n and bad == 0 and lost == 0, f"{got} answers, {bad} wrong, {lost} lost")
+          got == n and bad == 0, f"{got} answers, {bad} wrong, {sent - got} lost")
     print(f"RATE flood, {window} in flight: {got} requests in {dt:.2f} s = {got / dt:.0f} requests/s",
           flush=True)
     m = min(2000, n)
@@ -540,11 +590,11 @@ def flood_check(raw, n, window=32):
     ok = 0
     for i in range(m):
         raw.send([0x02, 0x3E, 0x00])
-        ok += raw.recv(1.0) is not None
+        ok += (raw.recv(1.0) or b"")[:3] == b"\x02\x7E\x00"
     dt = time.monotonic() - t0
-    check(f"closed loop: {m} TesterPresent round trips", ok == m, f"{ok} answered")
-    print(f"RATE closed loop, one in flight: {m / dt:.0f} requests/s ({1e6 * dt / m:.0f} us per round trip)",
-          flush=True)
+    check(f"closed loop (python-can): {m} TesterPresent round trips", ok == m, f"{ok} answered")
+    print(f"RATE closed loop (python-can), one in flight: {m / dt:.0f} requests/s "
+          f"({1e6 * dt / m:.0f} us per round trip)", flush=True)
 
 
 def wait_port(port, timeout):

@@ -6,7 +6,7 @@
 # the checks, and always stops the daemon. Exit status: that of the checks.
 #
 #   scripts/uds_interop.sh            # venv in target/uds-venv (UDS_VENV overrides)
-#   FLOOD=10000 scripts/uds_interop.sh
+#   FLOOD=10000 ROOMCAL_BIN=target/release/roomcal scripts/uds_interop.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 repo=$(pwd)
@@ -21,8 +21,13 @@ if [ ! -x "$venv/bin/python" ] || ! cmp -s "$req" "$venv/requirements-uds.txt"; 
     cp "$req" "$venv/requirements-uds.txt"
 fi
 
-echo "== uds interop: release build"
-cargo build --release --bin roomcal
+# ROOMCAL_BIN: an already built roomcal binary instead of the release build.
+bin=${ROOMCAL_BIN:-}
+if [ -z "$bin" ]; then
+    echo "== uds interop: release build"
+    cargo build --release --bin roomcal
+    bin=target/release/roomcal
+fi
 
 tmp=$(mktemp -d "${TMPDIR:-/tmp}/roomcal-uds.XXXXXX")
 daemon_pid=
@@ -49,7 +54,7 @@ sed -e "s#\.\./#$repo/#g" \
     config/replay-uds.toml > "$tmp/roomcal.toml"
 
 echo "== uds interop: daemon on socketcand:127.0.0.1:$port (log: $tmp/daemon.log)"
-RUST_LOG=${RUST_LOG:-info} target/release/roomcal daemon --config "$tmp/roomcal.toml" \
+RUST_LOG=${RUST_LOG:-info} "$bin" daemon --config "$tmp/roomcal.toml" \
     > "$tmp/daemon.log" 2>&1 &
 daemon_pid=$!
 for _ in $(seq 300); do
