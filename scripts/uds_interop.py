@@ -646,6 +646,7 @@ def run(args):
     c.config["security_algo_params"] = b"wrong secret"
     uds.expect_nrc("wrong key -> 0x35", lambda: c.unlock_security_access(1), 0x35)
     uds.expect_nrc("0xC100 start after a wrong key -> 0x33", lambda: c.start_routine(0xC100), 0x33)
+    uds.expect_nrc("0xC101 rollback after a wrong key -> 0x33", lambda: c.start_routine(0xC101), 0x33)
     uds.expect_nrc("third wrong key in a row -> 0x36", lambda: c.unlock_security_access(1), 0x36)
     locked_at = time.monotonic()
     uds.expect_nrc("seed while locked -> 0x37", lambda: c.request_seed(1), 0x37)

@@ -54,20 +54,21 @@ sed -e "s#\.\./#$repo/#g" \
     config/replay-uds.toml > "$tmp/roomcal.toml"
 
 echo "== uds interop: daemon on socketcand:127.0.0.1:$port (log: $tmp/daemon.log)"
-RUST_LOG=${RUST_LOG:-info} "$bin" daemon --config "$tmp/roomcal.toml" \
+NO_COLOR=1 RUST_LOG=${RUST_LOG:-info} "$bin" daemon --config "$tmp/roomcal.toml" \
     > "$tmp/daemon.log" 2>&1 &
 daemon_pid=$!
-for _ in $(seq 300); do
-    if (exec 3<>"/dev/tcp/127.0.0.1/$port") 2>/dev/null; then break; fi
-    if ! kill -0 "$daemon_pid" 2>/dev/null; then
-        echo "the daemon exited:"; cat "$tmp/daemon.log"; exit 1
+# Wait for the daemon's own word that it listens (not just any process on the port).
+for i in $(seq 301); do
+    if grep -q "listening on 127.0.0.1:$port" "$tmp/daemon.log"; then break; fi
+    if ! kill -0 "$daemon_pid" 2>/dev/null || [ "$i" = 301 ]; then
+        echo "FAIL the daemon is not listening on 127.0.0.1:$port:"; cat "$tmp/daemon.log"; exit 1
     fi
     sleep 0.1
 done
 
 echo "== uds interop: checks"
 status=0
-"$venv/bin/python" scripts/uds_interop.py --port "$port" --store "$tmp/store" \
+timeout 300 "$venv/bin/python" scripts/uds_interop.py --port "$port" --store "$tmp/store" \
     --secret-file "$tmp/secret" --flood "${FLOOD:-10000}" || status=$?
 if ! kill -0 "$daemon_pid" 2>/dev/null; then
     echo "FAIL the daemon died during the checks"; status=1
