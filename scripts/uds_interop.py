@@ -503,6 +503,22 @@ def robustness(raw, flood):
         r = raw.request(req)
         check(f"{name} -> 7F {req[0]:02X} {nrc:02X}", r == bytes([0x7F, req[0], nrc]), hexs(r))
 
+    # socketcand-level junk on a second connection: refused or dropped, nothing else.
+    lean = Lean(raw.port)
+    lean.sock.sendall(b"no brackets at all " + b"< send 7A0 9 1 2 3 4 5 6 7 8 9 >< send ZZZ 1 0 >"
+                      b"< send 7A0 3 2 3e >< frame 7A0 1.0 023E00 >< \xff\xfe >< nonsense >"
+                      + b"<" + b"x" * 5000 + b">")
+    lean.recv(0.3)
+    lean.send([[0x02, 0x3E, 0x00]])
+    frames, end = [], time.monotonic() + 2
+    while not frames and time.monotonic() < end:
+        frames = lean.recv(0.5)
+    lean.close()
+    check("socketcand junk (bad lengths, IDs, bytes, 5 kB message) ignored, connection kept",
+          frames[:1] and frames[0][:2] == b"\x02\x7E", hexs(frames[0] if frames else None))
+    r = raw.request([0x3E, 0x00])
+    check("still answering the other connection", r == b"\x7E\x00", hexs(r))
+
     flood_check(raw, flood)
 
 
