@@ -139,6 +139,20 @@ async fn query_pieces_print_every_did() {
     assert_eq!(rolled, "rolled back; generation in force: 7");
     assert!("reboot".parse::<QueryCommand>().is_err());
     stop.send(()).unwrap();
+
+    // Refusals are explained in the daemon's terms: nothing calibrated, nothing older.
+    let (addr, stop, _task) = start_server(FakeBackend::empty()).await;
+    let mut opts = QueryOptions::new(&format!("socketcand:{addr}"));
+    let err = query(&opts, QueryCommand::Intrinsics).await.unwrap_err();
+    assert!(matches!(err, ClientError::Refused { service: 0x22, nrc: 0x22, .. }), "{err}");
+    assert!(err.to_string().contains("no calibration in force"), "{err}");
+    opts.secret_file = Some(dir.join("secret"));
+    let err = query(&opts, QueryCommand::Rollback).await.unwrap_err();
+    assert!(err.to_string().contains("no earlier calibration"), "{err}");
+    std::fs::write(dir.join("secret"), b"not the vehicle's").unwrap();
+    let err = query(&opts, QueryCommand::Start).await.unwrap_err();
+    assert!(err.to_string().contains("secret file does not match"), "{err}");
+    stop.send(()).unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
