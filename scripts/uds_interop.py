@@ -741,13 +741,13 @@ def run(args):
     # 5. Roll back: a new generation restoring the one before the run.
     before = rec
     try:
-        r = c.start_routine(0xC101)
-        got = r.service_data.routine_status_record
+        got = c.start_routine(0xC101).service_data.routine_status_record
+        detail = hexs(got)
     except Exception as e:  # noqa: BLE001
-        got = str(e).encode()
+        got, detail = None, f"{type(e).__name__}: {e}"
     rec, _ = current(store)
     check("0xC101 rollback: positive, generation in force returned",
-          got == (before["generation"] + 1).to_bytes(4, "big"), hexs(got))
+          got == (before["generation"] + 1).to_bytes(4, "big"), detail)
     prev = history(store, seeded["generation"])
     check("store: rollback wrote generation +1 restoring the previous one",
           rec["generation"] == before["generation"] + 1
