@@ -638,6 +638,24 @@ fn detect(args: DetectArgs) -> Result<(), Failure> {
     Ok(())
 }
 
+/// Resolves on SIGINT (a terminal) or SIGTERM (`systemctl stop`): either stops the daemon
+/// gracefully, between store writes.
+#[cfg(feature = "daemon")]
+async fn stop_signal() {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{signal, SignalKind};
+        if let Ok(mut term) = signal(SignalKind::terminate()) {
+            tokio::select! {
+                _ = tokio::signal::ctrl_c() => {}
+                _ = term.recv() => {}
+            }
+            return;
+        }
+    }
+    let _ = tokio::signal::ctrl_c().await;
+}
+
 #[cfg(feature = "daemon")]
 fn daemon(args: DaemonArgs) -> Result<(), Failure> {
     use roomcal::daemon::{room_calibrator::RoomCalibrator, RunOptions};
@@ -648,15 +666,12 @@ fn daemon(args: DaemonArgs) -> Result<(), Failure> {
     let runtime = tokio::runtime::Runtime::new()
         .context("starting the async runtime")
         .map_err(|error| Failure { code: 1, error })?;
-    let shutdown = async {
-        let _ = tokio::signal::ctrl_c().await;
-    };
     let summary = runtime
         .block_on(roomcal::daemon::run(
             config,
             calibrator,
             RunOptions { once: args.once },
-            shutdown,
+            stop_signal(),
         ))
         .map_err(|e| Failure { code: 1, error: e.into() })?;
     println!(
