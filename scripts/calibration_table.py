@@ -1,10 +1,12 @@
 #!/usr/bin/env python3
 """Accuracy tables of `roomcal calibrate` against the simulator's truth (issue 5): one frame
-per scene, for the design's room (six boards, Pandar64-like, 70° FOV), a 90° FOV lens, a
-VLP-32C-like LiDAR and four boards; each scene solved jointly (corners + hole term +
+per scene, for the design's room (six boards, Pandar64-like, 70° FOV) in the grid and the
+band layout, and in the band layout a 90° FOV lens, a VLP-32C-like LiDAR and four boards; each scene solved jointly (corners + hole term +
 board planes), with the paper's cost alone (--without-planes) and in two stages
 (--two-stage, the paper's ablation). Prints Markdown tables of the errors against the truth
-(mean and worst over the seeds) and the mean reported σ.
+(mean and worst over the seeds), the mean reported σ, and the overlay error: how far
+from the truth the result draws LiDAR points 10 m out (mean px over a grid of the image),
+which is what a fusion stack sees; intrinsic and extrinsic errors partly cancel in it.
 
     cargo build --release && scripts/calibration_table.py [--seeds 1 2 3] [--work DIR]
 """
@@ -21,10 +23,11 @@ ROOMCAL = os.path.join(ROOT, "target", "release", "roomcal")
 ROOM = os.path.join(ROOT, "config", "room.toml")
 
 SCENES = [
-    ("six boards, Pandar64, 70° FOV", []),
-    ("six boards, Pandar64, 90° FOV", ["--fov", "90"]),
-    ("six boards, VLP-32C, 70° FOV", ["--lidar", "vlp32c"]),
-    ("four boards, Pandar64, 70° FOV", ["--boards", "4"]),
+    ("six boards, Pandar64, 70° FOV, grid layout", []),
+    ("six boards, Pandar64, 70° FOV, band layout", ["--layout", "band"]),
+    ("six boards, Pandar64, 90° FOV, band layout", ["--fov", "90", "--layout", "band"]),
+    ("six boards, VLP-32C, 70° FOV, band layout", ["--lidar", "vlp32c", "--layout", "band"]),
+    ("four boards, Pandar64, 70° FOV, band layout", ["--boards", "4", "--layout", "band"]),
 ]
 MODES = [
     ("joint", []),
@@ -40,6 +43,56 @@ def rotation_angle_deg(a, b):
     return math.degrees(math.acos(c))
 
 
+def project(camera, p):
+    """Pixel of a camera-frame point through a pinhole-radtan or fisheye camera (JSON)."""
+    x, y, z = p
+    if z <= 1e-6:
+        return None
+    a, b = x / z, y / z
+    d = camera["distortion"]
+    if camera["model"] == "fisheye":
+        r = math.hypot(a, b)
+        th = math.atan(r)
+        th_d = th * (1 + d[0] * th**2 + d[1] * th**4 + d[2] * th**6 + d[3] * th**8)
+        s = th_d / r if r > 1e-12 else 1.0
+        u, v = a * s, b * s
+    else:
+        k1, k2, p1, p2, k3 = d
+        r2 = a * a + b * b
+        radial = 1 + k1 * r2 + k2 * r2**2 + k3 * r2**3
+        u = a * radial + 2 * p1 * a * b + p2 * (r2 + 2 * a * a)
+        v = b * radial + p1 * (r2 + 2 * b * b) + 2 * p2 * a * b
+    return camera["fx"] * u + camera["cx"], camera["fy"] * v + camera["cy"]
+
+
+def apply(ext, p):
+    r, t = ext["rotation"], ext["translation"]
+    return [sum(r[i][k] * p[k] for k in range(3)) + t[i] for i in range(3)]
+
+
+def overlay_error_px(result, truth, depth):
+    """Mean pixel distance between where the truth and the result put LiDAR points that
+    the true camera sees on a 9×7 grid over the image at `depth` metres: what a fusion
+    stack drawing the LiDAR into the image would be off by."""
+    c, tc = result["camera"], truth["camera"]
+    ext, text = result["lidar_to_camera"], truth["lidar_to_camera"]
+    rt = text["rotation"]
+    errs = []
+    for i in range(9):
+        for j in range(7):
+            # Camera-frame point on the true ray through a pixel (undistorted approx.).
+            u = (i + 0.5) / 9 * tc["width"]
+            v = (j + 0.5) / 7 * tc["height"]
+            pc = [(u - tc["cx"]) / tc["fx"] * depth, (v - tc["cy"]) / tc["fy"] * depth, depth]
+            # Into the LiDAR frame with the true extrinsic: p_l = Rᵀ (p_c − t).
+            d = [pc[k] - text["translation"][k] for k in range(3)]
+            pl = [sum(rt[k][i2] * d[k] for k in range(3)) for i2 in range(3)]
+            a, b = project(tc, pc), project(c, apply(ext, pl))
+            if a and b and 0 <= a[0] < tc["width"] and 0 <= a[1] < tc["height"]:
+                errs.append(math.dist(a, b))
+    return sum(errs) / len(errs) if errs else float("nan")
+
+
 def errors(result, truth):
     c, t = result["camera"], truth["camera"]
     e = {
@@ -50,6 +103,7 @@ def errors(result, truth):
     if r and tr:
         e["rot °"] = rotation_angle_deg(r["rotation"], tr["rotation"])
         e["trans mm"] = 1000 * math.dist(r["translation"], tr["translation"])
+        e["overlay px @10 m"] = overlay_error_px(result, truth, 10.0)
     u = result["uncertainty"]
     e["σ fx %"] = 100 * u["fx"] / c["fx"]
     e["σ cx px"] = max(u["cx"], u["cy"])
@@ -71,7 +125,7 @@ def main():
     ap.add_argument("--work", default=None)
     args = ap.parse_args()
     work = args.work or tempfile.mkdtemp(prefix="roomcal-table-")
-    keys = ["fx %", "cx,cy px", "rot °", "trans mm", "σ fx %", "σ cx px", "σ rot °", "σ trans mm"]
+    keys = ["fx %", "cx,cy px", "rot °", "trans mm", "overlay px @10 m", "σ fx %", "σ cx px", "σ rot °", "σ trans mm"]
     print(f"seeds {args.seeds}; scenes in {work}\n")
     for name, sim_args in SCENES:
         rows = {m: [] for m, _ in MODES}
@@ -90,7 +144,7 @@ def main():
                 with open(out) as f:
                     result = json.load(f)
                 if mode == "joint":
-                    lidar_boards.append(sum(1 for b in result["boards"] if b["holes_lidar"]))
+                    lidar_boards.append(sum(1 for b in result["boards"] if b.get("holes_lidar")))
                 rows[mode].append((status, errors(result, truth)))
         print(f"### {name} (LiDAR boards placed per seed: {lidar_boards})\n")
         print("| mode | accepted | " + " | ".join(f"{k} mean / worst" if not k.startswith("σ") else f"{k} mean" for k in keys) + " |")

@@ -320,7 +320,14 @@ fn solve_all(
         .solve(&mut params, &LmOptions { mask, ..LmOptions::default() })
         .map_err(solver_reason)?;
     iterations += report.iterations;
-    let sigma = covariance(&problem, &params, mask).map_err(solver_reason)?.uncertainty();
+    let mut sigma = covariance(&problem, &params, mask).map_err(solver_reason)?.uncertainty();
+    if options.two_stage {
+        // The intrinsics came from the corners alone: their σ is that stage's.
+        let corners_only = corner_uncertainty(&problem, &params)?;
+        (sigma.fx, sigma.fy, sigma.cx, sigma.cy) =
+            (corners_only.fx, corners_only.fy, corners_only.cx, corners_only.cy);
+        sigma.distortion = corners_only.distortion;
+    }
     let with_lidar = room.lidar.is_some() && problem.has_holes();
     if room.lidar.is_some() && !with_lidar {
         return Err("no LiDAR board could be paired with a camera board".into());
@@ -345,6 +352,21 @@ fn solve_all(
         holes_board: holes_board.clone(),
         iterations,
     })
+}
+
+/// The σ of the intrinsics that the corners of `problem`'s boards alone give at `params`.
+fn corner_uncertainty(
+    problem: &JointProblem<'_, MAX_OBSERVATIONS>,
+    params: &JointParams<Camera, MAX_OBSERVATIONS>,
+) -> Result<crate::solve::Uncertainty, String> {
+    let mut corners: JointProblem<'_, MAX_OBSERVATIONS> =
+        JointProblem::new(problem.corner_sigma_px, problem.hole_sigma_px, problem.loss);
+    for board in problem.boards() {
+        let only =
+            BoardObservation { object: board.object, corners: board.corners, ..Default::default() };
+        corners.add_board(only).map_err(solver_reason)?;
+    }
+    Ok(covariance(&corners, params, ParamMask::free()).map_err(solver_reason)?.uncertainty())
 }
 
 /// Intrinsics and board poses from the corners alone, from the best of several starts.

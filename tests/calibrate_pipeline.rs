@@ -277,3 +277,36 @@ fn no_boards_is_a_rejection_not_a_crash() {
     assert_eq!(run.result.status, Status::Rejected);
     assert!(run.result.reason.unwrap().contains("no complete checkerboard"));
 }
+
+#[test]
+fn two_stage_reports_the_corner_stage_uncertainty() {
+    let room = room();
+    let scene = scene(&room, 7);
+    let frame = detections(&scene, &mut Noise(11));
+    let two = calibrate(
+        &room,
+        std::slice::from_ref(&frame),
+        &CalibrateOptions { two_stage: true, ..Default::default() },
+    );
+    let mut images_only = frame.clone();
+    images_only.lidar.clear();
+    let mut room_without_lidar = room.clone();
+    room_without_lidar.lidar = None;
+    let corners = calibrate(
+        &room_without_lidar,
+        std::slice::from_ref(&images_only),
+        &CalibrateOptions::default(),
+    );
+    let (a, b) = (&two.result.uncertainty, &corners.result.uncertainty);
+    println!(
+        "two-stage σ fx {:.3} cx {:.3}; corners only σ fx {:.3} cx {:.3}",
+        a.fx, a.cx, b.fx, b.cx
+    );
+    assert!(a.fx > 0.0 && a.cx > 0.0 && a.rotation_deg > 0.0);
+    for (x, y) in [(a.fx, b.fx), (a.fy, b.fy), (a.cx, b.cx), (a.cy, b.cy)] {
+        assert!((x - y).abs() < 0.05 * y, "{x} vs {y}");
+    }
+    // The first stage's intrinsics are kept (to the solvers' convergence).
+    let (c, d) = (&two.result.camera, &corners.result.camera);
+    assert!((c.fx - d.fx).abs() < 1e-5 * d.fx && (c.cx - d.cx).abs() < 0.01, "{c:?} vs {d:?}");
+}

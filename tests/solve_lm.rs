@@ -477,3 +477,47 @@ fn bad_inputs_are_reported() {
     assert!(r.final_cost <= r.initial_cost);
     let _ = params.camera.project(&Vec3::new(0.0, 0.0, 1.0));
 }
+
+/// The plane term's fixed-size summary is exact: for any board pose and extrinsic, the
+/// squared norm of its two blocks equals the sum of the squared point-to-plane distances
+/// (over σ²) of every point it summarises.
+#[test]
+fn plane_summary_equals_the_sum_over_its_points() {
+    let s = scene(2, PIXEL_SIGMA, LIDAR_SIGMA, 3);
+    let mut rng = Rng(77);
+    let points: Vec<Vec3> = (0..500).map(|_| Vec3::new(4.0, 0.5, -0.3) + rng.vec3(0.6)).collect();
+    let sigma = 0.02;
+    let plane = roomcal::solve::PlanePoints::from_points(points.iter().copied(), sigma).unwrap();
+    assert_eq!(plane.count, 500);
+    let mut p: JointProblem<'_, B> = JointProblem::new(PIXEL_SIGMA, HOLE_SIGMA_PX, Loss::Squared);
+    p.add_board(BoardObservation {
+        object: &s.object,
+        corners: &s.corners[0],
+        plane: Some(plane),
+        ..Default::default()
+    })
+    .unwrap();
+    for seed in 0..5 {
+        let mut params = perturbed(&s, seed);
+        params.board_poses.truncate(1);
+        let pose = params.board_poses[0];
+        let ext = params.lidar_to_camera;
+        let normal = pose.rotation.column(2).into_owned();
+        let direct: f64 = points
+            .iter()
+            .map(|q| (normal.dot(&(ext.act(q) - pose.translation)) / sigma).powi(2))
+            .sum();
+        let mut summary = 0.0;
+        p.for_each_residual(&params, |r| {
+            if matches!(r.kind, roomcal::solve::problem::ResidualKind::Plane(_)) {
+                summary += r.r.norm_squared();
+            }
+        })
+        .unwrap();
+        let rel = (summary - direct).abs() / direct;
+        assert!(rel < 1e-9, "seed {seed}: summary {summary} vs points {direct}");
+    }
+    // Too few points, or a σ that is not positive, make no plane.
+    assert!(roomcal::solve::PlanePoints::from_points(points[..5].iter().copied(), sigma).is_none());
+    assert!(roomcal::solve::PlanePoints::from_points(points.iter().copied(), 0.0).is_none());
+}

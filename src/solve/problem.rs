@@ -282,9 +282,12 @@ impl<'a, const B: usize> JointProblem<'a, B> {
         self.boards.iter().any(|b| !b.holes_lidar.is_empty())
     }
 
-    /// Number of scalar residuals (2 per corner and per hole).
+    /// Number of scalar measurements (2 per corner and per hole, 1 per plane point).
     pub fn residual_count(&self) -> usize {
-        self.boards.iter().map(|b| 2 * (b.corners.len() + b.holes_lidar.len())).sum()
+        let per_board = |b: &BoardObservation<'_>| {
+            2 * (b.corners.len() + b.holes_lidar.len()) + b.plane.map_or(0, |p| p.count)
+        };
+        self.boards.iter().map(per_board).sum()
     }
 
     /// Checks the settings (positive finite σ and loss scale) and that `params` has one
