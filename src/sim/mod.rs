@@ -154,6 +154,8 @@ pub fn simulate(room: &Room, options: &SimOptions) -> Result<Scene, SimError> {
     let lidar_to_camera = true_extrinsic(&room, &mut rng.fork(1));
     let camera_in_lidar = lidar_to_camera.inverse();
     let count = options.boards.unwrap_or(room.board.count as usize);
+    // The room written beside the scene is the room as simulated: its board count too.
+    room.board.count = count as u32;
     let fits = |board_to_camera: &Se3| fits_in_room(&room, &camera_in_lidar, board_to_camera);
     let band_row = match (options.layout, &room.lidar) {
         (Layout::Grid, _) => None,
