@@ -122,6 +122,9 @@ pub enum Refusal {
     TooFewPoints { points: usize },
     /// Points lie where the holes would be: no hole pattern (a crate face, a door...).
     NoHolePattern { points_in_holes: usize },
+    /// Fewer than four scan-line gaps of about a hole's width: no two holes can be crossed
+    /// by two lines each (a crate face, a door, a board seen edge-on).
+    NoHoleGaps { chords: usize },
     /// Fewer than two holes crossed by at least two scan lines each.
     HolesUnseen { holes_with_two_lines: usize },
     /// The points do not pin the in-plane pose down (an outline edge or the holes unseen).
@@ -135,6 +138,10 @@ impl core::fmt::Display for Refusal {
             Refusal::NoHolePattern { points_in_holes } => {
                 write!(f, "{points_in_holes} points where the holes should be: not a board")
             }
+            Refusal::NoHoleGaps { chords } => write!(
+                f,
+                "only {chords} scan-line gap(s) of a hole's width (need 4: two holes crossed twice)"
+            ),
             Refusal::HolesUnseen { holes_with_two_lines } => write!(
                 f,
                 "only {holes_with_two_lines} hole(s) crossed by two or more scan lines (need 2)"
@@ -206,6 +213,8 @@ pub struct HoleDetector {
     sample: Vec<[f64; 2]>,
     gaps: Vec<[f64; 2]>,
     gap_sample: Vec<[f64; 2]>,
+    turned: Vec<[f64; 2]>,
+    turned_gaps: Vec<[f64; 2]>,
     lines: Vec<(f64, u32)>,
     refused: Vec<RefusedBoard>,
 }
@@ -260,6 +269,8 @@ impl HoleDetector {
             sample: Vec::new(),
             gaps: Vec::new(),
             gap_sample: Vec::new(),
+            turned: Vec::new(),
+            turned_gaps: Vec::new(),
             lines: Vec::new(),
             refused: Vec::new(),
         }
@@ -394,7 +405,7 @@ impl HoleDetector {
             let elevation = p.z.atan2(p.x.hypot(p.y));
             self.lines.push((elevation, self.flat.len() as u32 - 1));
         }
-        self.find_gaps();
+        let chords = self.find_gaps();
         if !self.extent_fits(&spec) {
             return;
         }
@@ -408,6 +419,12 @@ impl HoleDetector {
         };
         if self.flat.len() < self.config.min_points {
             self.refused.push(refuse(Refusal::TooFewPoints { points }));
+            return;
+        }
+        // Two holes crossed by two lines each leave at least four gaps: without them no
+        // pose can place the board, and the mask search is not run.
+        if chords < 4 {
+            self.refused.push(refuse(Refusal::NoHoleGaps { chords }));
             return;
         }
         let coarse = self.coarse();
@@ -460,12 +477,16 @@ impl HoleDetector {
     /// Gap points: where a scan line crossing the plane returned nothing between two of its
     /// returns over about a hole's width, points at the line's own spacing (plane frame).
     /// They tell the mask search where the holes are even when the lines are sparse.
+    /// Returns how many gaps could be a line crossing a hole by the (looser) measure of
+    /// [`HoleDetector::scan_lines_per_hole`].
     #[inline(never)]
-    fn find_gaps(&mut self) {
+    fn find_gaps(&mut self) -> usize {
+        let mut chords = 0;
         self.gaps.clear();
         let (lines, flat) = (&mut self.lines, &self.flat);
         lines.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         let max_chord = 2.0 * self.spec.hole_radius + 0.04;
+        let loose_chord = 2.0 * (self.spec.hole_radius + HOLE_BAND) + 0.01;
         let mut start = 0;
         while start < lines.len() {
             let end = line_end(lines, start);
@@ -480,6 +501,10 @@ impl HoleDetector {
             for w in line.windows(2) {
                 let (a, b) = (flat[w[0].1 as usize], flat[w[1].1 as usize]);
                 let d = (b[0] - a[0]).hypot(b[1] - a[1]);
+                // The line's spacing along the board's x is at most 1.3× shorter (40° yaw).
+                if d > 1.1 * spacing && d < loose_chord {
+                    chords += 1;
+                }
                 if d <= 2.0 * spacing || d >= max_chord {
                     continue;
                 }
@@ -490,6 +515,7 @@ impl HoleDetector {
                 }
             }
         }
+        chords
     }
 
     /// Whether the points' smallest bounding rectangle fits the board outline.
@@ -577,49 +603,68 @@ impl HoleDetector {
     }
 
     /// Medium and fine grids around the coarse pose. Only points near an edge of the
-    /// model can change their mask value within the windows; the rest add a constant.
+    /// model can change their mask value within a window; the rest add a constant, so
+    /// each grid scores only the points within its window's reach of an edge.
     #[inline(never)]
     fn refine(&mut self, coarse: [f64; 3]) -> Fit {
-        let (hw, hh, r) = (self.spec.width / 2.0, self.spec.height / 2.0, self.spec.hole_radius);
-        let near = 0.07;
-        self.sample.clear();
-        for p in &self.flat {
-            let (x, y) = to_board(coarse, p);
-            let outline = (x.abs() - hw).abs() < near || (y.abs() - hh).abs() < near;
-            let hole =
-                self.spec.holes.iter().any(|h| ((x - h[0]).hypot(y - h[1]) - r).abs() < near);
-            if outline || hole {
-                self.sample.push(*p);
-            }
+        let medium_step = [0.005, 0.005, 0.5f64.to_radians()];
+        self.near_edges(coarse, 0.07);
+        // The medium grid only finds the plateau (5 mm, 0.5° cells): a subsample will do.
+        let stride = (self.sample.len() + self.gap_sample.len()) / MEDIUM_POINTS + 1;
+        if stride > 1 {
+            keep_every(&mut self.sample, stride);
+            keep_every(&mut self.gap_sample, stride);
         }
-        let mut medium = self.grid(coarse, [0.005, 0.005, 0.5f64.to_radians()], 4);
+        let mut medium = self.grid(coarse, medium_step, 4);
         for _ in 0..2 {
             if !medium.at_window_edge {
                 break;
             }
-            medium = self.grid(medium.pose, [0.005, 0.005, 0.5f64.to_radians()], 4);
+            medium = self.grid(medium.pose, medium_step, 4);
         }
+        // The fine window reaches 9 mm and 0.36° (5 mm at the board's corners).
+        self.near_edges(medium.pose, 0.02);
         let fine = self.grid(medium.pose, [0.0015, 0.0015, 0.06f64.to_radians()], 6);
         // A plateau wider than the fine window: a wide window at a coarser step.
         if fine.at_window_edge {
+            self.near_edges(fine.pose, 0.07);
             return self.grid(fine.pose, [0.004, 0.004, 0.15f64.to_radians()], 8);
         }
         fine
     }
 
+    /// Returns and gap points within `near` of the model's outline or a hole's edge at
+    /// `pose`, into `sample` and `gap_sample`.
+    fn near_edges(&mut self, pose: [f64; 3], near: f64) {
+        let (hw, hh, r) = (self.spec.width / 2.0, self.spec.height / 2.0, self.spec.hole_radius);
+        let spec = &self.spec;
+        let close = |p: &[f64; 2]| {
+            let (x, y) = to_board(pose, p);
+            let outline = (x.abs() - hw).abs() < near || (y.abs() - hh).abs() < near;
+            outline || spec.holes.iter().any(|h| ((x - h[0]).hypot(y - h[1]) - r).abs() < near)
+        };
+        self.sample.clear();
+        self.sample.extend(self.flat.iter().filter(|p| close(p)));
+        self.gap_sample.clear();
+        self.gap_sample.extend(self.gaps.iter().filter(|p| close(p)));
+    }
+
     /// Scores the (2k+1)³ grid around `centre`; returns the plateau centroid and spread.
     #[inline(never)]
-    fn grid(&self, centre: [f64; 3], step: [f64; 3], k: i32) -> Fit {
+    fn grid(&mut self, centre: [f64; 3], step: [f64; 3], k: i32) -> Fit {
         let span = (2 * k + 1) as usize;
         let mut scores = [0i64; 17 * 17 * 17];
         let mut max = i64::MIN;
-        for a in 0..span {
-            for b in 0..span {
-                for g in 0..span {
-                    let off = |i: usize, s: f64| (i as i32 - k) as f64 * s;
+        let off = |i: usize, s: f64| (i as i32 - k) as f64 * s;
+        for g in 0..span {
+            // Per yaw the points are turned once; each centre is then a plain shift.
+            let yaw = centre[2] + off(g, step[2]);
+            self.mask.turn(&self.sample, yaw, &mut self.turned);
+            self.mask.turn(&self.gap_sample, yaw, &mut self.turned_gaps);
+            for a in 0..span {
+                for b in 0..span {
                     let t = [centre[0] + off(a, step[0]), centre[1] + off(b, step[1])];
-                    let yaw = centre[2] + off(g, step[2]);
-                    let sc = self.mask.score(&self.sample, &self.gaps, t, yaw);
+                    let sc = self.mask.score_turned(&self.turned, &self.turned_gaps, t, yaw);
                     scores[(a * span + b) * span + g] = sc;
                     max = max.max(sc);
                 }
@@ -703,7 +748,7 @@ impl HoleDetector {
         self.lines.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         let gap = 0.06f64.to_radians();
         let r = self.spec.hole_radius;
-        let band = 0.06;
+        let band = HOLE_BAND;
         let mut start = 0;
         while start < self.lines.len() {
             let mut end = start + 1;
@@ -872,22 +917,32 @@ impl Mask {
         }
     }
 
-    /// Score of returns and gap points (plane frame) for board centre `t` and `yaw`.
-    fn score(&self, points: &[[f64; 2]], gaps: &[[f64; 2]], t: [f64; 2], yaw: f64) -> i64 {
+    /// Plane-frame points turned by −`yaw` and scaled to cells, into `out`.
+    fn turn(&self, points: &[[f64; 2]], yaw: f64, out: &mut Vec<[f64; 2]>) {
         let (s, c) = yaw.sin_cos();
         let inv = 1.0 / self.step;
-        let (ox, oy) = (self.origin[0] * inv, self.origin[1] * inv);
+        out.clear();
+        out.extend(
+            points.iter().map(|p| [(c * p[0] + s * p[1]) * inv, (c * p[1] - s * p[0]) * inv]),
+        );
+    }
+
+    /// Score of returns and gap points turned by [`Mask::turn`] for board centre `t`
+    /// (plane frame) and the same `yaw`.
+    fn score_turned(&self, points: &[[f64; 2]], gaps: &[[f64; 2]], t: [f64; 2], yaw: f64) -> i64 {
+        let (s, c) = yaw.sin_cos();
+        let inv = 1.0 / self.step;
+        let ox = (c * t[0] + s * t[1]) * inv + self.origin[0] * inv;
+        let oy = (c * t[1] - s * t[0]) * inv + self.origin[1] * inv;
         let sum = |cells: &[i8], pts: &[[f64; 2]]| -> i64 {
-            let mut total = 0i64;
-            for p in pts {
-                let (dx, dy) = ((p[0] - t[0]) * inv, (p[1] - t[1]) * inv);
-                total += self.at(cells, c * dx + s * dy - ox, -s * dx + c * dy - oy);
-            }
-            total
+            pts.iter().map(|p| self.at(cells, p[0] - ox, p[1] - oy)).sum()
         };
         sum(&self.cells, points) + sum(&self.gap_cells, gaps)
     }
 }
+
+/// How far outside a hole's edge a scan line's last return before the hole may lie (m).
+const HOLE_BAND: f64 = 0.06;
 
 /// Translation step of the coarse search (m).
 const COARSE_STEP: f64 = 0.02;
@@ -895,6 +950,18 @@ const COARSE_STEP: f64 = 0.02;
 /// How far a scan line's gap may miss a hole and still count as crossing it (m): the
 /// pose's own error on a grazing line.
 const SLACK: f64 = 0.01;
+
+/// Most points the medium grid scores.
+const MEDIUM_POINTS: usize = 600;
+
+/// Keeps every `stride`-th element of `v`, in order.
+fn keep_every<T: Copy>(v: &mut Vec<T>, stride: usize) {
+    let mut i = 0;
+    v.retain(|_| {
+        i += 1;
+        (i - 1) % stride == 0
+    });
+}
 
 /// End of the scan line (run of elevations closer than 0.06° to the previous) that starts
 /// at `start` in `lines` sorted by elevation.
