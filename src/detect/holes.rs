@@ -214,6 +214,7 @@ pub struct HoleDetector {
     gaps: Vec<[f64; 2]>,
     gap_sample: Vec<[f64; 2]>,
     turned: Vec<[f64; 2]>,
+    keep: Vec<bool>,
     turned_gaps: Vec<[f64; 2]>,
     lines: Vec<(f64, u32)>,
     refused: Vec<RefusedBoard>,
@@ -270,6 +271,7 @@ impl HoleDetector {
             gaps: Vec::new(),
             gap_sample: Vec::new(),
             turned: Vec::new(),
+            keep: Vec::new(),
             turned_gaps: Vec::new(),
             lines: Vec::new(),
             refused: Vec::new(),
@@ -370,6 +372,7 @@ impl HoleDetector {
         let spec = self.spec.clone();
         let mut n = n;
         let (mut c, mut rms) = (c, 0.0);
+        self.drop_short_lines();
         for _ in 0..2 {
             let Some((c2, n2, rms2)) = fit_plane(&self.seg) else { return };
             let keep = (3.0 * rms2).clamp(0.01, self.config.plane_tolerance_m);
@@ -472,6 +475,45 @@ impl HoleDetector {
             self.flat.iter().fold((0.0, 0.0), |(a, b), p| (a + p[0] * p[0], b + p[1] * p[1]));
         let plane_sigma = [rms / (points as f64).sqrt(), rms / su.sqrt(), rms / sv.sqrt()];
         out.push(self.board(&fit, (c, ex, ey, n), plane_sigma, rms, lines));
+    }
+
+    /// Drops from `seg` the scan lines that lie on the plane over less than half the
+    /// board's width: a pole or stand below the board, a corner grazed. Every line across
+    /// a board spans its width, so these would only stretch the outline.
+    #[inline(never)]
+    fn drop_short_lines(&mut self) {
+        self.lines.clear();
+        for (i, p) in self.seg.iter().enumerate() {
+            self.lines.push((p.z.atan2(p.x.hypot(p.y)), i as u32));
+        }
+        self.lines.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        self.keep.clear();
+        self.keep.resize(self.seg.len(), true);
+        let min_chord = 0.5 * self.spec.width;
+        let mut start = 0;
+        while start < self.lines.len() {
+            let end = line_end(&self.lines, start);
+            let line = &self.lines[start..end];
+            start = end;
+            let azimuth = |&(_, i): &(f64, u32)| {
+                let p = &self.seg[i as usize];
+                p.y.atan2(p.x)
+            };
+            let first = line.iter().min_by(|a, b| azimuth(a).total_cmp(&azimuth(b)));
+            let last = line.iter().max_by(|a, b| azimuth(a).total_cmp(&azimuth(b)));
+            let (Some(a), Some(b)) = (first, last) else { continue };
+            if (self.seg[a.1 as usize] - self.seg[b.1 as usize]).norm() < min_chord {
+                for &(_, i) in line {
+                    self.keep[i as usize] = false;
+                }
+            }
+        }
+        let mut k = 0;
+        let keep = &self.keep;
+        self.seg.retain(|_| {
+            k += 1;
+            keep[k - 1]
+        });
     }
 
     /// Gap points: where a scan line crossing the plane returned nothing between two of its
