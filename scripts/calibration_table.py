@@ -123,11 +123,12 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--work", default=None)
+    ap.add_argument("--only", default="", help="run only the scenes whose name contains this")
     args = ap.parse_args()
     work = args.work or tempfile.mkdtemp(prefix="roomcal-table-")
     keys = ["fx %", "cx,cy px", "rot °", "trans mm", "overlay px @10 m", "σ fx %", "σ cx px", "σ rot °", "σ trans mm"]
     print(f"seeds {args.seeds}; scenes in {work}\n")
-    for name, sim_args in SCENES:
+    for name, sim_args in [s for s in SCENES if args.only in s[0]]:
         rows = {m: [] for m, _ in MODES}
         lidar_boards = []
         for seed in args.seeds:

@@ -186,6 +186,10 @@ struct SimulateArgs {
     /// two boards in the top corners.
     #[arg(long, value_enum, default_value = "grid")]
     layout: LayoutArg,
+    /// Seed of the rig's true LiDAR mounting (default: --seed): scenes with one rig seed
+    /// are frames of one vehicle, for multi-frame calibrations.
+    #[arg(long)]
+    rig_seed: Option<u64>,
     /// LiDAR range noise sigma (m).
     #[arg(long, default_value_t = sim::DEFAULT_RANGE_NOISE_M)]
     range_noise: f64,
@@ -290,6 +294,7 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
             LayoutArg::Grid => sim::Layout::Grid,
             LayoutArg::Band => sim::Layout::Band,
         },
+        rig_seed: args.rig_seed,
         image: sim::ImageNoise {
             supersample: args.supersample,
             blur_px: args.blur,

@@ -53,6 +53,9 @@ pub struct SimOptions {
     pub image: ImageNoise,
     /// How the boards are arranged ([`Layout::Band`] needs a LiDAR).
     pub layout: Layout,
+    /// Seed of the rig (the true LiDAR mounting; default: `seed`): scenes with one rig
+    /// seed and different seeds are frames of one vehicle in differently set-up rooms.
+    pub rig_seed: Option<u64>,
 }
 
 impl Default for SimOptions {
@@ -67,6 +70,7 @@ impl Default for SimOptions {
             range_noise_m: DEFAULT_RANGE_NOISE_M,
             image: ImageNoise::default(),
             layout: Layout::Grid,
+            rig_seed: None,
         }
     }
 }
@@ -151,7 +155,12 @@ pub fn simulate(room: &Room, options: &SimOptions) -> Result<Scene, SimError> {
     }
     let mut rng = Rng::new(options.seed);
     let camera = true_camera(&room, options)?;
-    let lidar_to_camera = true_extrinsic(&room, &mut rng.fork(1));
+    // The rig (the LiDAR's true mounting) follows `rig_seed` when given, so several
+    // scenes can be frames of one vehicle.
+    let lidar_to_camera = match options.rig_seed {
+        Some(rig) => true_extrinsic(&room, &mut Rng::new(rig).fork(1)),
+        None => true_extrinsic(&room, &mut rng.fork(1)),
+    };
     let camera_in_lidar = lidar_to_camera.inverse();
     let count = options.boards.unwrap_or(room.board.count as usize);
     // The room written beside the scene is the room as simulated: its board count too.
