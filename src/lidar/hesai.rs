@@ -513,6 +513,9 @@ pub fn decode(
     })
 }
 
+/// The distance unit (mm) [`encode_sweep`] writes, as real units send.
+pub const ENCODE_DIS_UNIT_MM: u8 = 4;
+
 /// Encodes single-return (strongest) packets with the UDP sequence from `returns` sorted by
 /// azimuth: each distinct azimuth becomes one block. `start_time` (Unix seconds) stamps the
 /// first packet; later ones follow at the model's packet period. Returns the packet count.
@@ -523,7 +526,7 @@ pub fn encode_sweep(
     out: &mut dyn FnMut(&[u8]),
 ) -> Result<usize, DecodeError> {
     let l = Layout::of(cal.model).ok_or(DecodeError::WrongCalibration)?;
-    let dis_unit_mm = 4u8;
+    let dis_unit_mm = ENCODE_DIS_UNIT_MM;
     let mut repr = Repr {
         model: l.model,
         dis_unit_mm,

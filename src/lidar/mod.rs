@@ -35,8 +35,8 @@ pub mod velodyne;
 
 pub use calibration::Calibration;
 pub use decoder::{
-    decode_into, decode_packet, encode_sweep, DecodeError, Model, PacketSummary, Return,
-    ReturnMode, SimReturn,
+    beam_direction, decode_into, decode_packet, encode_sweep, firing_azimuth, packet_period,
+    range_resolution, DecodeError, Model, PacketSummary, Return, ReturnMode, SimReturn,
 };
 pub use sweep::{Sweep, SweepAssembler, SweepConfig, SweepStats};
 

@@ -439,6 +439,30 @@ pub fn encode_sweep(
     Ok(packets)
 }
 
+/// The azimuth (0.01°) the decoder gives `laser`'s return in single-return packets from
+/// [`encode_sweep`] when firing sequence `sequence` (from 0; on the VLP-16 even sequences
+/// open a block, odd ones are its second firing) starts at `azimuth` and every sequence
+/// advances `advance`: the decoder's own interpolation, so rays cast there decode in place.
+pub fn firing_azimuth(
+    cal: &Calibration,
+    laser: usize,
+    sequence: usize,
+    azimuth: u16,
+    advance: u16,
+) -> u16 {
+    let (azimuth, advance) = (u32::from(azimuth) % 36000, u32::from(advance));
+    if cal.model == Model::Vlp16 {
+        // The block azimuth is the first firing's; blocks advance two sequences.
+        let second = sequence % 2;
+        let block = ((36000 + azimuth - second as u32 * advance % 36000) % 36000) as u16;
+        let c = laser % 16 + 16 * second;
+        firing(cal.model, cal.interpolation, 0, c, false, block, (2 * advance) as f32).1
+    } else {
+        let c = laser % field::CHANNELS;
+        firing(cal.model, cal.interpolation, 0, c, false, azimuth as u16, advance as f32).1
+    }
+}
+
 /// Byte layout of the position packet (GPS/PPS status and NMEA sentence).
 pub mod position_field {
     use core::ops::Range;
