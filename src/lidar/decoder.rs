@@ -272,11 +272,12 @@ pub fn packet_period(model: Model) -> f64 {
 }
 
 /// Decodes one data payload of `calibration.model`, handing each valid return to `sink`
-/// (zero ranges and identical dual echoes are dropped). Never panics on any bytes.
-pub fn decode_packet(
+/// (zero ranges and identical dual echoes are dropped). Never panics on any bytes. Generic
+/// over the sink (a `&mut dyn FnMut` works too) so closures inline into the point loop.
+pub fn decode_packet<F: FnMut(Return) + ?Sized>(
     calibration: &Calibration,
     payload: &[u8],
-    sink: &mut dyn FnMut(Return),
+    sink: &mut F,
 ) -> Result<PacketSummary, DecodeError> {
     if calibration.model.is_velodyne() {
         velodyne::decode(calibration, payload, sink)

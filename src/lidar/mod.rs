@@ -31,6 +31,7 @@ pub mod pcap;
 #[cfg(feature = "std")]
 pub mod pcd;
 pub mod sweep;
+pub mod trig;
 pub mod velodyne;
 
 pub use calibration::Calibration;
