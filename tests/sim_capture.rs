@@ -77,6 +77,11 @@ fn run(model: LidarModel, seed: u64) -> Run {
     assembler.flush(&mut collect);
     let stats = assembler.stats();
     assert_eq!(stats.dropped() + stats.lost + stats.position, 0, "{stats:?}");
+    // `roomcal decode --calibration angles.csv cloud.pcap` decodes the same points.
+    let (decoded, _, _) =
+        roomcal::lidar::decode_capture(packet_model, files.calibration.as_deref(), &files.capture)
+            .unwrap();
+    assert_eq!(decoded, from_packets);
     Run {
         truth: scene.truth.boards.clone(),
         cast: scene.cloud.clone().unwrap(),
@@ -154,13 +159,14 @@ fn report(name: &str, run: &Run, d: &Detections) -> f64 {
     let mean = d.errors_mm.iter().sum::<f64>() / d.errors_mm.len().max(1) as f64 + 0.0;
     println!(
         "{name}: {} packets, {} sweep(s), {} points, max |decoded - cast| {:.3} mm; boards \
-         {} truth, {} from PCD, {} from packets; hole error mean {mean:.2} mm; PCD vs packet \
-         hole centres at most {:.3} mm apart",
+         {} truth ({} placeable), {} from PCD, {} from packets; hole error mean {mean:.2} mm; \
+         PCD vs packet hole centres at most {:.3} mm apart",
         run.packets,
         run.sweeps,
         run.from_packets.len(),
         max_point_error(run) * 1e3,
         run.truth.len(),
+        run.truth.iter().filter(|t| placeable(t)).count(),
         d.pcd.len(),
         d.packets.len(),
         d.paths_apart_mm
