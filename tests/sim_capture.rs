@@ -274,3 +274,15 @@ fn hesai_angle_file_round_trips_exactly() {
     // The unit's table is not the nominal one: decoding needs the file.
     assert_ne!(cal, Calibration::nominal(Model::Pandar64));
 }
+
+#[test]
+fn beam_elevations_are_the_angle_tables() {
+    for model in [LidarModel::Pandar64, LidarModel::Vlp32c, LidarModel::Vlp16] {
+        let cal = raycast::calibration(model).unwrap();
+        let degrees = raycast::beam_elevations(model).unwrap();
+        assert_eq!(degrees.len(), cal.model.lasers());
+        for (d, c) in degrees.iter().zip(cal.active()) {
+            assert!((d.to_radians() - f64::from(c.elevation)).abs() < 1e-6, "{model:?} {d}");
+        }
+    }
+}

@@ -17,6 +17,8 @@ pub const AZIMUTH_STEP: u16 = 20;
 /// Azimuth (0.01°, clockwise from forward) of the first firing: straight behind, where
 /// sweeps are cut, so the sweep is one whole turn of the sensor.
 pub const START_AZIMUTH: u16 = 18000;
+/// The same step in degrees.
+pub const AZIMUTH_STEP_DEG: f64 = AZIMUTH_STEP as f64 / 100.0;
 /// Sweep period (s): 10 Hz.
 const SWEEP_PERIOD_S: f64 = 0.1;
 const MIN_RANGE_M: f64 = 0.3;
@@ -41,6 +43,31 @@ pub fn calibration(model: LidarModel) -> Option<Calibration> {
         _ => None,
     }
 }
+
+/// Elevation of every laser (degrees, in laser order) of the simulated unit of `model`: the
+/// elevations of [`calibration`]'s table, for code that reasons about the beams' spacing.
+pub fn beam_elevations(model: LidarModel) -> Option<&'static [f64]> {
+    match model {
+        LidarModel::Pandar64 => Some(&PANDAR64_DEG),
+        LidarModel::Vlp32c => Some(&VLP32C_DEG),
+        LidarModel::Vlp16 => Some(&VLP16_DEG),
+        _ => None,
+    }
+}
+
+/// The degree tables of `lidar::calibration` widened to f64 at compile time.
+const fn widen<const N: usize>(table: &[f32; N]) -> [f64; N] {
+    let mut out = [0.0; N];
+    let mut i = 0;
+    while i < N {
+        out[i] = table[i] as f64;
+        i += 1;
+    }
+    out
+}
+static PANDAR64_DEG: [f64; 64] = widen(&calibration::PANDAR64_UNIT_ELEVATION);
+static VLP32C_DEG: [f64; 32] = widen(&calibration::VLP32C_ELEVATION);
+static VLP16_DEG: [f64; 16] = widen(&calibration::VLP16_ELEVATION);
 
 /// What one sweep saw of the boards.
 #[derive(Clone, Debug, Default, PartialEq)]
