@@ -54,6 +54,7 @@ fn problem(s: &Scene<Camera>) -> JointProblem<'_, B> {
             holes_board: &s.holes,
             holes_lidar: lidar,
             hole_sigma_px: None,
+            plane: None,
         };
         p.add_board(obs).unwrap();
     }

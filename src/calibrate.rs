@@ -24,9 +24,10 @@ use crate::result::{
 };
 use crate::solve::{
     covariance, hole_sigma_px, init::kabsch_from_pairs, initialise, BoardObservation,
-    IntrinsicsSeed, JointParams, JointProblem, LmOptions, Loss, ParamMask, SolveError, SolveReport,
+    IntrinsicsSeed, JointParams, JointProblem, LmOptions, Loss, ParamMask, PlanePoints, SolveError,
+    SolveReport,
 };
-use crate::target::Room;
+use crate::target::{BoardSpec, Room};
 
 /// Most board observations (boards × frames) in one run.
 pub const MAX_OBSERVATIONS: usize = 32;
@@ -45,6 +46,8 @@ pub struct LidarBoard {
     pub holes: Vec<Vec3>,
     /// Typical 1σ of a hole centre (m).
     pub sigma_m: f64,
+    /// The LiDAR's points on the board face, for the point-to-plane term.
+    pub plane: Option<PlanePoints>,
 }
 
 /// Everything detected in one image/cloud pair.
@@ -61,6 +64,9 @@ pub struct CalibrateOptions {
     pub two_stage: bool,
     /// The calibration in force, for the gate's change limits.
     pub current: Option<CalibrationResult>,
+    /// Leaves the LiDAR's board-plane points out of the joint solve (the paper's cost
+    /// alone; for comparisons).
+    pub without_planes: bool,
 }
 
 /// One board observation as the solver used it.
@@ -97,6 +103,7 @@ impl Calibration {
 
 /// The detectors of a room, with their workspaces (made once, reused for every frame).
 pub struct Detectors {
+    spec: BoardSpec,
     chess: ChessboardDetector,
     holes: HoleDetector,
     found_holes: Vec<crate::detect::holes::LidarBoard>,
@@ -106,6 +113,7 @@ impl Detectors {
     /// Detectors for the room's board and camera.
     pub fn new(room: &Room) -> Result<Self, DetectError> {
         Ok(Detectors {
+            spec: room.board.clone(),
             chess: ChessboardDetector::new(room.camera.width, room.camera.height, &room.board)?,
             holes: HoleDetector::new(&room.board, HoleConfig::default()),
             found_holes: Vec::new(),
@@ -120,6 +128,12 @@ impl Detectors {
             .map(|b| LidarBoard {
                 holes: b.holes.to_vec(),
                 sigma_m: median(b.hole_sigma_m.iter().copied()),
+                plane: plane_points(
+                    &self.spec,
+                    &b.pose,
+                    PLANE_CUT_SIGMAS * b.plane_rms_m.max(PLANE_MIN_SIGMA_M),
+                    points.iter().map(|p| Vec3::new(p.x as f64, p.y as f64, p.z as f64)),
+                ),
             })
             .collect()
     }
@@ -147,6 +161,43 @@ impl Detectors {
             })
             .collect())
     }
+}
+
+/// Points farther than this many plane σ from a board's plane are not its face.
+const PLANE_CUT_SIGMAS: f64 = 3.0;
+/// Floor of the per-point plane σ (m): no LiDAR ranges better than this.
+const PLANE_MIN_SIGMA_M: f64 = 0.002;
+/// Points this close to the board's outline or a hole's rim are left out of the plane
+/// term (m): beams there hit partly the board, partly what is behind it.
+const PLANE_EDGE_MARGIN_M: f64 = 0.03;
+
+/// The points on the face of a board placed at `board_to_lidar`: within `cut_m` of its
+/// plane, inside its outline and outside its holes (with a margin), summarised with their
+/// own RMS distance from the plane as σ. `None` when too few remain.
+pub fn plane_points(
+    spec: &BoardSpec,
+    board_to_lidar: &Se3,
+    cut_m: f64,
+    points: impl Iterator<Item = Vec3>,
+) -> Option<PlanePoints> {
+    let to_board = board_to_lidar.inverse();
+    let (half_w, half_h) =
+        (spec.width / 2.0 - PLANE_EDGE_MARGIN_M, spec.height / 2.0 - PLANE_EDGE_MARGIN_M);
+    let keep_out = spec.hole_radius + PLANE_EDGE_MARGIN_M;
+    let on_face = |p: &Vec3| {
+        let b = to_board.act(p);
+        b.z.abs() <= cut_m
+            && b.x.abs() <= half_w
+            && b.y.abs() <= half_h
+            && (0..spec.holes.len())
+                .all(|h| (spec.hole(h) - Vec3::new(b.x, b.y, 0.0)).norm() >= keep_out)
+    };
+    let face: Vec<Vec3> = points.filter(on_face).collect();
+    let normal = board_to_lidar.rotation.column(2).into_owned();
+    let origin = board_to_lidar.translation;
+    let sum_sq: f64 = face.iter().map(|p| normal.dot(&(p - origin)).powi(2)).sum();
+    let sigma = (sum_sq / face.len().max(1) as f64).sqrt().max(PLANE_MIN_SIGMA_M);
+    PlanePoints::from_points(face, sigma)
 }
 
 /// Runs association, start, joint solve and gate on one set of detections.
@@ -255,6 +306,7 @@ fn solve_all(
                 holes_board: hb,
                 holes_lidar: hl,
                 hole_sigma_px: *sigma,
+                plane: pair.as_ref().and_then(|p| p.plane).filter(|_| !options.without_planes),
             })
             .map_err(solver_reason)?;
     }
@@ -268,7 +320,14 @@ fn solve_all(
         .solve(&mut params, &LmOptions { mask, ..LmOptions::default() })
         .map_err(solver_reason)?;
     iterations += report.iterations;
-    let sigma = covariance(&problem, &params, mask).map_err(solver_reason)?.uncertainty();
+    let mut sigma = covariance(&problem, &params, mask).map_err(solver_reason)?.uncertainty();
+    if options.two_stage {
+        // The intrinsics came from the corners alone: their σ is that stage's.
+        let corners_only = corner_uncertainty(&problem, &params)?;
+        (sigma.fx, sigma.fy, sigma.cx, sigma.cy) =
+            (corners_only.fx, corners_only.fy, corners_only.cx, corners_only.cy);
+        sigma.distortion = corners_only.distortion;
+    }
     let with_lidar = room.lidar.is_some() && problem.has_holes();
     if room.lidar.is_some() && !with_lidar {
         return Err("no LiDAR board could be paired with a camera board".into());
@@ -293,6 +352,21 @@ fn solve_all(
         holes_board: holes_board.clone(),
         iterations,
     })
+}
+
+/// The σ of the intrinsics that the corners of `problem`'s boards alone give at `params`.
+fn corner_uncertainty(
+    problem: &JointProblem<'_, MAX_OBSERVATIONS>,
+    params: &JointParams<Camera, MAX_OBSERVATIONS>,
+) -> Result<crate::solve::Uncertainty, String> {
+    let mut corners: JointProblem<'_, MAX_OBSERVATIONS> =
+        JointProblem::new(problem.corner_sigma_px, problem.hole_sigma_px, problem.loss);
+    for board in problem.boards() {
+        let only =
+            BoardObservation { object: board.object, corners: board.corners, ..Default::default() };
+        corners.add_board(only).map_err(solver_reason)?;
+    }
+    Ok(covariance(&corners, params, ParamMask::free()).map_err(solver_reason)?.uncertainty())
 }
 
 /// Intrinsics and board poses from the corners alone, from the best of several starts.
@@ -360,6 +434,7 @@ fn intrinsics_start(
 struct Pair {
     holes_lidar: Vec<Vec3>,
     sigma_m: f64,
+    plane: Option<PlanePoints>,
 }
 
 fn lidar_nominal(lidar: &crate::target::LidarSpec) -> Se3 {
@@ -440,7 +515,7 @@ fn match_boards(
         }
         let lidar = &frames[frame as usize].lidar[l];
         if let Some(holes_lidar) = order_holes(extrinsic, &poses[c], &lidar.holes, holes_board) {
-            pairs[c] = Some(Pair { holes_lidar, sigma_m: lidar.sigma_m });
+            pairs[c] = Some(Pair { holes_lidar, sigma_m: lidar.sigma_m, plane: lidar.plane });
             lidar_taken.push((frame, l));
         }
     }

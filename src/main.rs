@@ -28,6 +28,9 @@ enum Command {
     Calibrate(CalibrateArgs),
     /// Detect the boards in one image and/or one cloud and write them as JSON.
     Detect(DetectArgs),
+    /// Draw a cloud onto an image through a calibration (a result file) as a PNG: the
+    /// check by eye of any calibration on any scene, boards or none.
+    Overlay(OverlayArgs),
     /// Render a synthetic calibration room with ground truth (image.png, cloud.pcd, truth.json).
     Simulate(SimulateArgs),
     /// Run the vehicle daemon: notice the room, calibrate, write the store, serve UDS.
@@ -59,6 +62,9 @@ struct CalibrateArgs {
     /// Intrinsics from the corners first, then the extrinsic with them fixed.
     #[arg(long)]
     two_stage: bool,
+    /// Leave the LiDAR's board-plane points out of the solve (the paper's cost alone).
+    #[arg(long)]
+    without_planes: bool,
     /// The calibration in force (a result file or the store's current.json), for the
     /// quality gate's change limits.
     #[arg(long)]
@@ -77,6 +83,22 @@ struct DetectArgs {
     #[arg(long)]
     cloud: Option<PathBuf>,
     /// Where to write the detections (JSON).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(Args)]
+struct OverlayArgs {
+    /// The calibration: a result file (`roomcal calibrate --out`, or the store's current.json).
+    #[arg(long)]
+    calibration: PathBuf,
+    /// The camera frame (PNG or JPEG), of the calibration's image size.
+    #[arg(long)]
+    image: PathBuf,
+    /// The LiDAR cloud (PCD).
+    #[arg(long)]
+    cloud: PathBuf,
+    /// Where to write the overlay (PNG).
     #[arg(long)]
     out: PathBuf,
 }
@@ -160,6 +182,10 @@ struct SimulateArgs {
     /// LiDAR model (default: the room's).
     #[arg(long, value_enum)]
     lidar: Option<LidarArg>,
+    /// Board arrangement: a grid over the image, or a row at the LiDAR's dense band plus
+    /// two boards in the top corners.
+    #[arg(long, value_enum, default_value = "grid")]
+    layout: LayoutArg,
     /// LiDAR range noise sigma (m).
     #[arg(long, default_value_t = sim::DEFAULT_RANGE_NOISE_M)]
     range_noise: f64,
@@ -194,6 +220,12 @@ enum LidarArg {
     Vlp16,
 }
 
+#[derive(Clone, Copy, ValueEnum)]
+enum LayoutArg {
+    Grid,
+    Band,
+}
+
 /// An error with the exit code it maps to.
 struct Failure {
     code: u8,
@@ -209,6 +241,7 @@ fn main() -> ExitCode {
     let outcome = match cli.command {
         Command::Calibrate(args) => calibrate(args),
         Command::Detect(args) => detect(args),
+        Command::Overlay(args) => overlay(args),
         Command::Simulate(args) => simulate(args),
         #[cfg(feature = "daemon")]
         Command::Daemon(args) => daemon(args),
@@ -257,6 +290,10 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
             LidarArg::Vlp16 => LidarModel::Vlp16,
         }),
         range_noise_m: args.range_noise,
+        layout: match args.layout {
+            LayoutArg::Grid => sim::Layout::Grid,
+            LayoutArg::Band => sim::Layout::Band,
+        },
         image: sim::ImageNoise {
             supersample: args.supersample,
             blur_px: args.blur,
@@ -423,7 +460,11 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
     let run = roomcal::calibrate::calibrate(
         &room,
         &frames,
-        &CalibrateOptions { two_stage: args.two_stage, current },
+        &CalibrateOptions {
+            two_stage: args.two_stage,
+            current,
+            without_planes: args.without_planes,
+        },
     );
     write_result(&args.out, &run.result)?;
     if let Some(report) = &args.report {
@@ -530,6 +571,40 @@ fn print_summary(
     );
 }
 
+fn overlay(args: OverlayArgs) -> Result<(), Failure> {
+    let text = std::fs::read_to_string(&args.calibration)
+        .with_context(|| format!("reading {}", args.calibration.display()))
+        .map_err(bad_input)?;
+    let result: roomcal::result::CalibrationResult = serde_json::from_str(&text)
+        .with_context(|| format!("{}: not a calibration result", args.calibration.display()))
+        .map_err(bad_input)?;
+    let Some(extrinsic) = &result.lidar_to_camera else {
+        return Err(bad_input(anyhow::anyhow!(
+            "{}: the calibration has no LiDAR→camera extrinsic",
+            args.calibration.display()
+        )));
+    };
+    let camera = result.camera.to_camera();
+    let image = roomcal::detect::load_grey(&args.image).map_err(bad_input)?;
+    if (image.width, image.height) != (camera.width, camera.height) {
+        return Err(bad_input(anyhow::anyhow!(
+            "image {}: {}x{} pixels, the calibration's camera is {}x{}",
+            args.image.display(),
+            image.width,
+            image.height,
+            camera.width,
+            camera.height
+        )));
+    }
+    let cloud = roomcal::lidar::read_cloud(&args.cloud, None).map_err(bad_input)?;
+    roomcal::report::overlay(&image.data, &camera, Some(&extrinsic.to_se3()), &[&cloud], &[])
+        .save(&args.out)
+        .with_context(|| format!("writing the overlay {}", args.out.display()))
+        .map_err(bad_input)?;
+    println!("overlay of {} points written to {}", cloud.len(), args.out.display());
+    Ok(())
+}
+
 fn detect(args: DetectArgs) -> Result<(), Failure> {
     use roomcal::result::{BoardDetection, Detections};
     let room = roomcal::room::load(&args.room).map_err(bad_input)?;
@@ -575,6 +650,24 @@ fn detect(args: DetectArgs) -> Result<(), Failure> {
     Ok(())
 }
 
+/// Resolves on SIGINT (a terminal) or SIGTERM (`systemctl stop`): either stops the daemon
+/// gracefully, between store writes.
+#[cfg(feature = "daemon")]
+async fn stop_signal() {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{signal, SignalKind};
+        if let Ok(mut term) = signal(SignalKind::terminate()) {
+            tokio::select! {
+                _ = tokio::signal::ctrl_c() => {}
+                _ = term.recv() => {}
+            }
+            return;
+        }
+    }
+    let _ = tokio::signal::ctrl_c().await;
+}
+
 #[cfg(feature = "daemon")]
 fn daemon(args: DaemonArgs) -> Result<(), Failure> {
     use roomcal::daemon::{room_calibrator::RoomCalibrator, RunOptions};
@@ -585,15 +678,12 @@ fn daemon(args: DaemonArgs) -> Result<(), Failure> {
     let runtime = tokio::runtime::Runtime::new()
         .context("starting the async runtime")
         .map_err(|error| Failure { code: 1, error })?;
-    let shutdown = async {
-        let _ = tokio::signal::ctrl_c().await;
-    };
     let summary = runtime
         .block_on(roomcal::daemon::run(
             config,
             calibrator,
             RunOptions { once: args.once },
-            shutdown,
+            stop_signal(),
         ))
         .map_err(|e| Failure { code: 1, error: e.into() })?;
     println!(

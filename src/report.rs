@@ -35,9 +35,10 @@ pub fn overlay(
         Rgb([g, g, g])
     });
     if let Some(t) = lidar_to_camera {
+        let view = ViewBounds::of(camera);
         for p in clouds.iter().flat_map(|c| c.iter()) {
             let q = t.act(&Vec3::new(p.x as f64, p.y as f64, p.z as f64));
-            if let Some(px) = camera.project(&q) {
+            if let Some(px) = view.project(camera, &q) {
                 dot(&mut image, &px, 1, range_colour(q.norm()));
             }
         }
@@ -61,6 +62,53 @@ pub fn overlay(
         }
     }
     image
+}
+
+/// The part of the undistorted image plane (x/z, y/z) the image sees, with a margin: a
+/// radial-tangential lens folds points far outside it back into the frame, so points
+/// beyond it are not drawn.
+struct ViewBounds {
+    min: Vec2,
+    max: Vec2,
+}
+
+impl ViewBounds {
+    fn of(camera: &Camera) -> ViewBounds {
+        let (w, h) = (camera.width as f64, camera.height as f64);
+        let mut min = Vec2::new(f64::MAX, f64::MAX);
+        let mut max = Vec2::new(f64::MIN, f64::MIN);
+        for k in 0..=16 {
+            let t = k as f64 / 16.0;
+            for px in [
+                Vec2::new(t * w, 0.0),
+                Vec2::new(t * w, h),
+                Vec2::new(0.0, t * h),
+                Vec2::new(w, t * h),
+            ] {
+                if let Some(ray) = camera.unproject(&px).filter(|r| r.z > 1e-6) {
+                    let n = Vec2::new(ray.x / ray.z, ray.y / ray.z);
+                    min = Vec2::new(min.x.min(n.x), min.y.min(n.y));
+                    max = Vec2::new(max.x.max(n.x), max.y.max(n.y));
+                }
+            }
+        }
+        let margin = (max - min) * 0.1;
+        ViewBounds { min: min - margin, max: max + margin }
+    }
+
+    /// The pixel of a camera-frame point inside the view (fisheyes: any point in front).
+    fn project(&self, camera: &Camera, q: &Vec3) -> Option<Vec2> {
+        if camera.model == crate::geometry::CameraModel::PinholeRadtan {
+            if q.z <= 0.0 {
+                return None;
+            }
+            let n = Vec2::new(q.x / q.z, q.y / q.z);
+            if n.x < self.min.x || n.y < self.min.y || n.x > self.max.x || n.y > self.max.y {
+                return None;
+            }
+        }
+        camera.project(q)
+    }
 }
 
 /// A rainbow over 0–30 m (near red, far violet).

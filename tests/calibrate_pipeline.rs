@@ -5,10 +5,13 @@
 
 use std::path::Path;
 
-use roomcal::calibrate::{calibrate, CalibrateOptions, CameraBoard, FrameDetections, LidarBoard};
+use roomcal::calibrate::{
+    calibrate, plane_points, CalibrateOptions, CameraBoard, FrameDetections, LidarBoard,
+};
 use roomcal::geometry::{se3::so3_exp, Vec2, Vec3};
 use roomcal::result::Status;
 use roomcal::sim::{simulate, ImageNoise, Scene, SimOptions};
+use roomcal::solve::PlanePoints;
 use roomcal::target::Room;
 
 const CORNER_NOISE_PX: f64 = 0.05;
@@ -74,10 +77,20 @@ fn detections(scene: &Scene, noise: &mut Noise) -> FrameDetections {
                 })
                 .collect();
             holes.rotate_left(1 + (noise.uniform() * 3.0) as usize);
-            frame.lidar.push(LidarBoard { holes, sigma_m: HOLE_NOISE_M });
+            let plane = truth_plane(scene, board);
+            frame.lidar.push(LidarBoard { holes, sigma_m: HOLE_NOISE_M, plane });
         }
     }
     frame
+}
+
+/// The cloud's points on a board's face, selected with the board's true pose.
+fn truth_plane(scene: &Scene, board: &roomcal::sim::BoardTruth) -> Option<PlanePoints> {
+    let lidar_to_camera = scene.truth.lidar_to_camera.as_ref()?.to_se3();
+    let board_to_lidar = lidar_to_camera.inverse().compose(&board.board_to_camera.to_se3());
+    let cloud = scene.cloud.as_ref()?;
+    let points = cloud.iter().map(|p| Vec3::new(p.x as f64, p.y as f64, p.z as f64));
+    plane_points(&scene.room.board, &board_to_lidar, 3.0 * scene.truth.range_noise_m, points)
 }
 
 struct Errors {
@@ -103,19 +116,38 @@ fn errors(scene: &Scene, result: &roomcal::result::CalibrationResult) -> Errors 
     }
 }
 
-/// One frame of the design's room (six boards, three of them in the LiDAR's band) with
-/// 0.05 px corners and 4 mm hole centres. Measured today: fx within ~1.4 %, principal
-/// point ~12 px, extrinsic ~0.5° / 6 cm, each within its reported σ — the issue's targets
-/// (0.1 %, 1 px, 0.02°, 5 mm) need more constraint than the paper's 2-D hole term gives
-/// here (the LiDAR's board planes; noted on the issue). The test holds the solution to
-/// its own uncertainty, so a wrong Jacobian, start or association still fails it.
+/// One frame of the design's room (six boards, three of them placeable by the LiDAR) with
+/// 0.05 px corners, 4 mm hole centres and the cloud's own board points. Measured today
+/// (seeds 7, 8, 10): the paper's cost alone gives fx within 0.65–1.37 %, translation
+/// 34–65 mm; with the plane term fx 0.33–0.51 %, principal point 6–10 px, rotation
+/// 0.11–0.54°, translation 21–28 mm — each within its reported σ. The issue's targets
+/// (0.1 %, 1 px, 0.02°, 5 mm) are beyond what one frame of this room determines: the
+/// principal point trades against the tangential distortion and the extrinsic rotation
+/// (see the note on the issue). The test holds the solution to its own uncertainty, so a
+/// wrong Jacobian, start or association still fails it, and requires the plane term to
+/// shrink the σ of fx and of the translation.
 #[test]
 fn joint_calibration_is_consistent_with_its_uncertainty() {
     let room = room();
     let mut noise = Noise(5);
+    // Summed σ of fx and of the translation, with and without the plane term.
+    let (mut sigma_paper, mut sigma_planes) = ([0.0; 2], [0.0; 2]);
     for seed in [7, 8, 10] {
         let scene = scene(&room, seed);
         let frame = detections(&scene, &mut noise);
+        let paper = calibrate(
+            &room,
+            std::slice::from_ref(&frame),
+            &CalibrateOptions { without_planes: true, ..Default::default() },
+        );
+        let e = errors(&scene, &paper.result);
+        println!(
+            "seed {seed} paper's cost: fx {:.4} %, principal {:.3} px, rotation {:.4}°, translation {:.2} mm",
+            e.fx_rel * 100.0, e.principal_px, e.rotation_deg, e.translation_m * 1000.0
+        );
+        let u = &paper.result.uncertainty;
+        sigma_paper[0] += u.fx;
+        sigma_paper[1] += u.translation_m;
         let run = calibrate(&room, std::slice::from_ref(&frame), &CalibrateOptions::default());
         assert_eq!(
             run.result.status,
@@ -138,6 +170,8 @@ fn joint_calibration_is_consistent_with_its_uncertainty() {
             run.result.uncertainty.translation_m * 1000.0
         );
         let u = &run.result.uncertainty;
+        sigma_planes[0] += u.fx;
+        sigma_planes[1] += u.translation_m;
         let fx = scene.truth.camera.fx;
         assert!(
             e.fx_rel * fx < 4.0 * u.fx.max(u.fy) + 0.5,
@@ -164,6 +198,11 @@ fn joint_calibration_is_consistent_with_its_uncertainty() {
             "seed {seed}: far off"
         );
     }
+    // The LiDAR's board planes earn their place: they tie the boards' depth to the
+    // ranges, which the corners see only through the focal length.
+    println!("Σσ fx, t: paper's cost {sigma_paper:.4?}, with planes {sigma_planes:.4?}");
+    assert!(sigma_planes[0] < 0.8 * sigma_paper[0], "fx: {sigma_planes:?} vs {sigma_paper:?}");
+    assert!(sigma_planes[1] < 0.8 * sigma_paper[1], "t: {sigma_planes:?} vs {sigma_paper:?}");
 }
 
 #[test]
@@ -237,4 +276,37 @@ fn no_boards_is_a_rejection_not_a_crash() {
     let run = calibrate(&room(), &[FrameDetections::default()], &CalibrateOptions::default());
     assert_eq!(run.result.status, Status::Rejected);
     assert!(run.result.reason.unwrap().contains("no complete checkerboard"));
+}
+
+#[test]
+fn two_stage_reports_the_corner_stage_uncertainty() {
+    let room = room();
+    let scene = scene(&room, 7);
+    let frame = detections(&scene, &mut Noise(11));
+    let two = calibrate(
+        &room,
+        std::slice::from_ref(&frame),
+        &CalibrateOptions { two_stage: true, ..Default::default() },
+    );
+    let mut images_only = frame.clone();
+    images_only.lidar.clear();
+    let mut room_without_lidar = room.clone();
+    room_without_lidar.lidar = None;
+    let corners = calibrate(
+        &room_without_lidar,
+        std::slice::from_ref(&images_only),
+        &CalibrateOptions::default(),
+    );
+    let (a, b) = (&two.result.uncertainty, &corners.result.uncertainty);
+    println!(
+        "two-stage σ fx {:.3} cx {:.3}; corners only σ fx {:.3} cx {:.3}",
+        a.fx, a.cx, b.fx, b.cx
+    );
+    assert!(a.fx > 0.0 && a.cx > 0.0 && a.rotation_deg > 0.0);
+    for (x, y) in [(a.fx, b.fx), (a.fy, b.fy), (a.cx, b.cx), (a.cy, b.cy)] {
+        assert!((x - y).abs() < 0.05 * y, "{x} vs {y}");
+    }
+    // The first stage's intrinsics are kept (to the solvers' convergence).
+    let (c, d) = (&two.result.camera, &corners.result.camera);
+    assert!((c.fx - d.fx).abs() < 1e-5 * d.fx && (c.cx - d.cx).abs() < 0.01, "{c:?} vs {d:?}");
 }

@@ -279,6 +279,61 @@ fn backend_answers_from_the_store_and_rolls_back() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// The service as a bench tool sees it: the daemon listens on a socketcand endpoint
+/// (`[service] transport = "socketcand:..."`); our client connects, reads the state,
+/// unlocks with the secret file's key, starts a run (0x78 until it ends), rolls back.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn service_listens_on_socketcand_and_runs_a_calibration() {
+    use roomcal::service::client::UdsClient;
+    use roomcal::service::socketcand::SocketcandClient;
+    use roomcal::service::uds::Session;
+    // A free port: bound, then released for the daemon.
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let service = format!(
+        "mode = \"manual\"\n[service]\ntransport = \"socketcand:127.0.0.1:{port}\"\n\
+         secret_file = \"secret\"\n"
+    );
+    let (dir, cfg) = scene("uds", &service);
+    std::fs::write(dir.join("secret"), b"bench secret\n").unwrap();
+    let store = Store::open(dir.join("store"), 4).unwrap();
+    store.commit(&result(800.0, Status::Accepted), 1_700_000_000).unwrap();
+    let (cal, _, runs) = fake(6, Status::Accepted);
+    let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+    let task = tokio::spawn(daemon::run(cfg, cal, RunOptions::default(), async {
+        let _ = stopped.await;
+    }));
+    let mut transport = None;
+    for _ in 0..50 {
+        match SocketcandClient::connect(&format!("127.0.0.1:{port}"), "can0").await {
+            Ok(t) => {
+                transport = Some(t);
+                break;
+            }
+            Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
+        }
+    }
+    let mut c = UdsClient::with_defaults(transport.expect("the daemon listens on its endpoint"));
+    assert_eq!(c.status().await.unwrap().generation, 1);
+    assert_eq!(c.intrinsics().await.unwrap().fx, 800.0);
+    c.session(Session::Extended).await.unwrap();
+    assert!(c.unlock(b"wrong").await.is_err());
+    // The secret file's trailing newline is not part of the secret.
+    c.unlock(b"bench secret").await.unwrap();
+    let outcome = c.start_calibration().await.unwrap();
+    assert_eq!((outcome.state, outcome.generation), (DaemonState::Accepted, 2));
+    assert_eq!(runs.load(Ordering::SeqCst), 1);
+    let fx = c.intrinsics().await.unwrap().fx;
+    assert_eq!(fx, (500.0 + 2.0 * 16.0 * 720.0) as f32, "two sweeps of 16 × 720 points");
+    assert_eq!(store.current().unwrap().unwrap().generation, 2);
+    assert_eq!(c.rollback().await.unwrap(), 3);
+    assert_eq!(c.intrinsics().await.unwrap().fx, 800.0);
+    assert_eq!(store.current().unwrap().unwrap().restored_from, Some(1));
+    stop.send(()).unwrap();
+    let summary = task.await.unwrap().unwrap();
+    assert_eq!((summary.runs, summary.accepted, summary.generation), (1, 1, 3));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn shipped_vehicle_config_parses() {
     let path = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/config/roomcal.toml"));
@@ -286,6 +341,13 @@ fn shipped_vehicle_config_parses() {
     assert_eq!(c.room, path.parent().unwrap().join("room.toml"));
     assert_eq!(c.camera, config::CameraSource::V4l2("/dev/video0".into()));
     assert_eq!(c.service.unwrap().transport, "socketcan:can0");
+    // The interop check's replay configuration: a socketcand endpoint the daemon serves.
+    let path = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/config/replay-uds.toml"));
+    let c = config::load(path).unwrap();
+    let s = c.service.unwrap();
+    assert_eq!(s.transport, "socketcand:127.0.0.1:29536");
+    assert_eq!(s.socketcand, config::SocketcandRole::Listen);
+    assert_eq!(c.trigger.mode, roomcal::daemon::trigger::Mode::Manual);
 }
 
 /// CPU seconds (user + system) of this process so far, from /proc/self/stat.

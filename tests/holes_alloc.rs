@@ -74,5 +74,8 @@ fn a_plane_without_holes_is_refused() {
     let refused = detector.refused();
     println!("refused: {refused:?}");
     assert_eq!(refused.len(), 1);
-    assert!(matches!(refused[0].reason, Refusal::NoHolePattern { .. }));
+    assert!(matches!(
+        refused[0].reason,
+        Refusal::NoHolePattern { .. } | Refusal::NoHoleGaps { .. }
+    ));
 }

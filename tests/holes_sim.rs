@@ -5,8 +5,12 @@
 use std::path::Path;
 
 use roomcal::detect::holes::{HoleConfig, HoleDetector, LidarBoard};
-use roomcal::geometry::Vec3;
-use roomcal::sim::{simulate, BoardTruth, ImageNoise, SimOptions};
+use roomcal::geometry::{Se3, Vec3};
+use roomcal::lidar::Point;
+use roomcal::sim::raycast::{beam_elevations, AZIMUTH_STEP_DEG};
+use roomcal::sim::rng::Rng;
+use roomcal::sim::world::World;
+use roomcal::sim::{simulate, BoardTruth, ImageNoise, Scene, SimOptions};
 use roomcal::target::{LidarModel, Room};
 
 fn room() -> Room {
@@ -56,9 +60,9 @@ fn run(model: LidarModel, seeds: &[u64]) -> Figures {
                 r.reason
             );
             if let Some(g) = r.best_guess {
-                for t in &scene.truth.boards {
-                    let e: Vec<f64> = room
-                        .board
+                // The nearest truth board, to tell a bad guess from no board.
+                let guess_error = |t: &BoardTruth| -> Vec<f64> {
+                    room.board
                         .holes
                         .iter()
                         .zip(&t.holes_lidar)
@@ -67,10 +71,16 @@ fn run(model: LidarModel, seeds: &[u64]) -> Figures {
                                 .norm()
                                 * 1e3
                         })
-                        .collect();
-                    if e.iter().all(|&x| x < 100.0) {
-                        println!("     its guess is off by {e:.1?} mm");
-                    }
+                        .collect()
+                };
+                let nearest = scene
+                    .truth
+                    .boards
+                    .iter()
+                    .map(guess_error)
+                    .min_by(|a, b| a.iter().sum::<f64>().total_cmp(&b.iter().sum::<f64>()));
+                if let Some(e) = nearest.filter(|e| e.iter().all(|&x| x < 1000.0)) {
+                    println!("     its guess is off by {e:.1?} mm");
                 }
             }
         }
@@ -162,4 +172,84 @@ fn vlp32c_and_vlp16_figures() {
             assert!(mean <= 10.0, "{name}: mean hole error {mean} mm");
         }
     }
+}
+
+/// `n` sweeps of the static scene of `scene`, concatenated: each fired at azimuths offset
+/// by a fraction of the 0.2° step (a spinning LiDAR is not phase-locked to the room) and
+/// with its own range noise, ray-cast through the scene's own board poses.
+fn sweeps(scene: &Scene, model: LidarModel, n: usize, noise_seed: u64) -> Vec<Point> {
+    let camera_in_lidar = scene.truth.lidar_to_camera.as_ref().unwrap().to_se3().inverse();
+    let poses: Vec<Se3> = scene
+        .truth
+        .boards
+        .iter()
+        .map(|b| camera_in_lidar.compose(&b.board_to_camera.to_se3()))
+        .collect();
+    let world = World::new(&scene.room.board, poses, &mut Rng::new(scene.truth.seed));
+    let elevations = beam_elevations(model).unwrap();
+    let mut rng = Rng::new(noise_seed);
+    let columns = (360.0 / AZIMUTH_STEP_DEG).round() as usize;
+    let mut points = Vec::new();
+    for s in 0..n {
+        let phase = s as f64 / n as f64 * AZIMUTH_STEP_DEG;
+        for column in 0..columns {
+            let azimuth = (column as f64 * AZIMUTH_STEP_DEG + phase).to_radians();
+            for (ring, elevation) in elevations.iter().enumerate() {
+                let e = elevation.to_radians();
+                let dir = Vec3::new(e.cos() * azimuth.cos(), e.cos() * azimuth.sin(), e.sin());
+                let Some(hit) = world.cast(&Vec3::zeros(), &dir) else { continue };
+                let p = dir * (hit.distance + scene.truth.range_noise_m * rng.normal());
+                let (x, y, z) = (p.x as f32, p.y as f32, p.z as f32);
+                points.push(Point { x, y, z, ring: ring as u16, ..Point::default() });
+            }
+        }
+    }
+    points
+}
+
+/// Mean hole error (mm) over the placeable boards of `seeds`, from `n` sweeps each;
+/// asserts every placeable board is found.
+fn mean_error_from_sweeps(seeds: &[u64], n: usize) -> f64 {
+    let room = room();
+    let mut detector = HoleDetector::new(&room.board, HoleConfig::default());
+    let mut found = Vec::new();
+    let mut errors = Vec::new();
+    for &seed in seeds {
+        let options = SimOptions {
+            seed,
+            image: ImageNoise { supersample: 1, ..ImageNoise::default() },
+            ..SimOptions::default()
+        };
+        let scene = simulate(&room, &options).unwrap();
+        let cloud = sweeps(&scene, LidarModel::Pandar64, n, 1000 + seed);
+        detector.detect(&cloud, &mut found);
+        for (i, t) in scene.truth.boards.iter().enumerate() {
+            let hit = found.iter().find_map(|b| best_truth(b, &scene.truth.boards[i..=i]));
+            match hit {
+                Some((_, err)) => errors.extend(err.iter().map(|e| e * 1e3)),
+                None if placeable(t) => {
+                    for r in detector.refused() {
+                        println!("  refused at {:?}: {}", r.centroid.as_slice(), r.reason);
+                    }
+                    for b in &found {
+                        println!("  found {:?}", b.holes);
+                    }
+                    panic!("seed {seed}, {n} sweep(s): board {i} missed: {:?}", t.holes_lidar)
+                }
+                None => {}
+            }
+        }
+    }
+    let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+    let max = errors.iter().cloned().fold(0.0, f64::max);
+    println!("{n} sweep(s): {} holes, error mean {mean:.2} mm, max {max:.2} mm", errors.len());
+    mean
+}
+
+#[test]
+fn several_sweeps_reduce_the_hole_error() {
+    let seeds = [1, 2, 3];
+    let one = mean_error_from_sweeps(&seeds, 1);
+    let four = mean_error_from_sweeps(&seeds, 4);
+    assert!(four < 0.8 * one, "4 sweeps: {four:.2} mm vs 1 sweep: {one:.2} mm");
 }

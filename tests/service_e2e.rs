@@ -139,6 +139,20 @@ async fn query_pieces_print_every_did() {
     assert_eq!(rolled, "rolled back; generation in force: 7");
     assert!("reboot".parse::<QueryCommand>().is_err());
     stop.send(()).unwrap();
+
+    // Refusals are explained in the daemon's terms: nothing calibrated, nothing older.
+    let (addr, stop, _task) = start_server(FakeBackend::empty()).await;
+    let mut opts = QueryOptions::new(&format!("socketcand:{addr}"));
+    let err = query(&opts, QueryCommand::Intrinsics).await.unwrap_err();
+    assert!(matches!(err, ClientError::Refused { service: 0x22, nrc: 0x22, .. }), "{err}");
+    assert!(err.to_string().contains("no calibration in force"), "{err}");
+    opts.secret_file = Some(dir.join("secret"));
+    let err = query(&opts, QueryCommand::Rollback).await.unwrap_err();
+    assert!(err.to_string().contains("no earlier calibration"), "{err}");
+    std::fs::write(dir.join("secret"), b"not the vehicle's").unwrap();
+    let err = query(&opts, QueryCommand::Start).await.unwrap_err();
+    assert!(err.to_string().contains("secret file does not match"), "{err}");
+    stop.send(()).unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -243,6 +257,59 @@ async fn server_on_memory_bus_times_out_the_session() {
         Err(ClientError::Negative { service: 0x31, nrc: 0x7F }) => {}
         other => panic!("expected 0x7F after S3, got {other:?}"),
     }
+    stop.send(()).unwrap();
+    task.await.unwrap();
+}
+
+/// A client that floods requests while a segmented response waits for its flow control
+/// does not grow the server's queue without bound: at most `MAX_QUEUED_RESPONSES` more
+/// responses come out, then the server answers normally again.
+#[tokio::test(start_paused = true)]
+async fn request_flood_without_flow_control_is_bounded() {
+    use roomcal::service::driver::MAX_QUEUED_RESPONSES;
+    let (mut bus, mut tester) = memory_pair();
+    let (stop, stopped) = oneshot::channel::<()>();
+    let task = tokio::spawn(async move {
+        let mut server = Server::new(
+            FakeBackend::calibrated(),
+            OsRandom::open().unwrap(),
+            SECRET,
+            ServerConfig::default(),
+        );
+        let tp = Config::new(DEFAULT_RESPONSE_ID, DEFAULT_REQUEST_ID);
+        serve(&mut bus, &mut server, tp, async {
+            let _ = stopped.await;
+        })
+        .await
+        .unwrap();
+    });
+    let req = |data: &[u8]| CanFrame::new_standard(DEFAULT_REQUEST_ID, data).unwrap();
+    // 100 reads of the intrinsics (a 41-byte, segmented response), no flow control yet.
+    for _ in 0..100 {
+        tester.send(&req(&[0x03, 0x22, 0xC0, 0x02])).await.unwrap();
+    }
+    // Now act as a tester: flow control for every first frame, until the bus is quiet.
+    let (mut first_frames, mut last_frames) = (0, 0);
+    while let Ok(f) = tokio::time::timeout(Duration::from_secs(3), tester.recv()).await {
+        let f = f.unwrap();
+        assert_eq!(f.id, DEFAULT_RESPONSE_ID);
+        match f.data[0] {
+            0x10 => {
+                first_frames += 1;
+                tester.send(&req(&[0x30, 0, 0])).await.unwrap();
+            }
+            0x25 => last_frames += 1,
+            _ => {}
+        }
+    }
+    assert!(
+        (2..=1 + MAX_QUEUED_RESPONSES).contains(&first_frames),
+        "{first_frames} responses to 100 requests"
+    );
+    assert_eq!(last_frames, first_frames, "every response started was completed");
+    tester.send(&req(&[0x02, 0x3E, 0x00])).await.unwrap();
+    let f = tokio::time::timeout(Duration::from_secs(1), tester.recv()).await.unwrap().unwrap();
+    assert_eq!(&f.data[..3], &[0x02, 0x7E, 0x00]);
     stop.send(()).unwrap();
     task.await.unwrap();
 }

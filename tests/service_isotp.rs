@@ -373,3 +373,41 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn identifiers_above_11_bits_make_a_29_bit_endpoint() {
+    // Normal fixed addressing style IDs (tester 0xF1 → ECU 0x00 and back).
+    let (req, resp) = (0x18DA_00F1, 0x18DA_F100);
+    assert!(!Config::new(TX, RX).extended);
+    let server_cfg = Config::new(resp, req);
+    let client_cfg = Config::new(req, resp);
+    assert!(server_cfg.extended && client_cfg.extended);
+    let mut server: IsoTp = IsoTp::new(server_cfg);
+    let mut client: IsoTp = IsoTp::new(client_cfg);
+    client.send(&[0x22, 0xC0, 0x01]).unwrap();
+    let f = client.poll_transmit(ms(0)).unwrap();
+    assert!(f.extended && f.id == req, "{f:?}");
+    client.frame_sent(ms(0));
+    assert_eq!(server.on_frame(&f, ms(1)), Some(Event::Received(3)));
+    assert_eq!(server.received(), [0x22, 0xC0, 0x01]);
+    // The same bytes on an 11-bit ID are not for this endpoint.
+    let short = CanFrame::new_standard(0x7A0, &f.data).unwrap();
+    assert_eq!(server.on_frame(&short, ms(2)), None);
+    // A segmented answer goes back on the 29-bit response ID.
+    let msg: Vec<u8> = (0..20).collect();
+    server.send(&msg).unwrap();
+    let ff = server.poll_transmit(ms(3)).unwrap();
+    assert!(ff.extended && ff.id == resp);
+    server.frame_sent(ms(3));
+    client.on_frame(&ff, ms(4));
+    let fc = client.poll_transmit(ms(4)).unwrap();
+    client.frame_sent(ms(4));
+    server.on_frame(&fc, ms(5));
+    let mut got = None;
+    while let Some(cf) = server.poll_transmit(ms(6)) {
+        server.frame_sent(ms(6));
+        got = client.on_frame(&cf, ms(6)).or(got);
+    }
+    assert_eq!(got, Some(Event::Received(20)));
+    assert_eq!(client.received(), &msg[..]);
+}

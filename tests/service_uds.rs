@@ -145,6 +145,20 @@ fn read_data_by_identifier_byte_vectors() {
     assert_eq!(r.len(), 1 + (2 + 9) * 2);
     assert_eq!(r[1..3], [0xC0, 0x04]);
     assert_eq!(r[12..14], [0xC0, 0x01]);
+    // The most DIDs, each the largest record (intrinsics with 8 coefficients): a valid
+    // request always gets its data, never 0x14 responseTooLong.
+    let mut big = FakeBackend::calibrated();
+    if let Some(k) = big.intrinsics.as_mut() {
+        k.distortion = heapless::Vec::from_slice(&[0.5; 8]).unwrap();
+    }
+    let mut s = server(big);
+    let eight: Vec<u8> = std::iter::once(0x22).chain([0xC0, 0x02].repeat(8)).collect();
+    let r = ask(&mut s, &eight, ms(0)).unwrap();
+    assert_eq!(r.len(), 1 + 8 * (2 + 18 + 4 * 8));
+    for rec in r[1..].chunks(2 + 50) {
+        assert_eq!(rec[..2], [0xC0, 0x02]);
+        assert_eq!(IntrinsicsRecord::parse(&rec[2..]).unwrap().distortion.len(), 8);
+    }
 }
 
 #[test]

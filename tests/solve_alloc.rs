@@ -26,13 +26,14 @@ fn joint_solve_makes_no_heap_allocation() {
     };
     let s = scene_with(camera, 6, 0.3, 0.01, 99);
     let mut p: JointProblem<'_, 16> = JointProblem::new(0.3, 4.0, Loss::Huber(3.0));
-    for (corners, lidar) in s.corners.iter().zip(&s.holes_lidar) {
+    for ((corners, lidar), plane) in s.corners.iter().zip(&s.holes_lidar).zip(&s.planes) {
         let obs = BoardObservation {
             object: &s.object,
             corners,
             holes_board: &s.holes,
             holes_lidar: lidar,
             hole_sigma_px: None,
+            plane: Some(*plane),
         };
         p.add_board(obs).unwrap();
     }

@@ -51,6 +51,7 @@ fn problem<'a>(s: &'a Scene<Camera>) -> JointProblem<'a, B> {
             holes_board: &s.holes,
             holes_lidar: lidar,
             hole_sigma_px: Some(sigma),
+            plane: None,
         };
         p.add_board(obs).unwrap();
     }

@@ -1,17 +1,22 @@
 //! The UDS [`Backend`] on the daemon's state and store: DID 0xC001–0xC004 from the
-//! calibration in force, routine 0xC100 start = a run request, 0xC101 = store rollback.
+//! calibration in force, routine 0xC100 start = a run request, 0xC101 = store rollback;
+//! and the daemon's service task, which runs the UDS server on the configured transport.
 
 use std::sync::{Arc, Mutex};
 
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, watch};
 
 use crate::geometry::se3::rotation_to_quaternion;
 use crate::geometry::CameraModel as GeoModel;
+use crate::service::transport::{CanTransport, Endpoint, TransportError};
 use crate::service::uds::{
     Backend, CameraModel, DaemonState, ExtrinsicRecord, IntrinsicsRecord, Outcome, QualityRecord,
     Refusal, StateRecord,
 };
+use crate::service::{driver, isotp, socketcand::SocketcandServer, uds};
 use crate::store::{Record, Store};
+
+use super::config::{ServiceConfig, SocketcandRole};
 
 /// What the daemon shares with the service and the handle.
 #[derive(Clone, Debug)]
@@ -137,4 +142,78 @@ impl Backend for DaemonBackend {
             }
         }
     }
+}
+
+/// The UDS server the service task runs.
+type DaemonServer = uds::Server<DaemonBackend, driver::OsRandom>;
+
+/// Service task: the UDS server on the configured transport until `stop` turns true. A
+/// `socketcand:` endpoint is served (listen, the default) or connected to; a failed
+/// bind, connection or interface is retried with backoff.
+pub(crate) async fn service_task(
+    cfg: ServiceConfig,
+    backend: DaemonBackend,
+    mut stop: watch::Receiver<bool>,
+) {
+    let secret = match crate::service::client::read_secret(&cfg.secret_file) {
+        Ok(s) => s,
+        Err(e) => {
+            tracing::error!("service disabled: {e}");
+            return;
+        }
+    };
+    let Ok(endpoint) = Endpoint::parse(&cfg.transport) else {
+        return; // checked when the configuration was loaded
+    };
+    let Ok(seeds) = driver::OsRandom::open() else {
+        tracing::error!("service disabled: /dev/urandom cannot be opened");
+        return;
+    };
+    let mut server = uds::Server::new(backend, seeds, &secret, uds::ServerConfig::default());
+    let tp = isotp::Config::new(cfg.response_id, cfg.request_id);
+    let mut backoff = crate::capture::Backoff::default();
+    while !*stop.borrow() {
+        let served = match (&endpoint, cfg.socketcand) {
+            (Endpoint::Socketcand { addr, channel }, SocketcandRole::Listen) => {
+                match SocketcandServer::bind(addr, channel).await {
+                    Ok(mut t) => {
+                        backoff.reset();
+                        let local = t.local_addr();
+                        tracing::info!("service: socketcand endpoint listening on {local}");
+                        serve_until_stopped(&mut t, &mut server, tp, &stop).await
+                    }
+                    Err(e) => Err(e),
+                }
+            }
+            _ => match endpoint.connect().await {
+                Ok(mut t) => {
+                    backoff.reset();
+                    tracing::info!("service on {}", cfg.transport);
+                    serve_until_stopped(&mut t, &mut server, tp, &stop).await
+                }
+                Err(e) => Err(e),
+            },
+        };
+        if let Err(e) = served {
+            tracing::warn!("service: {e}");
+        }
+        let d = backoff.next_delay();
+        tokio::select! {
+            _ = tokio::time::sleep(d) => {}
+            _ = stop.wait_for(|v| *v) => return,
+        }
+    }
+}
+
+async fn serve_until_stopped<T: CanTransport>(
+    transport: &mut T,
+    server: &mut DaemonServer,
+    tp: isotp::Config,
+    stop: &watch::Receiver<bool>,
+) -> Result<(), TransportError> {
+    let mut s = stop.clone();
+    let stopped = async move {
+        let _ = s.wait_for(|v| *v).await;
+    };
+    driver::serve(transport, server, tp, stopped).await
 }

@@ -6,7 +6,10 @@
 //! group to join), `replay_speed` (1.0); `[trigger] min_boards` (the room's board
 //! count, `board.count`), `still_m` (0.01),
 //! `leave_s` (3.0), `frames` (5, averaged), `sweeps` (3, accumulated),
-//! `detect_interval_s` (1.0), `capture_timeout_s` (10.0); `keep` (16, history bound).
+//! `detect_interval_s` (1.0), `capture_timeout_s` (10.0); `keep` (16, history bound);
+//! `[service] socketcand` (`"listen"`: the daemon serves the socketcand endpoint, a
+//! virtual CAN bus on TCP that service tools connect to; `"connect"`: it connects to a
+//! socketcand server bridging a real bus).
 
 use std::net::{Ipv4Addr, SocketAddr};
 use std::path::{Path, PathBuf};
@@ -33,11 +36,25 @@ pub enum LidarSource {
     Replay(PathBuf),
 }
 
+/// What the daemon does with a `socketcand:HOST:PORT` transport.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SocketcandRole {
+    /// Listen on HOST:PORT: the daemon is the socketcand endpoint (DESIGN.md: bench
+    /// tools, python-can's `socketcand` interface and `roomcal query` connect to it).
+    #[default]
+    Listen,
+    /// Connect to a socketcand server at HOST:PORT that bridges a real CAN bus.
+    Connect,
+}
+
 /// The UDS service on CAN.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ServiceConfig {
     /// `socketcan:IFACE` or `socketcand:HOST:PORT[/CHANNEL]`.
     pub transport: String,
+    /// For `socketcand:` transports: listen (default) or connect.
+    pub socketcand: SocketcandRole,
     pub request_id: u32,
     pub response_id: u32,
     pub secret_file: PathBuf,
@@ -140,6 +157,8 @@ impl Default for RawTrigger {
 #[serde(deny_unknown_fields)]
 struct RawService {
     transport: String,
+    #[serde(default)]
+    socketcand: SocketcandRole,
     #[serde(default = "default_request_id")]
     request_id: u32,
     #[serde(default = "default_response_id")]
@@ -217,6 +236,7 @@ pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
     if let Some(s) = &raw.service {
         crate::service::transport::Endpoint::parse(&s.transport)
             .map_err(|e| invalid(format!("service.transport: {e}")))?;
+        check_ids(s.request_id, s.response_id).map_err(invalid)?;
     }
     Ok(Config {
         room: resolve(&raw.room),
@@ -240,11 +260,33 @@ pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
         capture_timeout_s: t.capture_timeout_s,
         service: raw.service.map(|s| ServiceConfig {
             transport: s.transport,
+            socketcand: s.socketcand,
             request_id: s.request_id,
             response_id: s.response_id,
             secret_file: resolve(&s.secret_file),
         }),
     })
+}
+
+/// Request and response IDs: CAN identifiers, distinct, both 11-bit or both 29-bit (one
+/// ISO-TP endpoint uses one identifier format).
+fn check_ids(request: u32, response: u32) -> Result<(), String> {
+    use crate::service::{MAX_EXTENDED_ID, MAX_STANDARD_ID};
+    for (key, id) in [("service.request_id", request), ("service.response_id", response)] {
+        if id > MAX_EXTENDED_ID {
+            return Err(format!("{key} = {id:#X}: not a CAN identifier (29 bits at most)"));
+        }
+    }
+    if request == response {
+        return Err(format!("service.request_id and service.response_id are both {request:#X}"));
+    }
+    if (request > MAX_STANDARD_ID) != (response > MAX_STANDARD_ID) {
+        return Err(format!(
+            "service.request_id {request:#X} and service.response_id {response:#X}: \
+             one is 11-bit, the other 29-bit"
+        ));
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -280,6 +322,20 @@ secret_file = "/etc/roomcal/secret"
         assert_eq!(c.trigger.settle_s, 2.0);
         let s = c.service.unwrap();
         assert_eq!((s.request_id, s.response_id), (0x7A0, 0x7A8));
+        assert_eq!(s.socketcand, SocketcandRole::Listen);
+    }
+
+    #[test]
+    fn socketcand_role_and_29_bit_ids() {
+        let text = DESIGN
+            .replace("socketcan:can0", "socketcand:127.0.0.1:29536")
+            .replace("0x7A0", "0x18DA00F1")
+            .replace("0x7A8", "0x18DAF100\nsocketcand = \"connect\"");
+        let s = parse(&text, Path::new("x.toml")).unwrap().service.unwrap();
+        assert_eq!(s.socketcand, SocketcandRole::Connect);
+        assert_eq!((s.request_id, s.response_id), (0x18DA00F1, 0x18DAF100));
+        let bad = text.replace("\"connect\"", "\"both\"");
+        assert!(parse(&bad, Path::new("x.toml")).is_err());
     }
 
     #[test]
@@ -297,6 +353,15 @@ secret_file = "/etc/roomcal/secret"
         assert!(e.contains("x.toml") && e.contains("usb:0"), "{e}");
         let bad = DESIGN.replace("settle_s = 2.0", "settle_s = 2.0\nsettle = 1");
         assert!(parse(&bad, Path::new("x.toml")).is_err(), "unknown keys are errors");
+        for (from, to, what) in [
+            ("0x7A8", "0x7A0", "both 0x7A0"),
+            ("0x7A8", "0x18DAF100", "one is 11-bit"),
+            ("0x7A8", "0x20000000", "not a CAN identifier"),
+        ] {
+            let bad = DESIGN.replace(from, to);
+            let e = parse(&bad, Path::new("x.toml")).unwrap_err().to_string();
+            assert!(e.contains("x.toml") && e.contains(what), "{e}");
+        }
         let bad = DESIGN.replace("socketcan:can0", "can0");
         assert!(parse(&bad, Path::new("x.toml"))
             .unwrap_err()

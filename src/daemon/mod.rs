@@ -158,8 +158,13 @@ pub async fn run<C: Calibrator>(
 pub fn init_logging() {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    let _ =
-        tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).try_init();
+    // Colour codes only for a person at a terminal, not in the journal.
+    let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(ansi)
+        .try_init();
 }
 
 /// Unix seconds now (the daemon's clock for store records).
@@ -307,53 +312,6 @@ async fn lidar_task(config: Config, tx: mpsc::Sender<OwnedSweep>) {
     }
 }
 
-/// Service task: the UDS server on the configured transport; reconnects with backoff.
-async fn service_task(
-    cfg: config::ServiceConfig,
-    backend: DaemonBackend,
-    mut stop: watch::Receiver<bool>,
-) {
-    use crate::service::{driver, isotp, transport::Endpoint, uds};
-    let secret = match crate::service::client::read_secret(&cfg.secret_file) {
-        Ok(s) => s,
-        Err(e) => {
-            tracing::error!("service disabled: {e}");
-            return;
-        }
-    };
-    let Ok(endpoint) = Endpoint::parse(&cfg.transport) else {
-        return; // checked when the configuration was loaded
-    };
-    let Ok(seeds) = driver::OsRandom::open() else {
-        tracing::error!("service disabled: /dev/urandom cannot be opened");
-        return;
-    };
-    let mut server = uds::Server::new(backend, seeds, &secret, uds::ServerConfig::default());
-    let tp = isotp::Config::new(cfg.response_id, cfg.request_id);
-    let mut backoff = Backoff::default();
-    while !*stop.borrow() {
-        match endpoint.connect().await {
-            Ok(mut t) => {
-                backoff.reset();
-                tracing::info!("service on {}", cfg.transport);
-                let mut s = stop.clone();
-                let stopped = async move {
-                    let _ = s.wait_for(|v| *v).await;
-                };
-                if let Err(e) = driver::serve(&mut t, &mut server, tp, stopped).await {
-                    tracing::warn!("service: {e}");
-                }
-            }
-            Err(e) => tracing::warn!("service: {e}"),
-        }
-        let d = backoff.next_delay();
-        tokio::select! {
-            _ = tokio::time::sleep(d) => {}
-            _ = stop.wait_for(|v| *v) => return,
-        }
-    }
-}
-
 /// sd_notify, ignoring errors (no-op without `NOTIFY_SOCKET`).
 fn notify(state: &[sd_notify::NotifyState<'_>]) {
     let _ = sd_notify::notify(false, state);
@@ -392,7 +350,7 @@ async fn run_daemon<C: Calibrator>(
     tasks.spawn(lidar_task(config.clone(), sweep_tx));
     if let Some(svc) = config.service.clone() {
         let backend = DaemonBackend::new(shared.clone(), requests_tx.clone(), store.clone());
-        tasks.spawn(service_task(svc, backend, stop_rx));
+        tasks.spawn(backend::service_task(svc, backend, stop_rx));
     }
     drop(requests_tx);
     notify(&[sd_notify::NotifyState::Ready, sd_notify::NotifyState::Status("idle")]);

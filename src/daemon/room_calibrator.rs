@@ -44,7 +44,7 @@ impl Calibrator for RoomCalibrator {
                 sweeps.get(i).map_or(Vec::new(), |sweep| self.detectors.detect_cloud(sweep));
             detections.push(FrameDetections { camera, lidar });
         }
-        let options = CalibrateOptions { two_stage: false, current: current.cloned() };
+        let options = CalibrateOptions { current: current.cloned(), ..CalibrateOptions::default() };
         CalibrationOutcome::Done(Box::new(calibrate(&self.room, &detections, &options).result))
     }
 }

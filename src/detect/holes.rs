@@ -32,6 +32,8 @@
 //! board by 180° about its z axis (reordering the holes 0↔3, 1↔2 for the usual pattern)
 //! when the camera says otherwise; see [`LidarBoard::turned`].
 
+mod segment;
+
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
 use std::path::{Path, PathBuf};
@@ -120,6 +122,9 @@ pub enum Refusal {
     TooFewPoints { points: usize },
     /// Points lie where the holes would be: no hole pattern (a crate face, a door...).
     NoHolePattern { points_in_holes: usize },
+    /// Fewer than four scan-line gaps of about a hole's width: no two holes can be crossed
+    /// by two lines each (a crate face, a door, a board seen edge-on).
+    NoHoleGaps { chords: usize },
     /// Fewer than two holes crossed by at least two scan lines each.
     HolesUnseen { holes_with_two_lines: usize },
     /// The points do not pin the in-plane pose down (an outline edge or the holes unseen).
@@ -133,6 +138,10 @@ impl core::fmt::Display for Refusal {
             Refusal::NoHolePattern { points_in_holes } => {
                 write!(f, "{points_in_holes} points where the holes should be: not a board")
             }
+            Refusal::NoHoleGaps { chords } => write!(
+                f,
+                "only {chords} scan-line gap(s) of a hole's width (need 4: two holes crossed twice)"
+            ),
             Refusal::HolesUnseen { holes_with_two_lines } => write!(
                 f,
                 "only {holes_with_two_lines} hole(s) crossed by two or more scan lines (need 2)"
@@ -194,15 +203,21 @@ pub struct HoleDetector {
     voxels: Vec<Voxel>,
     map: HashMap<u64, u32, BuildHasherDefault<KeyHasher>>,
     label: Vec<u32>,
-    stamp: Vec<u32>,
     queue: Vec<u32>,
-    region: Vec<u32>,
+    region_voxels: Vec<u32>,
+    segs: Vec<segment::Segment>,
+    order: Vec<u32>,
+    roots: Vec<u32>,
     seg: Vec<Vec3>,
     flat: Vec<[f64; 2]>,
     sample: Vec<[f64; 2]>,
+    gaps: Vec<[f64; 2]>,
+    gap_sample: Vec<[f64; 2]>,
+    turned: Vec<[f64; 2]>,
+    keep: Vec<bool>,
+    turned_gaps: Vec<[f64; 2]>,
     lines: Vec<(f64, u32)>,
     refused: Vec<RefusedBoard>,
-    used: Vec<Vec3>,
 }
 
 #[derive(Clone, Copy, Debug, Default)]
@@ -245,15 +260,21 @@ impl HoleDetector {
             voxels: Vec::new(),
             map: HashMap::default(),
             label: Vec::new(),
-            stamp: Vec::new(),
             queue: Vec::new(),
-            region: Vec::new(),
+            region_voxels: Vec::new(),
+            segs: Vec::new(),
+            order: Vec::new(),
+            roots: Vec::new(),
             seg: Vec::new(),
             flat: Vec::new(),
             sample: Vec::new(),
+            gaps: Vec::new(),
+            gap_sample: Vec::new(),
+            turned: Vec::new(),
+            keep: Vec::new(),
+            turned_gaps: Vec::new(),
             lines: Vec::new(),
             refused: Vec::new(),
-            used: Vec::new(),
         }
     }
 
@@ -272,6 +293,7 @@ impl HoleDetector {
         self.segment(out);
     }
 
+    #[inline(never)]
     fn voxelise(&mut self, points: &[Point]) {
         let (near, far) = self.config.range_m;
         self.pts.clear();
@@ -306,6 +328,7 @@ impl HoleDetector {
     }
 
     /// Plane of every voxel's 3×3×3 neighbourhood.
+    #[inline(never)]
     fn local_planes(&mut self) {
         let spread2 = 0.04 * 0.04;
         for i in 0..self.voxels.len() {
@@ -330,88 +353,26 @@ impl HoleDetector {
         }
     }
 
-    /// Grows planar voxels into segments and examines the board-sized ones.
+    /// Plane segments (regions of planar voxels, coplanar fragments merged); each
+    /// board-sized one is examined.
     fn segment(&mut self, out: &mut Vec<LidarBoard>) {
-        let nv = self.voxels.len();
-        self.label.clear();
-        self.label.resize(nv, u32::MAX);
-        self.stamp.clear();
-        self.stamp.resize(nv, u32::MAX);
-        let cos_max = self.config.normal_angle_deg.to_radians().cos();
-        let tol = self.config.plane_tolerance_m;
-        let diag = self.spec.width.hypot(self.spec.height) + 2.0 * self.config.size_tolerance_m;
-        self.used.clear();
-        for seed in 0..nv {
-            if !self.voxels[seed].planar || self.label[seed] != u32::MAX {
-                continue;
-            }
-            let id = seed as u32;
-            self.region.clear();
-            self.queue.clear();
-            self.queue.push(id);
-            self.label[seed] = id;
-            let mut too_big = false;
-            let c0 = self.voxels[seed].centroid;
-            while let Some(i) = self.queue.pop() {
-                let vi = self.voxels[i as usize];
-                self.region.push(i);
-                if (vi.centroid - c0).norm() > diag + 0.3 {
-                    too_big = true;
-                }
-                for nk in neighbour_keys(vi.key) {
-                    let Some(&j) = self.map.get(&nk) else { continue };
-                    let vj = &self.voxels[j as usize];
-                    if !vj.planar || self.label[j as usize] != u32::MAX {
-                        continue;
-                    }
-                    let coplanar = vi.normal.dot(&vj.normal).abs() > cos_max
-                        && vi.normal.dot(&(vj.centroid - vi.centroid)).abs() < tol
-                        && vj.normal.dot(&(vi.centroid - vj.centroid)).abs() < tol;
-                    if coplanar {
-                        self.label[j as usize] = id;
-                        self.queue.push(j);
-                    }
-                }
-            }
-            if !too_big {
-                self.examine(id, out);
+        self.grow_regions();
+        self.merge_fragments();
+        for k in 0..self.group_roots() {
+            if let Some((c, n)) = self.gather(self.roots[k]) {
+                self.examine(c, n, out);
             }
         }
     }
 
-    /// Fits the plane of one region and, when it is board-sized, places the board.
-    fn examine(&mut self, id: u32, out: &mut Vec<LidarBoard>) {
+    /// Refits the plane of one group's points (in `seg`) and, when it is board-sized,
+    /// places the board.
+    #[inline(never)]
+    fn examine(&mut self, c: Vec3, n: Vec3, out: &mut Vec<LidarBoard>) {
         let spec = self.spec.clone();
-        let mut m = Moments::default();
-        for &i in &self.region {
-            m.merge(&self.voxels[i as usize].m);
-        }
-        if m.n < self.config.min_points as f64 {
-            return;
-        }
-        let (c, cov) = m.mean_cov();
-        let (_, mut n) = smallest_eigen(&cov);
-        // Points of the region's voxels and their neighbours near the plane: the edge
-        // voxels that were not planar enough to join still hold board points.
-        self.seg.clear();
-        for r in 0..self.region.len() {
-            let key = self.voxels[self.region[r] as usize].key;
-            for nk in neighbour_keys(key) {
-                let Some(&j) = self.map.get(&nk) else { continue };
-                if self.stamp[j as usize] == id {
-                    continue;
-                }
-                self.stamp[j as usize] = id;
-                let v = self.voxels[j as usize];
-                for &(_, p) in &self.keys[v.start as usize..v.end as usize] {
-                    let p = self.pts[p as usize];
-                    if n.dot(&(p - c)).abs() < self.config.plane_tolerance_m {
-                        self.seg.push(p);
-                    }
-                }
-            }
-        }
+        let mut n = n;
         let (mut c, mut rms) = (c, 0.0);
+        self.drop_short_lines();
         for _ in 0..2 {
             let Some((c2, n2, rms2)) = fit_plane(&self.seg) else { return };
             let keep = (3.0 * rms2).clamp(0.01, self.config.plane_tolerance_m);
@@ -447,6 +408,7 @@ impl HoleDetector {
             let elevation = p.z.atan2(p.x.hypot(p.y));
             self.lines.push((elevation, self.flat.len() as u32 - 1));
         }
+        let chords = self.find_gaps();
         if !self.extent_fits(&spec) {
             return;
         }
@@ -460,6 +422,12 @@ impl HoleDetector {
         };
         if self.flat.len() < self.config.min_points {
             self.refused.push(refuse(Refusal::TooFewPoints { points }));
+            return;
+        }
+        // Two holes crossed by two lines each leave at least four gaps: without them no
+        // pose can place the board, and the mask search is not run.
+        if chords < 4 {
+            self.refused.push(refuse(Refusal::NoHoleGaps { chords }));
             return;
         }
         let coarse = self.coarse();
@@ -477,6 +445,7 @@ impl HoleDetector {
         if crossed < 2 {
             let mut r = refuse(Refusal::HolesUnseen { holes_with_two_lines: 0 });
             r.hole_scan_lines = rough_lines;
+            r.best_guess = Some(self.pose(&rough, (c, ex, ey, n)));
             self.refused.push(r);
             return;
         }
@@ -508,7 +477,91 @@ impl HoleDetector {
         out.push(self.board(&fit, (c, ex, ey, n), plane_sigma, rms, lines));
     }
 
+    /// Drops from `seg` the scan lines that lie on the plane over less than half the
+    /// board's width: a pole or stand below the board, a corner grazed. Every line across
+    /// a board spans its width, so these would only stretch the outline.
+    #[inline(never)]
+    fn drop_short_lines(&mut self) {
+        self.lines.clear();
+        for (i, p) in self.seg.iter().enumerate() {
+            self.lines.push((p.z.atan2(p.x.hypot(p.y)), i as u32));
+        }
+        self.lines.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        self.keep.clear();
+        self.keep.resize(self.seg.len(), true);
+        let min_chord = 0.5 * self.spec.width;
+        let mut start = 0;
+        while start < self.lines.len() {
+            let end = line_end(&self.lines, start);
+            let line = &self.lines[start..end];
+            start = end;
+            let azimuth = |&(_, i): &(f64, u32)| {
+                let p = &self.seg[i as usize];
+                p.y.atan2(p.x)
+            };
+            let first = line.iter().min_by(|a, b| azimuth(a).total_cmp(&azimuth(b)));
+            let last = line.iter().max_by(|a, b| azimuth(a).total_cmp(&azimuth(b)));
+            let (Some(a), Some(b)) = (first, last) else { continue };
+            if (self.seg[a.1 as usize] - self.seg[b.1 as usize]).norm() < min_chord {
+                for &(_, i) in line {
+                    self.keep[i as usize] = false;
+                }
+            }
+        }
+        let mut k = 0;
+        let keep = &self.keep;
+        self.seg.retain(|_| {
+            k += 1;
+            keep[k - 1]
+        });
+    }
+
+    /// Gap points: where a scan line crossing the plane returned nothing between two of its
+    /// returns over about a hole's width, points at the line's own spacing (plane frame).
+    /// They tell the mask search where the holes are even when the lines are sparse.
+    /// Returns how many gaps could be a line crossing a hole by the (looser) measure of
+    /// [`HoleDetector::scan_lines_per_hole`].
+    #[inline(never)]
+    fn find_gaps(&mut self) -> usize {
+        let mut chords = 0;
+        self.gaps.clear();
+        let (lines, flat) = (&mut self.lines, &self.flat);
+        lines.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        let max_chord = 2.0 * self.spec.hole_radius + 0.04;
+        let loose_chord = 2.0 * (self.spec.hole_radius + HOLE_BAND) + 0.01;
+        let mut start = 0;
+        while start < lines.len() {
+            let end = line_end(lines, start);
+            let line = &mut lines[start..end];
+            start = end;
+            if line.len() < 4 {
+                continue;
+            }
+            line.sort_unstable_by(|a, b| flat[a.1 as usize][0].total_cmp(&flat[b.1 as usize][0]));
+            let (first, last) = (flat[line[0].1 as usize], flat[line[line.len() - 1].1 as usize]);
+            let spacing = (last[0] - first[0]) / (line.len() - 1) as f64;
+            for w in line.windows(2) {
+                let (a, b) = (flat[w[0].1 as usize], flat[w[1].1 as usize]);
+                let d = (b[0] - a[0]).hypot(b[1] - a[1]);
+                // The line's spacing along the board's x is at most 1.3× shorter (40° yaw).
+                if d > 1.1 * spacing && d < loose_chord {
+                    chords += 1;
+                }
+                if d <= 2.0 * spacing || d >= max_chord {
+                    continue;
+                }
+                let k = (d / spacing) as usize - 1;
+                for j in 1..=k {
+                    let f = j as f64 / (k + 1) as f64;
+                    self.gaps.push([a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1])]);
+                }
+            }
+        }
+        chords
+    }
+
     /// Whether the points' smallest bounding rectangle fits the board outline.
+    #[inline(never)]
     fn extent_fits(&self, spec: &BoardSpec) -> bool {
         let tol = self.config.size_tolerance_m;
         let mut best = (f64::MAX, 0.0, 0.0, 0);
@@ -537,6 +590,7 @@ impl HoleDetector {
     /// Coarse mask search over (x, y, yaw) on a subsample: 2 cm and 4° steps.
     /// Yaws ±40° about the "y down" convention (and the same turned by 180° for an
     /// asymmetric hole pattern) are tried.
+    #[inline(never)]
     fn coarse(&mut self) -> [f64; 3] {
         let stride = (self.flat.len() / 200).max(1);
         let (hw, hh) = (self.spec.width / 2.0, self.spec.height / 2.0);
@@ -552,6 +606,10 @@ impl HoleDetector {
                 lo = [lo[0].min(u), lo[1].min(v)];
                 hi = [hi[0].max(u), hi[1].max(v)];
                 self.sample.push([u, v]);
+            }
+            self.gap_sample.clear();
+            for p in self.gaps.iter().step_by(stride) {
+                self.gap_sample.push([c * p[0] + s * p[1], -s * p[0] + c * p[1]]);
             }
             // Board centres for which the board covers the points.
             let range = |lo: f64, hi: f64, half: f64| {
@@ -572,7 +630,8 @@ impl HoleDetector {
             while u <= ur.1 {
                 let mut v = vr.0;
                 while v <= vr.1 {
-                    let score = self.coarse_mask.score_shifted(&self.sample, u, v);
+                    let score =
+                        self.coarse_mask.score_shifted(&self.sample, &self.gap_sample, u, v);
                     if score > best.0 {
                         // The centre back in the plane frame.
                         best = (score, [c * u - s * v, s * u + c * v, yaw]);
@@ -586,47 +645,68 @@ impl HoleDetector {
     }
 
     /// Medium and fine grids around the coarse pose. Only points near an edge of the
-    /// model can change their mask value within the windows; the rest add a constant.
+    /// model can change their mask value within a window; the rest add a constant, so
+    /// each grid scores only the points within its window's reach of an edge.
+    #[inline(never)]
     fn refine(&mut self, coarse: [f64; 3]) -> Fit {
-        let (hw, hh, r) = (self.spec.width / 2.0, self.spec.height / 2.0, self.spec.hole_radius);
-        let near = 0.07;
-        self.sample.clear();
-        for p in &self.flat {
-            let (x, y) = to_board(coarse, p);
-            let outline = (x.abs() - hw).abs() < near || (y.abs() - hh).abs() < near;
-            let hole =
-                self.spec.holes.iter().any(|h| ((x - h[0]).hypot(y - h[1]) - r).abs() < near);
-            if outline || hole {
-                self.sample.push(*p);
-            }
+        let medium_step = [0.005, 0.005, 0.5f64.to_radians()];
+        self.near_edges(coarse, 0.07);
+        // The medium grid only finds the plateau (5 mm, 0.5° cells): a subsample will do.
+        let stride = (self.sample.len() + self.gap_sample.len()) / MEDIUM_POINTS + 1;
+        if stride > 1 {
+            keep_every(&mut self.sample, stride);
+            keep_every(&mut self.gap_sample, stride);
         }
-        let mut medium = self.grid(coarse, [0.005, 0.005, 0.5f64.to_radians()], 4);
+        let mut medium = self.grid(coarse, medium_step, 4);
         for _ in 0..2 {
             if !medium.at_window_edge {
                 break;
             }
-            medium = self.grid(medium.pose, [0.005, 0.005, 0.5f64.to_radians()], 4);
+            medium = self.grid(medium.pose, medium_step, 4);
         }
+        // The fine window reaches 9 mm and 0.36° (5 mm at the board's corners).
+        self.near_edges(medium.pose, 0.02);
         let fine = self.grid(medium.pose, [0.0015, 0.0015, 0.06f64.to_radians()], 6);
         // A plateau wider than the fine window: a wide window at a coarser step.
         if fine.at_window_edge {
+            self.near_edges(fine.pose, 0.07);
             return self.grid(fine.pose, [0.004, 0.004, 0.15f64.to_radians()], 8);
         }
         fine
     }
 
+    /// Returns and gap points within `near` of the model's outline or a hole's edge at
+    /// `pose`, into `sample` and `gap_sample`.
+    fn near_edges(&mut self, pose: [f64; 3], near: f64) {
+        let (hw, hh, r) = (self.spec.width / 2.0, self.spec.height / 2.0, self.spec.hole_radius);
+        let spec = &self.spec;
+        let close = |p: &[f64; 2]| {
+            let (x, y) = to_board(pose, p);
+            let outline = (x.abs() - hw).abs() < near || (y.abs() - hh).abs() < near;
+            outline || spec.holes.iter().any(|h| ((x - h[0]).hypot(y - h[1]) - r).abs() < near)
+        };
+        self.sample.clear();
+        self.sample.extend(self.flat.iter().filter(|p| close(p)));
+        self.gap_sample.clear();
+        self.gap_sample.extend(self.gaps.iter().filter(|p| close(p)));
+    }
+
     /// Scores the (2k+1)³ grid around `centre`; returns the plateau centroid and spread.
-    fn grid(&self, centre: [f64; 3], step: [f64; 3], k: i32) -> Fit {
+    #[inline(never)]
+    fn grid(&mut self, centre: [f64; 3], step: [f64; 3], k: i32) -> Fit {
         let span = (2 * k + 1) as usize;
         let mut scores = [0i64; 17 * 17 * 17];
         let mut max = i64::MIN;
-        for a in 0..span {
-            for b in 0..span {
-                for g in 0..span {
-                    let off = |i: usize, s: f64| (i as i32 - k) as f64 * s;
+        let off = |i: usize, s: f64| (i as i32 - k) as f64 * s;
+        for g in 0..span {
+            // Per yaw the points are turned once; each centre is then a plain shift.
+            let yaw = centre[2] + off(g, step[2]);
+            self.mask.turn(&self.sample, yaw, &mut self.turned);
+            self.mask.turn(&self.gap_sample, yaw, &mut self.turned_gaps);
+            for a in 0..span {
+                for b in 0..span {
                     let t = [centre[0] + off(a, step[0]), centre[1] + off(b, step[1])];
-                    let yaw = centre[2] + off(g, step[2]);
-                    let sc = self.mask.score(&self.sample, t, yaw);
+                    let sc = self.mask.score_turned(&self.turned, &self.turned_gaps, t, yaw);
                     scores[(a * span + b) * span + g] = sc;
                     max = max.max(sc);
                 }
@@ -687,6 +767,7 @@ impl HoleDetector {
     }
 
     /// Points clearly inside a hole at the fitted pose.
+    #[inline(never)]
     fn points_in_holes(&self, fit: &Fit, margin: f64) -> usize {
         let r = (self.spec.hole_radius - margin).max(0.3 * self.spec.hole_radius);
         self.flat
@@ -700,6 +781,7 @@ impl HoleDetector {
 
     /// Scan lines (clusters of elevation angle) that leave and re-enter the board across
     /// each hole.
+    #[inline(never)]
     fn scan_lines_per_hole(&mut self, fit: &Fit, slack: f64) -> heapless::Vec<u16, MAX_HOLES> {
         let mut counts: heapless::Vec<u16, MAX_HOLES> = heapless::Vec::new();
         for _ in 0..self.spec.holes.len() {
@@ -708,7 +790,7 @@ impl HoleDetector {
         self.lines.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         let gap = 0.06f64.to_radians();
         let r = self.spec.hole_radius;
-        let band = 0.06;
+        let band = HOLE_BAND;
         let mut start = 0;
         while start < self.lines.len() {
             let mut end = start + 1;
@@ -815,11 +897,15 @@ struct Fit {
     at_window_edge: bool,
 }
 
-/// The board model rasterised (2 mm for the fine search, 1 cm for the coarse): +1 on solid board, −3 in a hole, −1 outside.
+/// The board model rasterised (2 mm for the fine search, 1 cm for the coarse). For a
+/// return: +1 on solid board, −3 in a hole, −1 outside. For a gap point (where a scan
+/// line crossing the plane returned nothing): +1 in a hole, −3 on solid board (it would
+/// have returned), −1 outside.
 #[derive(Clone, Debug)]
 struct Mask {
     step: f64,
     cells: Vec<i8>,
+    gap_cells: Vec<i8>,
     cols: usize,
     rows: usize,
     origin: [f64; 2],
@@ -828,6 +914,7 @@ struct Mask {
 const MASK_MARGIN: f64 = 0.15;
 const HOLE_PENALTY: i8 = -3;
 const OUTSIDE_PENALTY: i8 = -1;
+const GAP_ON_SOLID: i8 = -3;
 
 impl Mask {
     fn new(spec: &BoardSpec, step: f64) -> Self {
@@ -835,6 +922,7 @@ impl Mask {
         let cols = ((spec.width + 2.0 * MASK_MARGIN) / step).ceil() as usize;
         let rows = ((spec.height + 2.0 * MASK_MARGIN) / step).ceil() as usize;
         let mut cells = vec![OUTSIDE_PENALTY; cols * rows];
+        let mut gap_cells = vec![OUTSIDE_PENALTY; cols * rows];
         let r2 = spec.hole_radius * spec.hole_radius;
         for row in 0..rows {
             for col in 0..cols {
@@ -842,46 +930,61 @@ impl Mask {
                 let y = origin[1] + (row as f64 + 0.5) * step;
                 let inside = x.abs() <= spec.width / 2.0 && y.abs() <= spec.height / 2.0;
                 let hole = spec.holes.iter().any(|h| (x - h[0]).powi(2) + (y - h[1]).powi(2) < r2);
-                cells[row * cols + col] = match (inside, hole) {
-                    (true, false) => 1,
-                    (true, true) => HOLE_PENALTY,
-                    _ => OUTSIDE_PENALTY,
+                (cells[row * cols + col], gap_cells[row * cols + col]) = match (inside, hole) {
+                    (true, false) => (1, GAP_ON_SOLID),
+                    (true, true) => (HOLE_PENALTY, 1),
+                    _ => (OUTSIDE_PENALTY, OUTSIDE_PENALTY),
                 };
             }
         }
-        Mask { step, cells, cols, rows, origin }
+        Mask { step, cells, gap_cells, cols, rows, origin }
     }
 
-    /// Sum of mask values under board-aligned points for board centre (u, v).
-    fn score_shifted(&self, points: &[[f64; 2]], u: f64, v: f64) -> i64 {
+    /// Score of board-aligned returns and gap points for board centre (u, v).
+    fn score_shifted(&self, points: &[[f64; 2]], gaps: &[[f64; 2]], u: f64, v: f64) -> i64 {
         let inv = 1.0 / self.step;
         let (ox, oy) = ((self.origin[0] + u) * inv, (self.origin[1] + v) * inv);
-        points.iter().map(|p| self.at(p[0] * inv - ox, p[1] * inv - oy)).sum()
+        let sum = |cells: &[i8], pts: &[[f64; 2]]| -> i64 {
+            pts.iter().map(|p| self.at(cells, p[0] * inv - ox, p[1] * inv - oy)).sum()
+        };
+        sum(&self.cells, points) + sum(&self.gap_cells, gaps)
     }
 
     /// The cell value at fractional cell coordinates (col, row); outside beyond the grid.
-    fn at(&self, col: f64, row: f64) -> i64 {
+    fn at(&self, cells: &[i8], col: f64, row: f64) -> i64 {
         if col >= 0.0 && row >= 0.0 && (col as usize) < self.cols && (row as usize) < self.rows {
-            self.cells[row as usize * self.cols + col as usize] as i64
+            cells[row as usize * self.cols + col as usize] as i64
         } else {
             OUTSIDE_PENALTY as i64
         }
     }
 
-    /// Sum of mask values under the points for board centre `t` and `yaw` (plane frame).
-    fn score(&self, points: &[[f64; 2]], t: [f64; 2], yaw: f64) -> i64 {
+    /// Plane-frame points turned by −`yaw` and scaled to cells, into `out`.
+    fn turn(&self, points: &[[f64; 2]], yaw: f64, out: &mut Vec<[f64; 2]>) {
         let (s, c) = yaw.sin_cos();
         let inv = 1.0 / self.step;
-        let mut total = 0i64;
-        for p in points {
-            let (dx, dy) = (p[0] - t[0], p[1] - t[1]);
-            let x = c * dx + s * dy;
-            let y = -s * dx + c * dy;
-            total += self.at((x - self.origin[0]) * inv, (y - self.origin[1]) * inv);
-        }
-        total
+        out.clear();
+        out.extend(
+            points.iter().map(|p| [(c * p[0] + s * p[1]) * inv, (c * p[1] - s * p[0]) * inv]),
+        );
+    }
+
+    /// Score of returns and gap points turned by [`Mask::turn`] for board centre `t`
+    /// (plane frame) and the same `yaw`.
+    fn score_turned(&self, points: &[[f64; 2]], gaps: &[[f64; 2]], t: [f64; 2], yaw: f64) -> i64 {
+        let (s, c) = yaw.sin_cos();
+        let inv = 1.0 / self.step;
+        let ox = (c * t[0] + s * t[1]) * inv + self.origin[0] * inv;
+        let oy = (c * t[1] - s * t[0]) * inv + self.origin[1] * inv;
+        let sum = |cells: &[i8], pts: &[[f64; 2]]| -> i64 {
+            pts.iter().map(|p| self.at(cells, p[0] - ox, p[1] - oy)).sum()
+        };
+        sum(&self.cells, points) + sum(&self.gap_cells, gaps)
     }
 }
+
+/// How far outside a hole's edge a scan line's last return before the hole may lie (m).
+const HOLE_BAND: f64 = 0.06;
 
 /// Translation step of the coarse search (m).
 const COARSE_STEP: f64 = 0.02;
@@ -889,6 +992,29 @@ const COARSE_STEP: f64 = 0.02;
 /// How far a scan line's gap may miss a hole and still count as crossing it (m): the
 /// pose's own error on a grazing line.
 const SLACK: f64 = 0.01;
+
+/// Most points the medium grid scores.
+const MEDIUM_POINTS: usize = 600;
+
+/// Keeps every `stride`-th element of `v`, in order.
+fn keep_every<T: Copy>(v: &mut Vec<T>, stride: usize) {
+    let mut i = 0;
+    v.retain(|_| {
+        i += 1;
+        (i - 1) % stride == 0
+    });
+}
+
+/// End of the scan line (run of elevations closer than 0.06° to the previous) that starts
+/// at `start` in `lines` sorted by elevation.
+fn line_end(lines: &[(f64, u32)], start: usize) -> usize {
+    let gap = 0.06f64.to_radians();
+    let mut end = start + 1;
+    while end < lines.len() && lines[end].0 - lines[end - 1].0 < gap {
+        end += 1;
+    }
+    end
+}
 
 /// Board-frame coordinates of plane-frame point `p` for pose (x, y, yaw).
 fn to_board(pose: [f64; 3], p: &[f64; 2]) -> (f64, f64) {

@@ -22,6 +22,9 @@ pub enum ClientError {
     Timeout { service: u8, timeout: Duration },
     #[error("service 0x{service:02X} refused: {}", describe_nrc(*nrc))]
     Negative { service: u8, nrc: u8 },
+    /// A negative response `roomcal query` can explain in the daemon's terms.
+    #[error("service 0x{service:02X} refused: {} ({hint})", describe_nrc(*nrc))]
+    Refused { service: u8, nrc: u8, hint: &'static str },
     #[error("ISO-TP: {0}")]
     IsoTp(String),
     #[error("unexpected response to service 0x{service:02X}: {bytes:02X?}")]
@@ -355,6 +358,35 @@ pub async fn query(opts: &QueryOptions, cmd: QueryCommand) -> Result<String, Cli
     let transport = Endpoint::parse(&opts.endpoint)?.connect().await?;
     let cfg = isotp::Config::new(opts.request_id, opts.response_id);
     let mut client = UdsClient::new(transport, cfg, opts.timing);
+    run_query(&mut client, cmd, secret.as_deref()).await.map_err(|e| explain(cmd, e))
+}
+
+/// What a refusal means for the daemon, for the few that have one meaning.
+fn explain(cmd: QueryCommand, e: ClientError) -> ClientError {
+    let ClientError::Negative { service, nrc } = e else {
+        return e;
+    };
+    let hint = match (cmd, nrc) {
+        (_, 0x21) => "a calibration started over UDS is still running",
+        (QueryCommand::Intrinsics | QueryCommand::Extrinsic | QueryCommand::Quality, 0x22) => {
+            "no calibration in force yet (or none of this kind)"
+        }
+        (QueryCommand::Start, 0x22) => "a calibration is already running",
+        (QueryCommand::Rollback, 0x22) => "no earlier calibration to roll back to, or a run is on",
+        (QueryCommand::Start | QueryCommand::Rollback, 0x35) => "the secret file does not match",
+        (QueryCommand::Start | QueryCommand::Rollback, 0x36 | 0x37) => {
+            "too many wrong keys: SecurityAccess is locked for a while"
+        }
+        _ => return e,
+    };
+    ClientError::Refused { service, nrc, hint }
+}
+
+async fn run_query<T: CanTransport>(
+    client: &mut UdsClient<T>,
+    cmd: QueryCommand,
+    secret: Option<&[u8]>,
+) -> Result<String, ClientError> {
     let text = match cmd {
         QueryCommand::Status => client.status().await?.to_string(),
         QueryCommand::Intrinsics => client.intrinsics().await?.to_string(),
@@ -362,7 +394,7 @@ pub async fn query(opts: &QueryOptions, cmd: QueryCommand) -> Result<String, Cli
         QueryCommand::Quality => client.quality().await?.to_string(),
         QueryCommand::Start | QueryCommand::Rollback => {
             client.session(Session::Extended).await?;
-            client.unlock(secret.as_deref().unwrap_or_default()).await?;
+            client.unlock(secret.unwrap_or_default()).await?;
             if cmd == QueryCommand::Start {
                 client.start_calibration().await?.to_string()
             } else {

@@ -13,6 +13,13 @@ use super::transport::{CanTransport, TransportError};
 use super::uds::{Backend, Response, SeedSource, Server, SEED_LEN};
 use super::Instant;
 
+/// Responses waiting for the ISO-TP transmitter. A well-behaved client waits for each
+/// response before its next request, so one is the norm; a client that floods requests
+/// while a segmented response waits for its flow control would otherwise grow the queue
+/// without bound. Responses beyond this are dropped (the client times out and retries,
+/// as after a lost frame).
+pub const MAX_QUEUED_RESPONSES: usize = 8;
+
 /// Seeds from the operating system's random source (`/dev/urandom`).
 pub struct OsRandom {
     file: File,
@@ -49,8 +56,8 @@ impl Clock {
 }
 
 /// Serves UDS requests arriving on `transport` until `shutdown` resolves or the
-/// transport fails. ISO-TP aborts (timeouts, wrong sequence numbers) are logged to
-/// stderr and the endpoint carries on.
+/// transport fails. ISO-TP aborts (timeouts, wrong sequence numbers) are logged (debug
+/// level, `tracing`) and the endpoint carries on.
 pub async fn serve<T, B, R>(
     transport: &mut T,
     server: &mut Server<B, R>,
@@ -69,7 +76,7 @@ where
     loop {
         let now = clock.now();
         if let Some(r) = server.poll(now) {
-            outbox.push_back(r);
+            queue(&mut outbox, r);
         }
         flush(transport, &mut tp, &mut outbox, &clock).await?;
         if let Some(ev) = tp.poll(clock.now()) {
@@ -87,7 +94,7 @@ where
                 match tp.on_frame(&frame, now) {
                     Some(Event::Received(_)) => {
                         if let Some(r) = server.handle(tp.received(), now) {
-                            outbox.push_back(r);
+                            queue(&mut outbox, r);
                         }
                     }
                     Some(ev) => report(ev),
@@ -97,6 +104,14 @@ where
             _ = sleep => {}
             _ = &mut shutdown => return Ok(()),
         }
+    }
+}
+
+fn queue(outbox: &mut VecDeque<Response>, r: Response) {
+    if outbox.len() < MAX_QUEUED_RESPONSES {
+        outbox.push_back(r);
+    } else {
+        tracing::warn!("roomcal service: {} responses queued, response dropped", outbox.len());
     }
 }
 
@@ -111,7 +126,7 @@ async fn flush<T: CanTransport, const N: usize>(
         if !tp.is_sending() {
             if let Some(r) = outbox.pop_front() {
                 if let Err(e) = tp.send(&r) {
-                    eprintln!("roomcal service: response dropped: {e}");
+                    tracing::warn!("roomcal service: response dropped: {e}");
                 }
             }
         }
@@ -127,8 +142,9 @@ async fn flush<T: CanTransport, const N: usize>(
 
 fn report(ev: Event) {
     match ev {
-        Event::RxAborted(e) => eprintln!("roomcal service: {e}"),
-        Event::TxAborted(e) => eprintln!("roomcal service: {e}"),
+        // Debug level: a noisy or hostile bus must not flood the journal.
+        Event::RxAborted(e) => tracing::debug!("roomcal service: {e}"),
+        Event::TxAborted(e) => tracing::debug!("roomcal service: {e}"),
         Event::Received(_) | Event::Sent => {}
     }
 }

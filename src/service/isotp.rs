@@ -317,12 +317,14 @@ pub struct Config {
 
 impl Config {
     /// Defaults: padding 0xCC, block size 0, STmin 0, all timeouts 1000 ms (ISO 15765-2
-    /// defaults), 10 WAIT frames at most.
+    /// defaults), 10 WAIT frames at most. The IDs are 29-bit when either does not fit 11
+    /// bits (set `extended` for 29-bit IDs below 0x800).
     pub const fn new(tx_id: u32, rx_id: u32) -> Self {
         Config {
             tx_id,
             rx_id,
-            extended: false,
+            // An 11-bit endpoint would never match frames with such an ID.
+            extended: tx_id > super::MAX_STANDARD_ID || rx_id > super::MAX_STANDARD_ID,
             padding: Some(DEFAULT_PADDING),
             block_size: 0,
             st_min: StMin(0),

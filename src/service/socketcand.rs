@@ -300,8 +300,15 @@ async fn accept_loop(
 ) {
     let mut clients = tokio::task::JoinSet::new();
     loop {
-        let Ok((stream, peer)) = listener.accept().await else {
-            continue;
+        let (stream, peer) = match listener.accept().await {
+            Ok(accepted) => accepted,
+            Err(e) => {
+                // Out of file descriptors and the like: accept fails at once until a
+                // connection closes, so pause instead of spinning on the error.
+                tracing::warn!("socketcand: accept: {e}");
+                tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+                continue;
+            }
         };
         let conn = Conn::new(stream, peer.to_string());
         clients.spawn(serve_client(conn, channel.clone(), to_bus.clone(), from_bus.clone()));

@@ -71,12 +71,15 @@ pub mod rid {
 pub const SUPPRESS_POSITIVE_RESPONSE: u8 = 0x80;
 /// SecurityAccess seed and key length.
 pub const SEED_LEN: usize = 16;
-/// Largest response the server builds.
-pub const MAX_RESPONSE: usize = 256;
 /// Most DIDs accepted in one ReadDataByIdentifier request.
 pub const MAX_DIDS_PER_REQUEST: usize = 8;
 /// Most distortion coefficients in an intrinsics record.
 pub const MAX_DISTORTION: usize = 8;
+/// Largest response the server builds: ReadDataByIdentifier of the most DIDs, each the
+/// largest record (intrinsics with every distortion coefficient). Anything a valid request
+/// asks for fits, so NRC 0x14 (responseTooLong, meant for responses the network layer
+/// cannot carry; ISO-TP carries 4095 bytes) is never answered to one.
+pub const MAX_RESPONSE: usize = 1 + MAX_DIDS_PER_REQUEST * (2 + 18 + 4 * MAX_DISTORTION);
 
 /// A response message.
 pub type Response = heapless::Vec<u8, MAX_RESPONSE>;

@@ -1,5 +1,10 @@
 //! Where the boards stand: spread over the image so that together they cover it,
 //! corners included, each tilted 15–35° in its own direction, 3–6 m from the camera.
+//!
+//! Two arrangements ([`Layout`]): a grid over the image, or a row held at the image row
+//! where the LiDAR's densest 8° of beams cross, with two more boards in the image's top
+//! corners — a room built for a LiDAR with a narrow dense band (a Pandar64's fine beams
+//! span 8°), where a board only gets its holes placed when several scan lines cross them.
 
 use crate::geometry::{se3::so3_exp, Camera, Mat3, Se3, Vec2, Vec3};
 use crate::target::BoardSpec;
@@ -16,24 +21,45 @@ const MARGIN_PX: f64 = 8.0;
 /// Attempts per board before the layout gives up.
 const ATTEMPTS: usize = 400;
 
+/// How the boards are arranged over the image.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Layout {
+    /// A grid of cells over the whole image, outer cells first.
+    #[default]
+    Grid,
+    /// Two boards in the image's top corners, the others in a row at the LiDAR's dense
+    /// band.
+    Band,
+}
+
 /// Board → camera poses for `count` boards, or an error when they do not fit.
+/// `band_row_px` is the image row of the LiDAR's dense band ([`Layout::Band`] only);
 /// `fits` says whether a board pose (board → camera) stays inside the room.
 pub fn lay_out(
     spec: &BoardSpec,
     camera: &Camera,
     count: usize,
+    band_row_px: Option<f64>,
     rng: &mut Rng,
     fits: &dyn Fn(&Se3) -> bool,
 ) -> Result<Vec<Se3>, SimError> {
-    let (cols, rows) = grid_for(count, camera.width as f64 / camera.height as f64);
-    let cells = pick_cells(cols, rows, count);
+    let (cols, rows, cells) = match band_row_px {
+        None => {
+            let (cols, rows) = grid_for(count, camera.width as f64 / camera.height as f64);
+            (cols, rows, pick_cells(cols, rows, count))
+        }
+        Some(_) => band_cells(count),
+    };
     let mut placed: Vec<(Se3, [f64; 4])> = Vec::new();
     for (i, &(cell_col, cell_row)) in cells.iter().enumerate() {
+        // The band row's boards aim at the band itself, not at their cell's centre.
+        let row_at = band_row_px.filter(|_| cell_row == 1);
         let pose = (0..ATTEMPTS)
             .find_map(|attempt| {
                 let shrink = attempt as f64 / ATTEMPTS as f64;
+                let grid = (cols, rows);
                 let candidate =
-                    propose(camera, (cols, rows), (cell_col, cell_row), i, shrink, rng)?;
+                    propose(camera, grid, (cell_col, cell_row), row_at, i, shrink, rng)?;
                 let bbox = image_box(spec, camera, &candidate)?;
                 let clear = placed.iter().all(|(_, other)| !boxes_overlap(&bbox, other));
                 (clear && fits(&candidate)).then_some((candidate, bbox))
@@ -49,6 +75,17 @@ fn grid_for(count: usize, aspect: f64) -> (usize, usize) {
     let cols = ((count as f64 * aspect).sqrt().round() as usize).clamp(1, count);
     let rows = count.div_ceil(cols);
     (cols, rows)
+}
+
+/// Cells of the band layout (columns × 3 rows, the middle row moved to the band): two
+/// boards in the top corners, all others in the band row. The band of a LiDAR mounted
+/// below the camera crosses the image below its centre, so no row fits under it.
+fn band_cells(count: usize) -> (usize, usize, Vec<(usize, usize)>) {
+    let in_band = count.saturating_sub(2).max(count.min(1));
+    let cols = in_band.max(2);
+    let mut cells: Vec<(usize, usize)> = (0..in_band).map(|c| (c, 1)).collect();
+    cells.extend([(0, 0), (cols - 1, 0)].iter().take(count - in_band));
+    (cols, 3, cells)
 }
 
 /// The cells to fill: all of them when the grid is full, otherwise the outer ones first
@@ -73,6 +110,7 @@ fn propose(
     camera: &Camera,
     (cols, rows): (usize, usize),
     (col, row): (usize, usize),
+    row_at_px: Option<f64>,
     index: usize,
     shrink: f64,
     rng: &mut Rng,
@@ -85,7 +123,12 @@ fn propose(
     let push = 0.22 * (1.0 - shrink);
     let aim = Vec2::new(
         cell.0 * (col as f64 + 0.5 + outward(col, cols) * push + rng.range(-0.05, 0.05)),
-        cell.1 * (row as f64 + 0.5 + outward(row, rows) * push + rng.range(-0.05, 0.05)),
+        match row_at_px {
+            Some(y) => y + cell.1 * rng.range(-0.03, 0.03),
+            None => {
+                cell.1 * (row as f64 + 0.5 + outward(row, rows) * push + rng.range(-0.05, 0.05))
+            }
+        },
     );
     let ray = camera.unproject(&aim)?;
     let near = DISTANCE.0 + (DISTANCE.1 - DISTANCE.0) * 0.6 * shrink;

@@ -25,6 +25,7 @@ use crate::result::{CameraResult, Extrinsic};
 use crate::target::{LidarModel, Room};
 
 pub use capture::{write_capture, CaptureFiles};
+pub use layout::Layout;
 pub use raycast::Firings;
 pub use render::ImageNoise;
 use rng::Rng;
@@ -53,6 +54,8 @@ pub struct SimOptions {
     pub lidar: Option<LidarModel>,
     pub range_noise_m: f64,
     pub image: ImageNoise,
+    /// How the boards are arranged ([`Layout::Band`] needs a LiDAR).
+    pub layout: Layout,
 }
 
 impl Default for SimOptions {
@@ -66,6 +69,7 @@ impl Default for SimOptions {
             lidar: None,
             range_noise_m: DEFAULT_RANGE_NOISE_M,
             image: ImageNoise::default(),
+            layout: Layout::Grid,
         }
     }
 }
@@ -89,6 +93,8 @@ pub enum SimError {
     Encode { model: crate::lidar::Model, message: String },
     #[error("the scene has no LiDAR sweep to write as a capture (the room has no [lidar])")]
     NoSweep,
+    #[error("the band layout aims boards at the LiDAR's dense band, but the room has no [lidar]")]
+    BandWithoutLidar,
 }
 
 /// The ground truth of one scene (`truth.json`).
@@ -157,8 +163,19 @@ pub fn simulate(room: &Room, options: &SimOptions) -> Result<Scene, SimError> {
     let lidar_to_camera = true_extrinsic(&room, &mut rng.fork(1));
     let camera_in_lidar = lidar_to_camera.inverse();
     let count = options.boards.unwrap_or(room.board.count as usize);
+    // The room written beside the scene is the room as simulated: its board count too.
+    room.board.count = count as u32;
     let fits = |board_to_camera: &Se3| fits_in_room(&room, &camera_in_lidar, board_to_camera);
-    let poses = layout::lay_out(&room.board, &camera, count, &mut rng.fork(2), &fits)?;
+    let band_row = match (options.layout, &room.lidar) {
+        (Layout::Grid, _) => None,
+        (Layout::Band, None) => return Err(SimError::BandWithoutLidar),
+        (Layout::Band, Some(lidar)) => {
+            let elevations =
+                raycast::beam_elevations(lidar.model).ok_or(SimError::NoBeamTable(lidar.model))?;
+            Some(band_row_px(&camera, &lidar_to_camera, elevations))
+        }
+    };
+    let poses = layout::lay_out(&room.board, &camera, count, band_row, &mut rng.fork(2), &fits)?;
     let in_lidar: Vec<Se3> = poses.iter().map(|p| camera_in_lidar.compose(p)).collect();
     let world = World::new(&room.board, in_lidar.clone(), &mut rng.fork(3));
     let image = render::render(&world, &camera, &camera_in_lidar, &options.image, &mut rng.fork(4));
@@ -198,6 +215,24 @@ pub fn simulate(room: &Room, options: &SimOptions) -> Result<Scene, SimError> {
         boards,
     };
     Ok(Scene { room, image, cloud, firings, truth })
+}
+
+/// Width of the densest band of beams the band layout aims at (degrees).
+const DENSE_BAND_DEG: f64 = 8.0;
+
+/// The image row where the LiDAR's densest `DENSE_BAND_DEG` of beams cross straight ahead,
+/// 4.5 m out (the middle of the boards' distances).
+fn band_row_px(camera: &Camera, lidar_to_camera: &Se3, elevations: &[f64]) -> f64 {
+    let in_band =
+        |low: f64| elevations.iter().filter(|&&e| e >= low && e <= low + DENSE_BAND_DEG).count();
+    let lowest = elevations.iter().copied().fold(f64::MAX, f64::min);
+    let low =
+        (0..400).map(|k| lowest + k as f64 * 0.1).max_by_key(|&low| in_band(low)).unwrap_or(lowest);
+    let centre = (low + DENSE_BAND_DEG / 2.0).to_radians();
+    let ahead = Vec3::new(centre.cos(), 0.0, centre.sin()) * 4.5;
+    camera
+        .project(&lidar_to_camera.act(&ahead))
+        .map_or(camera.height as f64 / 2.0, |px| px.y.clamp(0.0, camera.height as f64))
 }
 
 /// Writes `image.png`, `cloud.pcd` (binary), `truth.json` and the `room.toml` it came from.

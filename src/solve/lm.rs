@@ -129,11 +129,10 @@ impl<const B: usize> NormalEquations<B> {
             cost: 0.0,
             residuals: 0,
         };
-        let loss = problem.loss;
         problem.for_each_residual(params, |res| {
-            let (rho, weight) = loss.eval(res.r.norm_squared());
+            let (rho, weight) = problem.loss_for(res.kind).eval(res.r.norm_squared());
             ne.cost += 0.5 * rho;
-            ne.residuals += 2;
+            ne.residuals += res.rows;
             let b = res.board;
             ne.u[b].gemm_tr(weight, &res.j_board, &res.j_board, 1.0);
             ne.g_board[b].gemv_tr(weight, &res.j_board, &res.r, 1.0);

@@ -33,7 +33,7 @@
 //!     let mut problem: JointProblem<'_, 16> = JointProblem::new(0.3, 3.0, Loss::Huber(3.0));
 //!     for (c, h) in corners.iter().zip(holes_lidar) {
 //!         let obs =
-//!             BoardObservation { object, corners: c, holes_board, holes_lidar: h, hole_sigma_px: None };
+//!             BoardObservation { object, corners: c, holes_board, holes_lidar: h, hole_sigma_px: None, plane: None };
 //!         problem.add_board(obs)?;
 //!     }
 //!     let seed = IntrinsicsSeed::Zhang { width: nominal.width, height: nominal.height };
@@ -71,7 +71,9 @@ pub use init::{
     zhang_intrinsics, InitReport, IntrinsicsSeed, ZhangIntrinsics,
 };
 pub use lm::{solve, LmOptions, SolveReport, Termination};
-pub use problem::{hole_sigma_px, BoardObservation, JointParams, JointProblem, Loss, ParamMask};
+pub use problem::{
+    hole_sigma_px, BoardObservation, JointParams, JointProblem, Loss, ParamMask, PlanePoints,
+};
 
 /// Intrinsic parameters the solver handles: fx fy cx cy + up to 5 distortion terms.
 pub const INTRINSICS: usize = 9;

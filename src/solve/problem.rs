@@ -4,10 +4,16 @@
 //! with their analytic Jacobians, streamed one at a time so memory does not grow with
 //! the number of corners.
 //!
-//! Residual blocks (2-vectors, divided by their pixel σ):
+//! Residual blocks (2-vectors, divided by their σ):
 //! - corner: `project(T_BC · X) − x_measured` — intrinsics and board `b`;
 //! - hole (the paper's term): `project(T_LC · P_lidar) − project(T_BC · H_board)` —
-//!   intrinsics, extrinsic and board `b`.
+//!   intrinsics, extrinsic and board `b`;
+//! - plane (optional, [`PlanePoints`]): the LiDAR's board points carried into the board
+//!   frame should lie on its plane `z = 0`. The sum of their squared distances is a
+//!   quadratic form in the plane, so it is streamed as two 2-row blocks built from the
+//!   points' centroid and scatter — exactly the per-point normal equations, in fixed
+//!   size — for the extrinsic and board `b`. It ties the board's depth and tilt, which
+//!   the image measures only through the focal length, to the LiDAR's ranges.
 //!
 //! Jacobians use the module's parameterisation (see [`crate::solve`]): additive
 //! intrinsics, left-perturbed rigid motions.
@@ -15,8 +21,10 @@
 use nalgebra::SMatrix;
 
 use super::init::point_jacobian;
+use super::linalg::Cholesky;
 use super::{Projector, SolveError, EXT_ROTATION, INTRINSICS, SHARED};
-use crate::geometry::{Se3, Vec2, Vec3};
+use crate::geometry::se3::skew;
+use crate::geometry::{Mat3, Se3, Vec2, Vec3};
 
 /// What one board observation (one board in one frame) measured. Slices are the
 /// caller's: corners pair with `object`, LiDAR hole centres with `holes_board`.
@@ -34,6 +42,62 @@ pub struct BoardObservation<'a> {
     /// hole-centre error of `σ_m` at depth `z` shows as about `fx · σ_m / z` pixels, so
     /// far boards deserve a smaller σ ([`hole_sigma_px`] computes it).
     pub hole_sigma_px: Option<f64>,
+    /// The LiDAR's points on this board, for the point-to-plane term (LiDAR frame).
+    pub plane: Option<PlanePoints>,
+}
+
+/// The LiDAR points of one board summarised for the point-to-plane term: with
+/// `a = R_LCᵀ n` (the board normal in the LiDAR frame) and `b` the plane's offset at the
+/// centroid `c`, `Σ (aᵀ(p − c) + b)² = |Lᵀ a|² + count · b²` where `L Lᵀ` is the
+/// points' scatter about `c`. Fixed size whatever the number of points.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlanePoints {
+    /// Centroid of the points (LiDAR frame, m).
+    pub centroid: Vec3,
+    /// `Lᵀ`, the transposed Cholesky factor of the scatter `Σ (p − c)(p − c)ᵀ` (m).
+    pub spread: Mat3,
+    /// Points summarised.
+    pub count: usize,
+    /// Point-to-plane σ of one point (m).
+    pub sigma_m: f64,
+}
+
+impl PlanePoints {
+    /// Fewest points worth a plane term.
+    pub const MIN_POINTS: usize = 10;
+
+    /// Summarises `points` (LiDAR frame, m) with a per-point σ; `None` for fewer than
+    /// [`Self::MIN_POINTS`] points, a σ that is not positive, or non-finite points.
+    pub fn from_points<I: IntoIterator<Item = Vec3>>(points: I, sigma_m: f64) -> Option<Self> {
+        // Moments about the first point, then shifted to the centroid: no cancellation
+        // for points far from the sensor.
+        let mut iter = points.into_iter();
+        let origin = iter.next()?;
+        let (mut sum, mut outer, mut count) = (Vec3::zeros(), Mat3::zeros(), 1usize);
+        for p in iter {
+            let d = p - origin;
+            sum += d;
+            outer += d * d.transpose();
+            count += 1;
+        }
+        let n = count as f64;
+        let scatter = outer - sum * sum.transpose() / n;
+        let positive = sigma_m.is_finite() && sigma_m > 0.0;
+        if count < Self::MIN_POINTS || !positive || !scatter.iter().all(|v| v.is_finite()) {
+            return None;
+        }
+        // A ridge far below any real spread keeps points on one scan line factorable.
+        let ridge = 1e-12 * (scatter.trace() + 1e-12);
+        let l = Cholesky::new(&(scatter + Mat3::identity() * ridge)).ok()?;
+        Some(PlanePoints { centroid: origin + sum / n, spread: l.l().transpose(), count, sigma_m })
+    }
+
+    /// The unwhitened residual 4-vector (m·√points) for a board whose normal in the
+    /// LiDAR frame is `a` and whose plane passes `offset` from the centroid along it.
+    fn residual(&self, a: &Vec3, offset: f64) -> nalgebra::Vector4<f64> {
+        let top = self.spread * a;
+        nalgebra::Vector4::new(top.x, top.y, top.z, libm::sqrt(self.count as f64) * offset)
+    }
 }
 
 /// The pixel σ of a LiDAR hole centre known to `lidar_sigma_m` at `depth_m` in front of
@@ -151,6 +215,9 @@ pub enum ResidualKind {
     Corner(usize),
     /// Hole `index` of the board.
     Hole(usize),
+    /// Rows `2·index, 2·index + 1` of the board's point-to-plane block (metres, not
+    /// pixels; never robustified: it already sums every point).
+    Plane(usize),
 }
 
 /// One whitened residual block and its Jacobians (shared parameters; its board's pose).
@@ -164,6 +231,8 @@ pub struct Residual {
     pub j_shared: SMatrix<f64, 2, SHARED>,
     /// `∂r/∂(board pose)` (2×6, `[δω δt]`).
     pub j_board: SMatrix<f64, 2, 6>,
+    /// Scalar measurements the block stands for (2, or the points of a plane half).
+    pub rows: usize,
 }
 
 /// Boards (by reference), measurement noise and loss: everything the solver reads.
@@ -213,9 +282,12 @@ impl<'a, const B: usize> JointProblem<'a, B> {
         self.boards.iter().any(|b| !b.holes_lidar.is_empty())
     }
 
-    /// Number of scalar residuals (2 per corner and per hole).
+    /// Number of scalar measurements (2 per corner and per hole, 1 per plane point).
     pub fn residual_count(&self) -> usize {
-        self.boards.iter().map(|b| 2 * (b.corners.len() + b.holes_lidar.len())).sum()
+        let per_board = |b: &BoardObservation<'_>| {
+            2 * (b.corners.len() + b.holes_lidar.len()) + b.plane.map_or(0, |p| p.count)
+        };
+        self.boards.iter().map(per_board).sum()
     }
 
     /// Checks the settings (positive finite σ and loss scale) and that `params` has one
@@ -269,6 +341,7 @@ impl<'a, const B: usize> JointProblem<'a, B> {
                     r: (u - meas) * ws,
                     j_shared,
                     j_board: jp * point_jacobian(&rx) * ws,
+                    rows: 2,
                 });
             }
             for (i, (h, p)) in obs.holes_board.iter().zip(obs.holes_lidar).enumerate() {
@@ -289,7 +362,11 @@ impl<'a, const B: usize> JointProblem<'a, B> {
                     r: (u1 - u2) * wh,
                     j_shared,
                     j_board: -(jp * point_jacobian(&rh)) * wh,
+                    rows: 2,
                 });
+            }
+            if let Some(plane) = &obs.plane {
+                plane_blocks(b, plane, pose, ext, &mut f);
             }
         }
         Ok(())
@@ -315,22 +392,41 @@ impl<'a, const B: usize> JointProblem<'a, B> {
                 let u2 = cam.project(&(pose.rotation * h + pose.translation)).ok_or(fail)?;
                 f(b, ResidualKind::Hole(i), u1 - u2);
             }
+            if let Some(plane) = &obs.plane {
+                let (a, offset, _) = plane_geometry(plane, pose, ext);
+                let r = plane.residual(&a, offset);
+                f(b, ResidualKind::Plane(0), Vec2::new(r[0], r[1]));
+                f(b, ResidualKind::Plane(1), Vec2::new(r[2], r[3]));
+            }
         }
         Ok(())
     }
 
+    /// The loss applied to a block of this kind: the problem's, except for the plane
+    /// term, which sums many points already and stays plain least squares.
+    pub fn loss_for(&self, kind: ResidualKind) -> Loss {
+        match kind {
+            ResidualKind::Plane(_) => Loss::Squared,
+            _ => self.loss,
+        }
+    }
+
+    /// The σ dividing a block of board `b` of this kind (px, or m for the plane term).
+    fn sigma_for(&self, b: usize, kind: ResidualKind) -> f64 {
+        let obs = &self.boards[b];
+        match kind {
+            ResidualKind::Corner(_) => self.corner_sigma_px,
+            ResidualKind::Hole(_) => obs.hole_sigma_px.unwrap_or(self.hole_sigma_px),
+            ResidualKind::Plane(_) => obs.plane.map_or(1.0, |p| p.sigma_m),
+        }
+    }
+
     /// Robust cost `½ Σ ρ(|r/σ|²)`.
     pub fn cost<C: Projector>(&self, params: &JointParams<C, B>) -> Result<f64, SolveError> {
-        let ws = 1.0 / self.corner_sigma_px;
         let mut cost = 0.0;
         self.for_each_error(params, |b, kind, e| {
-            let w = match kind {
-                ResidualKind::Corner(_) => ws,
-                ResidualKind::Hole(_) => {
-                    1.0 / self.boards[b].hole_sigma_px.unwrap_or(self.hole_sigma_px)
-                }
-            };
-            cost += 0.5 * self.loss.eval((e * w).norm_squared()).0;
+            let whitened = e / self.sigma_for(b, kind);
+            cost += 0.5 * self.loss_for(kind).eval(whitened.norm_squared()).0;
         })?;
         if cost.is_finite() {
             Ok(cost)
@@ -355,6 +451,7 @@ impl<'a, const B: usize> JointProblem<'a, B> {
                 sh += e.norm_squared();
                 nh += 1;
             }
+            ResidualKind::Plane(_) => {}
         })?;
         let rms = |s: f64, n: usize| if n == 0 { 0.0 } else { libm::sqrt(s / n as f64) };
         Ok((rms(sc, nc), rms(sh, nh)))
@@ -368,5 +465,60 @@ impl<'a, const B: usize> JointProblem<'a, B> {
             m = m.fix_extrinsic();
         }
         m
+    }
+}
+
+/// The plane term's geometry at an estimate: the board normal in the LiDAR frame
+/// `a = R_LCᵀ n`, the plane's offset at the points' centroid, and the centroid carried
+/// into the camera frame minus the board origin (`m`, for the Jacobians).
+fn plane_geometry(plane: &PlanePoints, pose: &Se3, ext: &Se3) -> (Vec3, f64, Vec3) {
+    let n = pose.rotation.column(2).into_owned();
+    let m = ext.rotation * plane.centroid + ext.translation - pose.translation;
+    (ext.rotation.transpose() * n, n.dot(&m), m)
+}
+
+/// Streams the two whitened 2-row blocks of a board's point-to-plane term.
+///
+/// With `w = [a; b]` (normal in the LiDAR frame, offset at the centroid) the residual is
+/// `G w / σ`, `G = diag(Lᵀ, √count)`, and under the left perturbations
+/// - board `δω`: `δa = −R_LCᵀ [n]× δω`, `δb = (n × m)ᵀ δω`;  board `δt`: `δb = −nᵀ δt`;
+/// - extrinsic `δω`: `δa = R_LCᵀ [n]× δω`, `δb = (R_LC c × n)ᵀ δω`;  extrinsic `δt`: `δb = nᵀ δt`.
+fn plane_blocks(
+    board: usize,
+    plane: &PlanePoints,
+    pose: &Se3,
+    ext: &Se3,
+    f: &mut impl FnMut(&Residual),
+) {
+    let (a, offset, m) = plane_geometry(plane, pose, ext);
+    let n = pose.rotation.column(2).into_owned();
+    let w = 1.0 / plane.sigma_m;
+    let r = plane.residual(&a, offset) * w;
+    let rt_nx = ext.rotation.transpose() * skew(&n);
+    // ∂w/∂[board δω δt | extrinsic δω δt] (4×12).
+    let mut dw = SMatrix::<f64, 4, 12>::zeros();
+    dw.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-rt_nx));
+    dw.fixed_view_mut::<3, 3>(0, 6).copy_from(&rt_nx);
+    dw.fixed_view_mut::<1, 3>(3, 0).copy_from(&n.cross(&m).transpose());
+    dw.fixed_view_mut::<1, 3>(3, 3).copy_from(&(-n.transpose()));
+    dw.fixed_view_mut::<1, 3>(3, 6)
+        .copy_from(&(ext.rotation * plane.centroid).cross(&n).transpose());
+    dw.fixed_view_mut::<1, 3>(3, 9).copy_from(&n.transpose());
+    let mut g = SMatrix::<f64, 4, 4>::zeros();
+    g.fixed_view_mut::<3, 3>(0, 0).copy_from(&plane.spread);
+    g[(3, 3)] = libm::sqrt(plane.count as f64);
+    let j = g * dw * w;
+    let half = plane.count / 2;
+    for k in 0..2 {
+        let mut j_shared = SMatrix::<f64, 2, SHARED>::zeros();
+        j_shared.fixed_view_mut::<2, 6>(0, EXT_ROTATION).copy_from(&j.fixed_view::<2, 6>(2 * k, 6));
+        f(&Residual {
+            board,
+            kind: ResidualKind::Plane(k),
+            r: Vec2::new(r[2 * k], r[2 * k + 1]),
+            j_shared,
+            j_board: j.fixed_view::<2, 6>(2 * k, 0).into_owned(),
+            rows: if k == 0 { plane.count - half } else { half },
+        });
     }
 }

@@ -5,7 +5,7 @@
 
 use nalgebra::{Matrix3, SMatrix, Vector3};
 use roomcal::geometry::{Mat3, Se3, Vec2, Vec3};
-use roomcal::solve::{Projection, Projector, INTRINSICS};
+use roomcal::solve::{PlanePoints, Projection, Projector, INTRINSICS};
 
 /// Pinhole with OpenCV's k1 k2 p1 p2 k3, analytic Jacobians.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -190,7 +190,13 @@ pub struct Scene<C = RadtanCam> {
     pub holes: Vec<Vec3>,
     pub corners: Vec<Vec<Vec2>>,
     pub holes_lidar: Vec<Vec<Vec3>>,
+    /// Each board's LiDAR points (a grid over the board, [`PLANE_SIGMA_M`] along the
+    /// normal) summarised for the point-to-plane term.
+    pub planes: Vec<PlanePoints>,
 }
+
+/// Point-to-plane noise of the synthetic LiDAR board points (m).
+pub const PLANE_SIGMA_M: f64 = 0.02;
 
 pub fn scene(n: usize, pixel_sigma: f64, lidar_sigma_m: f64, seed: u64) -> Scene {
     scene_with(truth_camera(), n, pixel_sigma, lidar_sigma_m, seed)
@@ -233,5 +239,23 @@ pub fn scene_with<C: Projector>(
                 .collect(),
         );
     }
-    Scene { camera, extrinsic, poses, object, holes, corners, holes_lidar }
+    // A separate stream, so that adding the planes left the other draws unchanged.
+    let mut plane_rng = Rng(seed ^ 0x9e37_79b9_7f4a_7c15);
+    let planes = poses
+        .iter()
+        .map(|pose| {
+            let points: Vec<Vec3> = (0..15 * 12)
+                .map(|k| {
+                    let board = Vec3::new(
+                        -0.56 + 0.08 * (k % 15) as f64,
+                        -0.44 + 0.08 * (k / 15) as f64,
+                        PLANE_SIGMA_M * plane_rng.normal(),
+                    );
+                    ext_inv_r * (pose.act(&board) - extrinsic.translation)
+                })
+                .collect();
+            PlanePoints::from_points(points, PLANE_SIGMA_M).expect("a plane")
+        })
+        .collect();
+    Scene { camera, extrinsic, poses, object, holes, corners, holes_lidar, planes }
 }
