@@ -78,10 +78,13 @@ pub fn write_capture(scene: &Scene, dir: &Path) -> Result<CaptureFiles, SimError
 }
 
 /// Writes the Hesai angle-correction file of a Hesai unit; Velodyne units are simulated
-/// with their nominal table, which the decoder has built in.
+/// with their nominal table, which the decoder has built in (there is no YAML writer).
 fn write_calibration(cal: &Calibration, dir: &Path) -> Result<Option<PathBuf>, SimError> {
     if cal.model.is_velodyne() {
-        debug_assert_eq!(*cal, Calibration::nominal(cal.model));
+        if *cal != Calibration::nominal(cal.model) {
+            let message = "only the nominal Velodyne table can go without a file".to_owned();
+            return Err(SimError::Encode { model: cal.model, message });
+        }
         return Ok(None);
     }
     let path = dir.join("angles.csv");
