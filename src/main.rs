@@ -205,6 +205,10 @@ struct SimulateArgs {
     /// Light fall-off at the image corners (0 = none).
     #[arg(long, default_value_t = sim::ImageNoise::default().vignetting)]
     vignetting: f64,
+    /// Also write the sweep as the sensor's packets: cloud.pcap, and for the Pandar64 the
+    /// unit's angle corrections (angles.csv, for `decode --calibration`).
+    #[arg(long)]
+    capture: bool,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -324,6 +328,14 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
         scene.cloud.as_ref().map_or(String::new(), |c| format!(", {} LiDAR points", c.len())),
         args.out.display()
     );
+    if args.capture {
+        let files = sim::write_capture(&scene, &args.out).map_err(bad_input)?;
+        println!(
+            "capture: {}{}",
+            files.capture.display(),
+            files.calibration.map_or(String::new(), |c| format!(" (angles: {})", c.display()))
+        );
+    }
     Ok(())
 }
 

@@ -120,6 +120,26 @@ impl Calibration {
         Calibration { model, lasers, distance_resolution, interpolation: Interpolation::Manual }
     }
 
+    /// A table from per-laser elevations and azimuth offsets in degrees (as a Hesai CSV holds
+    /// them), other terms zero; the tables must have the model's laser count.
+    pub fn from_degrees(
+        model: Model,
+        elevation_deg: &[f32],
+        azimuth_deg: &[f32],
+    ) -> Result<Self, CalibrationError> {
+        let lasers = model.lasers();
+        for found in [elevation_deg.len(), azimuth_deg.len()] {
+            if found != lasers {
+                return Err(CalibrationError::MissingLasers { found, expected: lasers });
+            }
+        }
+        let mut cal = Calibration::nominal(model);
+        for (i, (e, a)) in elevation_deg.iter().zip(azimuth_deg).enumerate() {
+            cal.set(i, LaserCorrection::from_degrees(*e, *a))?;
+        }
+        Ok(cal)
+    }
+
     /// Sets laser `index` (0-based), checking it exists and its values are sane.
     pub fn set(&mut self, index: usize, c: LaserCorrection) -> Result<(), CalibrationError> {
         if index >= self.model.lasers() {
@@ -216,6 +236,18 @@ pub const PANDAR64_ELEVATION: [f32; 64] = [
     -13.93, -18.889, -24.897,
 ];
 
+/// Elevations of one real Pandar64 unit by channel, degrees (the angle-correction file of
+/// the unit in `../shared/data/pcap/hesai-pandar64`; its azimuths are the nominal ones). The
+/// simulator's Pandar64 uses it so that decoding needs the unit's file, as on a vehicle.
+pub const PANDAR64_UNIT_ELEVATION: [f32; 64] = [
+    14.9, 11.05, 8.077, 5.075, 3.058, 2.046, 1.878, 1.706, 1.54, 1.369, 1.202, 1.031, 0.864, 0.693,
+    0.526, 0.355, 0.187, 0.018, -0.151, -0.319, -0.49, -0.657, -0.827, -0.995, -1.166, -1.333,
+    -1.504, -1.67, -1.842, -2.01, -2.18, -2.347, -2.518, -2.682, -2.855, -3.022, -3.192, -3.357,
+    -3.53, -3.694, -3.866, -4.032, -4.203, -4.367, -4.54, -4.702, -4.874, -5.039, -5.211, -5.373,
+    -5.547, -5.708, -5.88, -6.043, -7.045, -8.041, -9.042, -10.027, -11.014, -11.988, -12.956,
+    -13.912, -18.871, -24.879,
+];
+
 /// Pandar64 nominal azimuth offsets by channel, degrees (user manual, appendix I).
 pub const PANDAR64_AZIMUTH: [f32; 64] = {
     let mut a = [-1.042f32; 64];
@@ -229,7 +261,7 @@ pub const PANDAR64_AZIMUTH: [f32; 64] = {
 };
 
 #[cfg(feature = "std")]
-pub use files::{load, parse_hesai_csv, parse_velodyne_yaml, CalibrationFileError};
+pub use files::{load, parse_hesai_csv, parse_velodyne_yaml, to_hesai_csv, CalibrationFileError};
 
 #[cfg(feature = "std")]
 mod files {
@@ -385,6 +417,25 @@ mod files {
         finish(entry.take(), &mut cal)?;
         check_complete(model, &seen).map_err(invalid)?;
         Ok(cal)
+    }
+
+    /// The table as a Hesai angle-correction CSV (`Laser id,Elevation,Azimuth`, degrees), which
+    /// [`parse_hesai_csv`] reads back to the same table (f32 values print exactly).
+    pub fn to_hesai_csv(cal: &Calibration) -> String {
+        let mut text = String::from("Laser id,Elevation,Azimuth\n");
+        for (i, c) in cal.active().iter().enumerate() {
+            let (e, a) = (degrees_of(c.elevation), degrees_of(c.azimuth_offset));
+            text.push_str(&format!("{},{e},{a}\n", i + 1));
+        }
+        text
+    }
+
+    /// The f32 degrees that convert to exactly `radians` when there is one nearby (so a
+    /// table made from degrees prints its own values), else the nearest.
+    fn degrees_of(radians: f32) -> f32 {
+        let d = radians.to_degrees();
+        let near = |k: i32| f32::from_bits((d.to_bits() as i32 + k) as u32);
+        [0, -1, 1, -2, 2].into_iter().map(near).find(|c| c.to_radians() == radians).unwrap_or(d)
     }
 
     fn check_complete(model: Model, seen: &[bool]) -> Result<(), CalibrationError> {

@@ -219,12 +219,65 @@ pub fn encode_sweep(
     }
 }
 
+/// The azimuth (0.01°, clockwise, before the laser's offset) the decoder gives `laser`'s
+/// return in single-return packets when firing sequence number `sequence` of a capture
+/// (counted from 0; the VLP-16 puts two sequences in a block) starts at `azimuth` and the
+/// sensor turns `advance` (0.01°) per sequence: the block azimuth for Hesai units, plus the
+/// firing-time interpolation for Velodyne units. A simulator casts its rays here.
+pub fn firing_azimuth(
+    calibration: &Calibration,
+    laser: usize,
+    sequence: usize,
+    azimuth: u16,
+    advance: u16,
+) -> u16 {
+    if calibration.model.is_velodyne() {
+        velodyne::firing_azimuth(calibration, laser, sequence, azimuth, advance)
+    } else {
+        azimuth % 36000
+    }
+}
+
+/// Unit vector (sensor frame: x forward, y left, z up) of `laser` fired at `firing_azimuth`
+/// (0.01°, clockwise, from [`firing_azimuth`]), with the laser's elevation and azimuth
+/// offset: the decoder puts a return of range r at r times this vector (for tables without
+/// Velodyne optical-centre offsets, as the nominal ones).
+pub fn beam_direction(calibration: &Calibration, laser: usize, firing_azimuth: u16) -> [f64; 3] {
+    let c = calibration.lasers.get(laser).copied().unwrap_or_default();
+    let azimuth =
+        f64::from(firing_azimuth) * (core::f64::consts::PI / 18000.0) + f64::from(c.azimuth_offset);
+    let elevation = f64::from(c.elevation);
+    let horizontal = libm::cos(elevation);
+    [horizontal * libm::cos(azimuth), -horizontal * libm::sin(azimuth), libm::sin(elevation)]
+}
+
+/// Metres per range count in the packets [`encode_sweep`] writes (and the decoder reads):
+/// the calibration's resolution for Velodyne units, the 4 mm unit the Hesai encoder sets.
+/// A range `n × resolution` (computed in f32) survives encoding exactly.
+pub fn range_resolution(calibration: &Calibration) -> f32 {
+    if calibration.model.is_velodyne() {
+        calibration.distance_resolution
+    } else {
+        f32::from(hesai::ENCODE_DIS_UNIT_MM) * 1e-3
+    }
+}
+
+/// Nominal time between data packets of `model` in single-return mode, seconds.
+pub fn packet_period(model: Model) -> f64 {
+    if model.is_velodyne() {
+        velodyne::packet_period(model)
+    } else {
+        hesai::packet_period(model)
+    }
+}
+
 /// Decodes one data payload of `calibration.model`, handing each valid return to `sink`
-/// (zero ranges and identical dual echoes are dropped). Never panics on any bytes.
-pub fn decode_packet(
+/// (zero ranges and identical dual echoes are dropped). Never panics on any bytes. Generic
+/// over the sink (a `&mut dyn FnMut` works too) so closures inline into the point loop.
+pub fn decode_packet<F: FnMut(Return) + ?Sized>(
     calibration: &Calibration,
     payload: &[u8],
-    sink: &mut dyn FnMut(Return),
+    sink: &mut F,
 ) -> Result<PacketSummary, DecodeError> {
     if calibration.model.is_velodyne() {
         velodyne::decode(calibration, payload, sink)

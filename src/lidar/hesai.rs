@@ -13,13 +13,12 @@
 //! packet's date/time plus microseconds, which stamp the end of the packet) plus the firing
 //! offset of the block and channel (negative: the manual's "laser firing time" appendix).
 
-use core::f32::consts::PI;
-
 use super::calibration::Calibration;
 use super::decoder::{
     civil_from_unix, to_xyz, unix_seconds, DecodeError, Model, PacketSummary, Return, ReturnMode,
     SimReturn,
 };
+use super::trig::sin_cos_hundredths;
 use super::Point;
 
 /// Byte layout of one Hesai packet format.
@@ -451,10 +450,10 @@ pub fn packet_period(model: Model) -> f64 {
 
 /// Decodes a data packet of `cal.model`. In dual-return mode an echo identical to a later
 /// echo of the same firing is dropped (the last one kept).
-pub fn decode(
+pub fn decode<F: FnMut(Return) + ?Sized>(
     cal: &Calibration,
     payload: &[u8],
-    sink: &mut dyn FnMut(Return),
+    sink: &mut F,
 ) -> Result<PacketSummary, DecodeError> {
     let p = Packet::new_checked(payload, cal.model)?;
     let l = p.layout;
@@ -465,9 +464,8 @@ pub fn decode(
     let mut returns = 0;
     for group in (0..l.blocks).step_by(n) {
         let az = p.azimuth(group);
-        let az_rad = f32::from(az) * (PI / 18000.0);
         // One sine and cosine per block; each channel's offset is added by the angle-sum rule.
-        let (sin_block, cos_block) = (libm::sinf(az_rad), libm::cosf(az_rad));
+        let (sin_block, cos_block) = sin_cos_hundredths(u32::from(az));
         for c in 0..l.lasers {
             let corr = &cal.lasers[c];
             let (so, co) = (corr.sin_azimuth_offset, corr.cos_azimuth_offset);
@@ -513,6 +511,9 @@ pub fn decode(
     })
 }
 
+/// The distance unit (mm) [`encode_sweep`] writes, as real units send.
+pub const ENCODE_DIS_UNIT_MM: u8 = 4;
+
 /// Encodes single-return (strongest) packets with the UDP sequence from `returns` sorted by
 /// azimuth: each distinct azimuth becomes one block. `start_time` (Unix seconds) stamps the
 /// first packet; later ones follow at the model's packet period. Returns the packet count.
@@ -523,7 +524,7 @@ pub fn encode_sweep(
     out: &mut dyn FnMut(&[u8]),
 ) -> Result<usize, DecodeError> {
     let l = Layout::of(cal.model).ok_or(DecodeError::WrongCalibration)?;
-    let dis_unit_mm = 4u8;
+    let dis_unit_mm = ENCODE_DIS_UNIT_MM;
     let mut repr = Repr {
         model: l.model,
         dis_unit_mm,

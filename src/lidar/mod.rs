@@ -7,6 +7,12 @@
 //! the top of the hour on the sensor clock for Velodyne, Unix seconds for Hesai, each plus
 //! the firing offset within the packet. `Point::ring` is the vendor's laser number;
 //! `Calibration::rings` maps it to the bottom-up ring index.
+//!
+//! Simulation: [`firing_azimuth`] and [`beam_direction`] say where the decoder puts each
+//! laser's return, so a simulator casts its rays there and [`encode_sweep`]s the ranges
+//! (in [`range_resolution`] counts) into packets that decode back onto the cast points.
+//! Speed: azimuth trigonometry is a compile-time table ([`trig`]), the per-model firing
+//! pattern is computed at compile time, and sinks are generic so closures inline.
 
 /// One LiDAR return in the sensor frame (x forward, y left, z up), metres.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -31,12 +37,13 @@ pub mod pcap;
 #[cfg(feature = "std")]
 pub mod pcd;
 pub mod sweep;
+pub mod trig;
 pub mod velodyne;
 
 pub use calibration::Calibration;
 pub use decoder::{
-    decode_into, decode_packet, encode_sweep, DecodeError, Model, PacketSummary, Return,
-    ReturnMode, SimReturn,
+    beam_direction, decode_into, decode_packet, encode_sweep, firing_azimuth, packet_period,
+    range_resolution, DecodeError, Model, PacketSummary, Return, ReturnMode, SimReturn,
 };
 pub use sweep::{Sweep, SweepAssembler, SweepConfig, SweepStats};
 

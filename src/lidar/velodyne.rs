@@ -8,10 +8,9 @@
 //! Time: the packet timestamp counts microseconds past the top of the hour on the sensor
 //! clock, so `Point::time` is seconds past the hour plus the firing offset (manual ch. 9).
 
-use core::f32::consts::PI;
-
-use super::calibration::{Calibration, Interpolation, LaserCorrection};
+use super::calibration::{Calibration, Interpolation};
 use super::decoder::{to_xyz, DecodeError, Model, PacketSummary, Return, ReturnMode, SimReturn};
+use super::trig::sin_cos_turn;
 use super::Point;
 
 /// Byte layout of the data packet.
@@ -302,15 +301,15 @@ impl Repr {
 
 /// Nominal packet period of a model in single-return mode, seconds (dual: half).
 pub fn packet_period(model: Model) -> f64 {
-    let per_block = if model == Model::Vlp16 { 2.0 } else { 1.0 };
-    timing(model).sequence_us * per_block * field::BLOCKS as f64 * 1e-6
+    Pattern::of(model, Interpolation::Manual).block_us * field::BLOCKS as f64 * 1e-6
 }
 
 /// Decodes a data packet with `cal` (whose model must match the packet's product id).
-pub fn decode(
+/// Generic over the sink so a closure is inlined into the per-point loop.
+pub fn decode<F: FnMut(Return) + ?Sized>(
     cal: &Calibration,
     payload: &[u8],
-    sink: &mut dyn FnMut(Return),
+    sink: &mut F,
 ) -> Result<PacketSummary, DecodeError> {
     let p = Packet::new_checked(payload)?;
     let product = Product::from_id(p.product_id()).ok_or(DecodeError::BadHeader)?;
@@ -320,25 +319,36 @@ pub fn decode(
     let mode = p.return_mode();
     let dual = mode == ReturnMode::Dual;
     let t0 = f64::from(p.timestamp_us()) * 1e-6;
-    let mut returns = 0;
     let advances = match cal.interpolation {
         Interpolation::Manual => manual_advances(&p, dual),
         Interpolation::Nebula => nebula_advances(&p, dual),
     };
-    for (b, &(az, diff)) in advances.iter().enumerate() {
-        let az_rad = f32::from(az) * (PI / 18000.0);
-        let block_trig = (libm::sinf(az_rad), libm::cosf(az_rad));
-        let echo = if dual { (b % 2) as u8 } else { 0 };
-        for c in 0..field::CHANNELS {
-            let raw = p.distance(b, c);
-            if raw == 0 || (dual && b % 2 == 1 && p.distance(b - 1, c) == raw) {
+    let pattern = Pattern::of(cal.model, cal.interpolation);
+    let mut returns = 0;
+    let mut previous: &[u8; field::BLOCK_LEN] = &[0; field::BLOCK_LEN];
+    // Fixed-size blocks (the checked packet holds all 12) make the loop bounds-check free.
+    let blocks = payload.chunks_exact(field::BLOCK_LEN).filter_map(|b| b.try_into().ok());
+    for (b, (block, &(az, diff))) in blocks.zip(&advances).enumerate() {
+        let block: &[u8; field::BLOCK_LEN] = block;
+        // Blocks of one firing sequence in dual mode share the sequence's time.
+        let seq_block = if dual { b / 2 } else { b };
+        let block_us = seq_block as f64 * pattern.block_us;
+        let second_echo = dual && b % 2 == 1;
+        let echo = u8::from(second_echo);
+        for (c, slot) in pattern.slots.iter().enumerate() {
+            let o = field::CHANNEL0 + c * field::CHANNEL_LEN;
+            let raw = u16::from_le_bytes([block[o], block[o + 1]]);
+            if raw == 0
+                || (second_echo && u16::from_le_bytes([previous[o], previous[o + 1]]) == raw)
+            {
                 continue;
             }
-            let (laser, firing_az, offset_us) =
-                firing(cal.model, cal.interpolation, b, c, dual, az, diff);
-            let corr = &cal.lasers[laser];
+            let firing_az = interpolate(az, diff, slot, pattern.span_us);
+            let corr = &cal.lasers[usize::from(slot.laser)];
+            let (sin_f, cos_f) = sin_cos_turn(firing_az);
+            let (so, co) = (corr.sin_azimuth_offset, corr.cos_azimuth_offset);
+            let (sin_az, cos_az) = (sin_f * co + cos_f * so, cos_f * co - sin_f * so);
             let distance = f32::from(raw) * cal.distance_resolution + corr.dist_correction;
-            let (sin_az, cos_az) = firing_trig(block_trig, az, firing_az, corr);
             let (x, y, z) = to_xyz(
                 distance,
                 sin_az,
@@ -352,13 +362,14 @@ pub fn decode(
                 x,
                 y,
                 z,
-                intensity: f32::from(p.intensity(b, c)),
-                ring: laser as u16,
-                time: t0 + offset_us * 1e-6,
+                intensity: f32::from(block[o + 2]),
+                ring: u16::from(slot.laser),
+                time: t0 + (block_us + slot.offset_us) * 1e-6,
             };
             sink(Return { point, distance, azimuth: firing_az, block: b as u8, echo });
             returns += 1;
         }
+        previous = block;
     }
     Ok(PacketSummary {
         model: cal.model,
@@ -439,6 +450,30 @@ pub fn encode_sweep(
     Ok(packets)
 }
 
+/// The azimuth (0.01°) the decoder gives `laser`'s return in single-return packets from
+/// [`encode_sweep`] when firing sequence `sequence` (from 0; on the VLP-16 even sequences
+/// open a block, odd ones are its second firing) starts at `azimuth` and every sequence
+/// advances `advance`: the decoder's own interpolation, so rays cast there decode in place.
+pub fn firing_azimuth(
+    cal: &Calibration,
+    laser: usize,
+    sequence: usize,
+    azimuth: u16,
+    advance: u16,
+) -> u16 {
+    let pattern = Pattern::of(cal.model, cal.interpolation);
+    let (azimuth, advance) = (u32::from(azimuth) % 36000, u32::from(advance));
+    let (block, diff, c) = if cal.model == Model::Vlp16 {
+        // The block azimuth is the first firing's; blocks advance two sequences.
+        let second = (sequence % 2) as u32;
+        let block = (36000 + azimuth - second * advance % 36000) % 36000;
+        (block, 2 * advance, laser % 16 + 16 * second as usize)
+    } else {
+        (azimuth, advance, laser % field::CHANNELS)
+    };
+    interpolate(block as u16, diff as f32, &pattern.slots[c], pattern.span_us)
+}
+
 /// Byte layout of the position packet (GPS/PPS status and NMEA sentence).
 pub mod position_field {
     use core::ops::Range;
@@ -486,47 +521,6 @@ impl<T: AsRef<[u8]>> PositionPacket<T> {
     }
 }
 
-/// Firing timing per model, microseconds (manual ch. 9).
-struct Timing {
-    /// Between firing sequences (one block for 32-laser models, half a block for VLP-16).
-    sequence_us: f64,
-    /// Between consecutive lasers (or laser pairs on the VLP-32C) within a sequence.
-    laser_us: f64,
-}
-
-fn timing(model: Model) -> Timing {
-    match model {
-        Model::Hdl32e => Timing { sequence_us: 46.080, laser_us: 1.152 },
-        _ => Timing { sequence_us: 55.296, laser_us: 2.304 },
-    }
-}
-
-/// Sine and cosine of a firing's azimuth plus the laser's offset, from the block azimuth's
-/// (computed once per block) by the angle-sum rule: the firing lies a few hundredths of a
-/// degree after the block, where a short series is exact to f32 precision.
-fn firing_trig(
-    (sin_block, cos_block): (f32, f32),
-    block_az: u16,
-    firing_az: u16,
-    corr: &LaserCorrection,
-) -> (f32, f32) {
-    let steps = (36000 + u32::from(firing_az) - u32::from(block_az)) % 36000;
-    let d = steps as f32 * (PI / 18000.0);
-    let (sin_d, cos_d) = if d < 0.2 {
-        let d2 = d * d;
-        (
-            d * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0)),
-            1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0)),
-        )
-    } else {
-        (libm::sinf(d), libm::cosf(d))
-    };
-    let (sin_f, cos_f) =
-        (sin_block * cos_d + cos_block * sin_d, cos_block * cos_d - sin_block * sin_d);
-    let (so, co) = (corr.sin_azimuth_offset, corr.cos_azimuth_offset);
-    (sin_f * co + cos_f * so, cos_f * co - sin_f * so)
-}
-
 /// Per block: the azimuth its firings start from and the advance over one firing sequence
 /// (both 0.01°). The last sequence of the packet reuses the previous advance.
 fn manual_advances<T: AsRef<[u8]>>(p: &Packet<T>, dual: bool) -> [(u16, f32); field::BLOCKS] {
@@ -568,42 +562,89 @@ fn nebula_advances<T: AsRef<[u8]>>(p: &Packet<T>, dual: bool) -> [(u16, f32); fi
     out
 }
 
-/// Laser number, firing azimuth (0.01°, rounded to the packet's resolution as Velodyne's
-/// reference driver does) and firing offset from the packet timestamp (µs) of channel slot
-/// `c` in block `b`; `diff` is the azimuth advance over one firing sequence (0.01°).
-fn firing(
-    model: Model,
-    interpolation: Interpolation,
-    b: usize,
-    c: usize,
-    dual: bool,
-    az: u16,
-    diff: f32,
-) -> (usize, u16, f64) {
-    let t = timing(model);
-    // Blocks of one firing sequence in dual mode share the sequence's time.
-    let seq_block = if dual { b / 2 } else { b };
-    // f32 arithmetic in the order Velodyne's driver uses, so rounding ties fall the same way.
-    let (laser_us, seq_us) = (t.laser_us as f32, t.sequence_us as f32);
-    let (laser, slot_us, span_us, offset) = if model == Model::Vlp16 {
-        // Two firings of 16 lasers per block, each 55.296 µs, lasers 2.304 µs apart.
-        let (laser, firing) = (c % 16, c / 16);
-        let slot = laser as f32 * laser_us + firing as f32 * seq_us;
-        let offset = (2 * seq_block + firing) as f64 * t.sequence_us + laser as f64 * t.laser_us;
-        (laser, slot, 2.0 * seq_us, offset)
-    } else {
-        // 32-laser models: one sequence per block; the VLP-32C fires lasers in pairs.
-        let slot = if model == Model::Vlp32c { c / 2 } else { c };
-        let offset = seq_block as f64 * t.sequence_us + slot as f64 * t.laser_us;
-        let slot_us = match interpolation {
-            // nebula 0.x advances every channel slot by 2.304 µs.
-            Interpolation::Nebula if model == Model::Vlp32c => c as f32 * laser_us,
-            _ => slot as f32 * laser_us,
+/// One channel slot of a block: its laser, its time into the block's span as the
+/// azimuth interpolation uses it (µs, f32 computed as Velodyne's driver does, so rounding
+/// ties fall the same way), and its firing offset from the start of the block (µs).
+#[derive(Clone, Copy, Debug)]
+struct Slot {
+    laser: u8,
+    interp_us: f32,
+    offset_us: f64,
+}
+
+/// A model's firing pattern: every channel slot of a block, the span the block azimuth
+/// advance covers (µs) and the time between blocks (µs, single return).
+#[derive(Clone, Copy, Debug)]
+struct Pattern {
+    slots: [Slot; field::CHANNELS],
+    span_us: f32,
+    block_us: f64,
+}
+
+impl Pattern {
+    const VLP16: Pattern = Pattern::new(Model::Vlp16, Interpolation::Manual);
+    const VLP32C: Pattern = Pattern::new(Model::Vlp32c, Interpolation::Manual);
+    const VLP32C_NEBULA: Pattern = Pattern::new(Model::Vlp32c, Interpolation::Nebula);
+    const HDL32E: Pattern = Pattern::new(Model::Hdl32e, Interpolation::Manual);
+
+    fn of(model: Model, interpolation: Interpolation) -> &'static Pattern {
+        match (model, interpolation) {
+            (Model::Vlp16, _) => &Self::VLP16,
+            (Model::Vlp32c, Interpolation::Nebula) => &Self::VLP32C_NEBULA,
+            (Model::Vlp32c, Interpolation::Manual) => &Self::VLP32C,
+            _ => &Self::HDL32E,
+        }
+    }
+
+    /// The timing of the user manuals (ch. 9), computed at compile time.
+    const fn new(model: Model, interpolation: Interpolation) -> Pattern {
+        let (seq_us, laser_us) = match model {
+            Model::Hdl32e => (46.080, 1.152),
+            _ => (55.296, 2.304),
         };
-        (c, slot_us, seq_us, offset)
-    };
-    let firing_az = f32::from(az) + diff * slot_us / span_us;
-    (laser, (libm::roundf(firing_az) as u32 % 36000) as u16, offset)
+        let (seq_f, laser_f) = (seq_us as f32, laser_us as f32);
+        let vlp16 = matches!(model, Model::Vlp16);
+        let mut slots = [Slot { laser: 0, interp_us: 0.0, offset_us: 0.0 }; field::CHANNELS];
+        let mut c = 0;
+        while c < field::CHANNELS {
+            slots[c] = if vlp16 {
+                // Two firings of 16 lasers per block, each 55.296 µs, lasers 2.304 µs apart.
+                let (laser, firing) = (c % 16, c / 16);
+                Slot {
+                    laser: laser as u8,
+                    interp_us: laser as f32 * laser_f + firing as f32 * seq_f,
+                    offset_us: firing as f64 * seq_us + laser as f64 * laser_us,
+                }
+            } else {
+                // 32-laser models: one sequence per block; the VLP-32C fires lasers in pairs.
+                let slot = if matches!(model, Model::Vlp32c) { c / 2 } else { c };
+                let interp = match interpolation {
+                    // nebula 0.x advances every channel slot by 2.304 µs.
+                    Interpolation::Nebula if matches!(model, Model::Vlp32c) => c,
+                    _ => slot,
+                };
+                Slot {
+                    laser: c as u8,
+                    interp_us: interp as f32 * laser_f,
+                    offset_us: slot as f64 * laser_us,
+                }
+            };
+            c += 1;
+        }
+        let per_block = if vlp16 { 2.0 } else { 1.0 };
+        Pattern { slots, span_us: per_block * seq_f, block_us: per_block as f64 * seq_us }
+    }
+}
+
+/// The firing azimuth of `slot` in a block at `az` advancing `diff` (0.01°), rounded half
+/// away from zero to the packet's resolution as Velodyne's reference driver does.
+#[inline]
+fn interpolate(az: u16, diff: f32, slot: &Slot, span_us: f32) -> u16 {
+    let x = f32::from(az) + diff * slot.interp_us / span_us;
+    // x ≥ 0 and < 2^24: truncation and the fraction are exact (libm's roundf, without a call).
+    let whole = x as u32;
+    let rounded = whole + u32::from(x - whole as f32 >= 0.5);
+    (rounded % 36000) as u16
 }
 
 #[cfg(test)]

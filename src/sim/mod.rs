@@ -8,6 +8,7 @@
 //! inner corners in the detector's order and the hole centres in the LiDAR frame.
 //! Everything is deterministic for a seed.
 
+pub mod capture;
 pub mod layout;
 pub mod raycast;
 pub mod render;
@@ -23,7 +24,9 @@ use crate::lidar::Point;
 use crate::result::{CameraResult, Extrinsic};
 use crate::target::{LidarModel, Room};
 
+pub use capture::{write_capture, CaptureFiles};
 pub use layout::Layout;
+pub use raycast::Firings;
 pub use render::ImageNoise;
 use rng::Rng;
 use world::World;
@@ -90,6 +93,10 @@ pub enum SimError {
     FieldOfView(f64),
     #[error("{path}: {message}")]
     Write { path: PathBuf, message: String },
+    #[error("cannot encode the {model:?} sweep as packets: {message}")]
+    Encode { model: crate::lidar::Model, message: String },
+    #[error("the scene has no LiDAR sweep to write as a capture (the room has no [lidar])")]
+    NoSweep,
     #[error("the band layout aims boards at the LiDAR's dense band, but the room has no [lidar]")]
     BandWithoutLidar,
 }
@@ -141,6 +148,8 @@ pub struct Scene {
     pub image: Vec<u8>,
     /// The LiDAR sweep (absent for an intrinsics-only room).
     pub cloud: Option<Vec<Point>>,
+    /// The same sweep as the sensor reports it, for packet captures (with `cloud`).
+    pub firings: Option<Firings>,
     pub truth: Truth,
 }
 
@@ -179,15 +188,14 @@ pub fn simulate(room: &Room, options: &SimOptions) -> Result<Scene, SimError> {
     let in_lidar: Vec<Se3> = poses.iter().map(|p| camera_in_lidar.compose(p)).collect();
     let world = World::new(&room.board, in_lidar.clone(), &mut rng.fork(3));
     let image = render::render(&world, &camera, &camera_in_lidar, &options.image, &mut rng.fork(4));
-    let (cloud, sweep_truth) = match &room.lidar {
+    let (cloud, firings, sweep_truth) = match &room.lidar {
         Some(lidar) => {
-            let elevations =
-                raycast::beam_elevations(lidar.model).ok_or(SimError::NoBeamTable(lidar.model))?;
-            let (points, truth) =
-                raycast::sweep(&world, elevations, options.range_noise_m, &mut rng.fork(5));
-            (Some(points), Some(truth))
+            let cal =
+                raycast::calibration(lidar.model).ok_or(SimError::NoBeamTable(lidar.model))?;
+            let cast = raycast::sweep(&world, &cal, options.range_noise_m, &mut rng.fork(5));
+            (Some(cast.points), Some(cast.firings), Some(cast.truth))
         }
-        None => (None, None),
+        None => (None, None, None),
     };
     let boards = poses
         .iter()
@@ -215,7 +223,7 @@ pub fn simulate(room: &Room, options: &SimOptions) -> Result<Scene, SimError> {
         image_blur_px: options.image.blur_px,
         boards,
     };
-    Ok(Scene { room, image, cloud, truth })
+    Ok(Scene { room, image, cloud, firings, truth })
 }
 
 /// Width of the densest band of beams the band layout aims at (degrees).

@@ -1,29 +1,73 @@
-//! The LiDAR sweep: every beam of the sensor's elevation table fired at every 0.2° of
-//! azimuth into the room, with Gaussian range noise, and what each hole let through.
+//! The LiDAR sweep: every laser of the sensor's angle table fired into the room at every
+//! 0.2° of rotation, each ray cast exactly where the packet decoder will place its return
+//! (the firing azimuth with the laser's azimuth offset and elevation, from
+//! `lidar::calibration`, the single source of the beam geometry), with Gaussian range noise
+//! and ranges quantised to the packets' resolution, and what each hole let through.
 
 use crate::geometry::Vec3;
-use crate::lidar::Point;
+use crate::lidar::calibration::{self, Calibration};
+use crate::lidar::{beam_direction, firing_azimuth, range_resolution, Model, Point, SimReturn};
 use crate::target::LidarModel;
 
 use super::rng::Rng;
 use super::world::{Surface, World, BLACK};
 
-/// Azimuth step between firings (degrees).
-pub const AZIMUTH_STEP_DEG: f64 = 0.2;
+/// Rotation between firing sequences (0.01°): 0.2°, as the units fire at 10 Hz.
+pub const AZIMUTH_STEP: u16 = 20;
+/// Azimuth (0.01°, clockwise from forward) of the first firing: straight behind, where
+/// sweeps are cut, so the sweep is one whole turn of the sensor.
+pub const START_AZIMUTH: u16 = 18000;
+/// The same step in degrees.
+pub const AZIMUTH_STEP_DEG: f64 = AZIMUTH_STEP as f64 / 100.0;
 /// Sweep period (s): 10 Hz.
 const SWEEP_PERIOD_S: f64 = 0.1;
 const MIN_RANGE_M: f64 = 0.3;
 const MAX_RANGE_M: f64 = 200.0;
 
-/// Elevation of every laser (degrees), in the sensor's ring order.
-pub fn beam_elevations(model: LidarModel) -> Option<&'static [f64]> {
+/// The angle table the simulated unit of `model` has: for the Pandar64 a real unit's
+/// elevations ([`calibration::PANDAR64_UNIT_ELEVATION`]; decoding its packets needs the
+/// angle file the capture comes with) with every azimuth offset 0, as the simulator has
+/// always cast it (the fixtures' truth depends on it; tests/sim_capture.rs also casts and
+/// decodes the unit's real offsets); the nominal tables, offsets included, for the VLP-32C
+/// and VLP-16.
+pub fn calibration(model: LidarModel) -> Option<Calibration> {
     match model {
-        LidarModel::Pandar64 => Some(&PANDAR64_ELEVATION_DEG),
-        LidarModel::Vlp32c => Some(&VLP32C_ELEVATION_DEG),
-        LidarModel::Vlp16 => Some(&VLP16_ELEVATION_DEG),
+        LidarModel::Pandar64 => Calibration::from_degrees(
+            Model::Pandar64,
+            &calibration::PANDAR64_UNIT_ELEVATION,
+            &[0.0; 64],
+        )
+        .ok(),
+        LidarModel::Vlp32c => Some(Calibration::nominal(Model::Vlp32c)),
+        LidarModel::Vlp16 => Some(Calibration::nominal(Model::Vlp16)),
         _ => None,
     }
 }
+
+/// Elevation of every laser (degrees, in laser order) of the simulated unit of `model`: the
+/// elevations of [`calibration`]'s table, for code that reasons about the beams' spacing.
+pub fn beam_elevations(model: LidarModel) -> Option<&'static [f64]> {
+    match model {
+        LidarModel::Pandar64 => Some(&PANDAR64_DEG),
+        LidarModel::Vlp32c => Some(&VLP32C_DEG),
+        LidarModel::Vlp16 => Some(&VLP16_DEG),
+        _ => None,
+    }
+}
+
+/// The degree tables of `lidar::calibration` widened to f64 at compile time.
+const fn widen<const N: usize>(table: &[f32; N]) -> [f64; N] {
+    let mut out = [0.0; N];
+    let mut i = 0;
+    while i < N {
+        out[i] = table[i] as f64;
+        i += 1;
+    }
+    out
+}
+static PANDAR64_DEG: [f64; 64] = widen(&calibration::PANDAR64_UNIT_ELEVATION);
+static VLP32C_DEG: [f64; 32] = widen(&calibration::VLP32C_ELEVATION);
+static VLP16_DEG: [f64; 16] = widen(&calibration::VLP16_ELEVATION);
 
 /// What one sweep saw of the boards.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -34,53 +78,78 @@ pub struct SweepTruth {
     pub hole_rings: Vec<Vec<usize>>,
 }
 
-/// Casts one sweep; points in the LiDAR frame with ring, intensity and time.
-pub fn sweep(
-    world: &World,
-    elevations: &[f64],
-    range_noise_m: f64,
-    rng: &mut Rng,
-) -> (Vec<Point>, SweepTruth) {
-    let columns = (360.0 / AZIMUTH_STEP_DEG).round() as usize;
+/// The sweep as the sensor reports it, ready for `lidar::encode_sweep`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Firings {
+    /// The unit's angle table (what the decoder must be given).
+    pub calibration: Calibration,
+    /// Every laser of every firing sequence in firing order, `azimuth` the sequence's
+    /// (0.01°, clockwise), `range` 0 for no return.
+    pub returns: Vec<SimReturn>,
+}
+
+/// One cast sweep: the points (LiDAR frame, with ring = laser number, intensity and time),
+/// the same returns as the sensor would send them, and the truth about the boards.
+#[derive(Clone, Debug)]
+pub struct CastSweep {
+    pub points: Vec<Point>,
+    pub firings: Firings,
+    pub truth: SweepTruth,
+}
+
+/// Casts one sweep of the unit `cal` describes.
+pub fn sweep(world: &World, cal: &Calibration, range_noise_m: f64, rng: &mut Rng) -> CastSweep {
+    let lasers = cal.model.lasers();
+    let sequences = usize::from(36000 / AZIMUTH_STEP);
     let boards = world.boards.len();
     let holes = world.board.holes.len();
     let mut truth =
         SweepTruth { board_points: vec![0; boards], hole_rings: vec![vec![0; holes]; boards] };
-    let mut crossed = vec![vec![vec![false; elevations.len()]; holes]; boards];
-    let mut points = Vec::with_capacity(columns * elevations.len());
+    let mut crossed = vec![vec![vec![false; lasers]; holes]; boards];
+    let mut points = Vec::with_capacity(sequences * lasers);
+    let mut returns = Vec::with_capacity(sequences * lasers);
+    let resolution = range_resolution(cal);
     let origin = Vec3::zeros();
-    for column in 0..columns {
-        let azimuth = (column as f64 * AZIMUTH_STEP_DEG).to_radians();
-        let time = column as f64 / columns as f64 * SWEEP_PERIOD_S;
-        for (ring, elevation) in elevations.iter().enumerate() {
-            let e = elevation.to_radians();
-            let dir = Vec3::new(e.cos() * azimuth.cos(), e.cos() * azimuth.sin(), e.sin());
-            let Some(hit) = world.cast(&origin, &dir) else { continue };
-            mark_holes_crossed(world, &dir, hit.distance, ring, &mut crossed);
-            let range = hit.distance + range_noise_m * rng.normal();
-            if !(MIN_RANGE_M..=MAX_RANGE_M).contains(&range) {
-                continue;
-            }
-            let intensity = match hit.surface {
-                Surface::Board { index, x, y } => {
-                    truth.board_points[index] += 1;
-                    if world.board_albedo(x, y) == BLACK {
-                        20.0
-                    } else {
-                        200.0
-                    }
+    for sequence in 0..sequences {
+        let step = (sequence * usize::from(AZIMUTH_STEP)) as u32;
+        let azimuth = ((u32::from(START_AZIMUTH) + step) % 36000) as u16;
+        let time = sequence as f64 / sequences as f64 * SWEEP_PERIOD_S;
+        for laser in 0..lasers {
+            let mut ret = SimReturn { laser: laser as u16, azimuth, range: 0.0, intensity: 0 };
+            let fired = firing_azimuth(cal, laser, sequence, azimuth, AZIMUTH_STEP);
+            let [x, y, z] = beam_direction(cal, laser, fired);
+            let dir = Vec3::new(x, y, z);
+            if let Some(hit) = world.cast(&origin, &dir) {
+                mark_holes_crossed(world, &dir, hit.distance, laser, &mut crossed);
+                let range = hit.distance + range_noise_m * rng.normal();
+                if (MIN_RANGE_M..=MAX_RANGE_M).contains(&range) {
+                    let intensity = match hit.surface {
+                        Surface::Board { index, x, y } => {
+                            truth.board_points[index] += 1;
+                            if world.board_albedo(x, y) == BLACK {
+                                20.0
+                            } else {
+                                200.0
+                            }
+                        }
+                        Surface::Background { albedo } => (albedo * 150.0).round(),
+                    };
+                    // The sensor reports whole range counts; so does the simulated one.
+                    let counts = (range / f64::from(resolution)).round() as f32;
+                    ret.range = counts * resolution;
+                    ret.intensity = intensity as u8;
+                    let p = dir * f64::from(ret.range);
+                    points.push(Point {
+                        x: p.x as f32,
+                        y: p.y as f32,
+                        z: p.z as f32,
+                        intensity: intensity as f32,
+                        ring: laser as u16,
+                        time,
+                    });
                 }
-                Surface::Background { albedo } => (albedo * 150.0).round(),
-            };
-            let p = dir * range;
-            points.push(Point {
-                x: p.x as f32,
-                y: p.y as f32,
-                z: p.z as f32,
-                intensity: intensity as f32,
-                ring: ring as u16,
-                time,
-            });
+            }
+            returns.push(ret);
         }
     }
     for (b, per_hole) in crossed.iter().enumerate() {
@@ -88,7 +157,7 @@ pub fn sweep(
             truth.hole_rings[b][h] = rings.iter().filter(|&&c| c).count();
         }
     }
-    (points, truth)
+    CastSweep { points, firings: Firings { calibration: *cal, returns }, truth }
 }
 
 /// Marks the holes this beam passed through before it hit something at `distance`.
@@ -119,25 +188,3 @@ fn mark_holes_crossed(
         }
     }
 }
-
-/// Hesai Pandar64: the elevation table of a real unit (64 lasers, +14.9° to −24.9°,
-/// dense 0.17° band from +2° to −6°).
-const PANDAR64_ELEVATION_DEG: [f64; 64] = [
-    14.9, 11.05, 8.077, 5.075, 3.058, 2.046, 1.878, 1.706, 1.54, 1.369, 1.202, 1.031, 0.864, 0.693,
-    0.526, 0.355, 0.187, 0.018, -0.151, -0.319, -0.49, -0.657, -0.827, -0.995, -1.166, -1.333,
-    -1.504, -1.67, -1.842, -2.01, -2.18, -2.347, -2.518, -2.682, -2.855, -3.022, -3.192, -3.357,
-    -3.53, -3.694, -3.866, -4.032, -4.203, -4.367, -4.54, -4.702, -4.874, -5.039, -5.211, -5.373,
-    -5.547, -5.708, -5.88, -6.043, -7.045, -8.041, -9.042, -10.027, -11.014, -11.988, -12.956,
-    -13.912, -18.871, -24.879,
-];
-
-/// Velodyne VLP-32C nominal vertical angles in channel order (VLP-32C manual).
-const VLP32C_ELEVATION_DEG: [f64; 32] = [
-    -25.0, -1.0, -1.667, -15.639, -11.31, 0.0, -0.667, -8.843, -7.254, 0.333, -0.333, -6.148,
-    -5.333, 1.333, 0.667, -4.0, -4.667, 1.667, 1.0, -3.667, -3.333, 3.333, 2.333, -2.667, -3.0,
-    7.0, 4.667, -2.333, -2.0, 15.0, 10.333, -1.333,
-];
-
-/// Velodyne VLP-16 vertical angles in channel order (VLP-16 manual).
-const VLP16_ELEVATION_DEG: [f64; 16] =
-    [-15.0, 1.0, -13.0, 3.0, -11.0, 5.0, -9.0, 7.0, -7.0, 9.0, -5.0, 11.0, -3.0, 13.0, -1.0, 15.0];
