@@ -65,6 +65,10 @@ struct CalibrateArgs {
     /// Leave the LiDAR's board-plane points out of the solve (the paper's cost alone).
     #[arg(long)]
     without_planes: bool,
+    /// The LiDAR unit's angle corrections (Hesai CSV or Velodyne YAML) for clouds given as
+    /// packet captures (default: the model's nominal tables).
+    #[arg(long)]
+    lidar_calibration: Option<PathBuf>,
     /// The calibration in force (a result file or the store's current.json), for the
     /// quality gate's change limits.
     #[arg(long)]
@@ -82,6 +86,10 @@ struct DetectArgs {
     /// A LiDAR cloud (PCD or pcap/pcapng).
     #[arg(long)]
     cloud: Option<PathBuf>,
+    /// The LiDAR unit's angle corrections (Hesai CSV or Velodyne YAML) for clouds given as
+    /// packet captures (default: the model's nominal tables).
+    #[arg(long)]
+    lidar_calibration: Option<PathBuf>,
     /// Where to write the detections (JSON).
     #[arg(long)]
     out: PathBuf,
@@ -400,13 +408,15 @@ fn load_image(
     Ok(image)
 }
 
-/// A cloud read from disk: PCD, or a capture decoded as the room's LiDAR model.
+/// A cloud read from disk: PCD, or a capture decoded as the room's LiDAR model with the
+/// unit's angle file when given.
 fn load_cloud(
     room: &roomcal::target::Room,
     path: &std::path::Path,
+    angles: Option<&std::path::Path>,
 ) -> Result<Vec<roomcal::lidar::Point>, Failure> {
     let model = room.lidar.as_ref().and_then(|l| l.model.packet_model());
-    roomcal::lidar::read_cloud(path, model).map_err(bad_input)
+    roomcal::lidar::read_cloud(path, model, angles).map_err(bad_input)
 }
 
 fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
@@ -444,7 +454,7 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
             lidar: Vec::new(),
         };
         if let Some(cloud_path) = args.cloud.get(i) {
-            let cloud = load_cloud(&room, cloud_path)?;
+            let cloud = load_cloud(&room, cloud_path, args.lidar_calibration.as_deref())?;
             frame.lidar = detectors.detect_cloud(&cloud);
             for refused in detectors.refused_in_cloud() {
                 eprintln!(
@@ -601,7 +611,7 @@ fn overlay(args: OverlayArgs) -> Result<(), Failure> {
             camera.height
         )));
     }
-    let cloud = roomcal::lidar::read_cloud(&args.cloud, None).map_err(bad_input)?;
+    let cloud = roomcal::lidar::read_cloud(&args.cloud, None, None).map_err(bad_input)?;
     roomcal::report::overlay(&image.data, &camera, Some(&extrinsic.to_se3()), &[&cloud], &[])
         .save(&args.out)
         .with_context(|| format!("writing the overlay {}", args.out.display()))
@@ -629,7 +639,7 @@ fn detect(args: DetectArgs) -> Result<(), Failure> {
         }
     }
     if let Some(path) = &args.cloud {
-        let cloud = load_cloud(&room, path)?;
+        let cloud = load_cloud(&room, path, args.lidar_calibration.as_deref())?;
         for board in detectors.detect_cloud(&cloud) {
             out.boards.push(BoardDetection {
                 frame: 0,

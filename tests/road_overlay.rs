@@ -68,7 +68,7 @@ fn published_calibration_draws_the_road_scene() {
     let extrinsic = published_extrinsic(&dir);
     let image = roomcal::detect::load_grey(dir.join("0.png")).unwrap();
     assert_eq!((image.width, image.height), (camera.width, camera.height));
-    let cloud = roomcal::lidar::read_cloud(&dir.join("0.pcd"), None).unwrap();
+    let cloud = roomcal::lidar::read_cloud(&dir.join("0.pcd"), None, None).unwrap();
     let drawn = overlay(&image.data, &camera, Some(&extrinsic), &[&cloud], &[]);
     // Range colours are saturated; the frame underneath is grey.
     let coloured = drawn.pixels().filter(|p| p.0.iter().max() != p.0.iter().min()).count();

@@ -3,7 +3,8 @@
 //! directory of the configuration file.
 //!
 //! Extra keys (all optional): `[camera] replay_fps` (10); `[lidar] multicast` (an IPv4
-//! group to join), `replay_speed` (1.0); `[trigger] min_boards` (the room's board
+//! group to join), `replay_speed` (1.0), `calibration` (the unit's own angle-correction
+//! file: Hesai CSV or Velodyne YAML; default the model's nominal table); `[trigger] min_boards` (the room's board
 //! count, `board.count`), `still_m` (0.01),
 //! `leave_s` (3.0), `frames` (5, averaged), `sweeps` (3, accumulated),
 //! `detect_interval_s` (1.0), `capture_timeout_s` (10.0); `keep` (16, history bound);
@@ -71,6 +72,8 @@ pub struct Config {
     pub lidar: LidarSource,
     pub multicast: Option<Ipv4Addr>,
     pub replay_speed: f64,
+    /// The LiDAR unit's angle-correction file (nominal tables when absent).
+    pub lidar_calibration: Option<PathBuf>,
     /// `min_boards` here is 0 when the file does not set it: the daemon then uses the
     /// room's board count.
     pub trigger: TriggerConfig,
@@ -120,6 +123,7 @@ struct RawLidar {
     multicast: Option<Ipv4Addr>,
     #[serde(default = "one")]
     replay_speed: f64,
+    calibration: Option<PathBuf>,
 }
 
 #[derive(Deserialize)]
@@ -247,6 +251,7 @@ pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
         lidar,
         multicast: raw.lidar.multicast,
         replay_speed: raw.lidar.replay_speed,
+        lidar_calibration: raw.lidar.calibration.as_deref().map(resolve),
         trigger: TriggerConfig {
             mode: t.mode,
             min_boards: t.min_boards.unwrap_or(0),
@@ -323,6 +328,18 @@ secret_file = "/etc/roomcal/secret"
         let s = c.service.unwrap();
         assert_eq!((s.request_id, s.response_id), (0x7A0, 0x7A8));
         assert_eq!(s.socketcand, SocketcandRole::Listen);
+    }
+
+    #[test]
+    fn lidar_angle_file_resolves_beside_the_config() {
+        let c = parse(DESIGN, Path::new("/etc/roomcal/roomcal.toml")).unwrap();
+        assert_eq!(c.lidar_calibration, None, "nominal tables by default");
+        let text = DESIGN.replace(
+            "source = \"udp:0.0.0.0:2368\"",
+            "source = \"udp:0.0.0.0:2368\"\ncalibration = \"angles.csv\"",
+        );
+        let c = parse(&text, Path::new("/etc/roomcal/roomcal.toml")).unwrap();
+        assert_eq!(c.lidar_calibration, Some(PathBuf::from("/etc/roomcal/angles.csv")));
     }
 
     #[test]

@@ -93,6 +93,8 @@ pub enum DaemonError {
     Room { path: String, message: String },
     #[error("service: {0}")]
     Service(String),
+    #[error("LiDAR angle corrections: {0}")]
+    LidarCalibration(String),
 }
 
 /// Asks a running daemon for things (the library side of `roomcal query start`).
@@ -204,11 +206,16 @@ fn load_room(config: &Config) -> Result<crate::target::Room, DaemonError> {
     })
 }
 
-/// The LiDAR calibration for the room's model (nominal tables).
+/// The LiDAR calibration for the room's model: the unit's angle file when the
+/// configuration names one, else the model's nominal tables.
 fn lidar_calibration(config: &Config) -> Result<Calibration, DaemonError> {
     let room = load_room(config)?;
     let model = room.lidar.and_then(|l| l.model.packet_model()).unwrap_or(Model::Vlp16);
-    Ok(Calibration::nominal(model))
+    match &config.lidar_calibration {
+        Some(path) => crate::lidar::calibration::load(model, path)
+            .map_err(|e| DaemonError::LidarCalibration(e.to_string())),
+        None => Ok(Calibration::nominal(model)),
+    }
 }
 
 /// Opens the configured LiDAR source.

@@ -123,6 +123,7 @@ pub fn decode_capture(
 pub fn read_cloud(
     path: &std::path::Path,
     model: Option<Model>,
+    calibration_file: Option<&std::path::Path>,
 ) -> Result<Vec<Point>, CloudFileError> {
     let is_capture = std::fs::File::open(path)
         .and_then(|mut f| {
@@ -135,5 +136,5 @@ pub fn read_cloud(
         return Ok(pcd::read(path)?);
     }
     let model = model.ok_or_else(|| CloudFileError::NoModel { path: path.to_owned() })?;
-    Ok(decode_capture(model, None, path)?.0)
+    Ok(decode_capture(model, calibration_file, path)?.0)
 }
