@@ -119,6 +119,45 @@ def run(cmd):
     return p.returncode
 
 
+def table(name, runs, note=""):
+    """Prints one scene's table; `runs[mode]` lists (exit status, errors) per seed."""
+    keys = ["fx %", "cx,cy px", "rot °", "trans mm", "overlay px @10 m", "σ fx %", "σ cx px", "σ rot °", "σ trans mm"]
+    print(f"### {name}{note}\n")
+    print("| mode | accepted | " + " | ".join(f"{k} mean" if k.startswith("σ") else f"{k} mean / worst" for k in keys) + " |")
+    print("|---" * (len(keys) + 2) + "|")
+    for mode, _ in MODES:
+        got = runs[mode]
+        accepted = sum(1 for s, _ in got if s == 0)
+        cells = []
+        for k in keys:
+            vals = [e[k] for _, e in got if k in e]
+            if not vals:
+                cells.append("–")
+            elif k.startswith("σ"):
+                cells.append(f"{sum(vals) / len(vals):.3g}")
+            else:
+                cells.append(f"{sum(vals) / len(vals):.3g} / {max(vals):.3g}")
+        print(f"| {mode} | {accepted}/{len(got)} | " + " | ".join(cells) + " |")
+    print()
+
+
+def simulate(work, name, seed, sim_args):
+    scene = os.path.join(work, f"{name.replace(' ', '_').replace(',', '')}-{seed}")
+    if not os.path.exists(os.path.join(scene, "truth.json")):
+        run([ROOMCAL, "simulate", "--room", ROOM, "--out", scene, "--seed", str(seed)] + sim_args)
+    return scene
+
+
+def calibrate(scenes, out, mode_args):
+    """Runs `roomcal calibrate` on the scenes' image/cloud pairs; (status, result)."""
+    pairs = []
+    for scene in scenes:
+        pairs += ["--image", os.path.join(scene, "image.png"), "--cloud", os.path.join(scene, "cloud.pcd")]
+    status = run([ROOMCAL, "calibrate", "--room", os.path.join(scenes[0], "room.toml"), "--out", out] + pairs + mode_args)
+    with open(out) as f:
+        return status, json.load(f)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
@@ -126,44 +165,36 @@ def main():
     ap.add_argument("--only", default="", help="run only the scenes whose name contains this")
     args = ap.parse_args()
     work = args.work or tempfile.mkdtemp(prefix="roomcal-table-")
-    keys = ["fx %", "cx,cy px", "rot °", "trans mm", "overlay px @10 m", "σ fx %", "σ cx px", "σ rot °", "σ trans mm"]
     print(f"seeds {args.seeds}; scenes in {work}\n")
     for name, sim_args in [s for s in SCENES if args.only in s[0]]:
-        rows = {m: [] for m, _ in MODES}
-        lidar_boards = []
+        runs = {m: [] for m, _ in MODES}
+        placed = []
         for seed in args.seeds:
-            scene = os.path.join(work, f"{name.replace(' ', '_').replace(',', '')}-{seed}")
-            if not os.path.exists(os.path.join(scene, "truth.json")):
-                run([ROOMCAL, "simulate", "--room", ROOM, "--out", scene, "--seed", str(seed)] + sim_args)
+            scene = simulate(work, name, seed, sim_args)
             with open(os.path.join(scene, "truth.json")) as f:
                 truth = json.load(f)
             for mode, mode_args in MODES:
                 out = os.path.join(scene, f"result-{mode.split()[0].strip(chr(39))}.json")
-                status = run([ROOMCAL, "calibrate", "--room", os.path.join(scene, "room.toml"),
-                              "--image", os.path.join(scene, "image.png"),
-                              "--cloud", os.path.join(scene, "cloud.pcd"), "--out", out] + mode_args)
-                with open(out) as f:
-                    result = json.load(f)
+                status, result = calibrate([scene], out, mode_args)
                 if mode == "joint":
-                    lidar_boards.append(sum(1 for b in result["boards"] if b.get("holes_lidar")))
-                rows[mode].append((status, errors(result, truth)))
-        print(f"### {name} (LiDAR boards placed per seed: {lidar_boards})\n")
-        print("| mode | accepted | " + " | ".join(f"{k} mean / worst" if not k.startswith("σ") else f"{k} mean" for k in keys) + " |")
-        print("|---" * (len(keys) + 2) + "|")
-        for mode, _ in MODES:
-            got = rows[mode]
-            accepted = sum(1 for s, _ in got if s == 0)
-            cells = []
-            for k in keys:
-                vals = [e[k] for _, e in got if k in e]
-                if not vals:
-                    cells.append("–")
-                elif k.startswith("σ"):
-                    cells.append(f"{sum(vals) / len(vals):.3g}")
-                else:
-                    cells.append(f"{sum(vals) / len(vals):.3g} / {max(vals):.3g}")
-            print(f"| {mode} | {accepted}/{len(got)} | " + " | ".join(cells) + " |")
-        print()
+                    placed.append(sum(1 for b in result["boards"] if b.get("holes_lidar")))
+                runs[mode].append((status, errors(result, truth)))
+        table(name, runs, f" (LiDAR boards placed per seed: {placed})")
+    # Several frames of one vehicle: rooms set up differently, the same rig.
+    name = "three frames of one rig, six boards, Pandar64, 70° FOV, band layout"
+    if args.only in name:
+        runs = {m: [] for m, _ in MODES}
+        for rig in args.seeds:
+            seeds = [100 * rig + k for k in range(3)]
+            scenes = [simulate(work, f"rig {rig}", s, ["--layout", "band", "--rig-seed", str(rig)]) for s in seeds]
+            with open(os.path.join(scenes[0], "truth.json")) as f:
+                truth = json.load(f)
+            for mode, mode_args in MODES:
+                out = os.path.join(scenes[0], f"result-3-{mode.split()[0].strip(chr(39))}.json")
+                status, result = calibrate(scenes, out, mode_args)
+                runs[mode].append((status, errors(result, truth)))
+        table(name, runs, f" (rigs {args.seeds})")
+
 
 
 if __name__ == "__main__":
