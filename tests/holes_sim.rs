@@ -1,6 +1,6 @@
 //! The LiDAR board detector against the simulator's truth: every placeable board found,
 //! hole centres within millimetres, no false boards; figures per LiDAR model printed
-//! (`cargo test --test holes_sim -- --nocapture`).
+//! (`cargo test --release --test holes_sim -- --nocapture`).
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -140,7 +140,8 @@ fn best_truth(board: &LidarBoard, truth: &[BoardTruth]) -> Option<(usize, Vec<f6
     })
 }
 
-fn report(name: &str, f: &Figures) -> f64 {
+/// Prints the figures; returns the mean hole error (mm) and RMS(error / σ).
+fn report(name: &str, f: &Figures) -> (f64, f64) {
     let n = f.errors_mm.len().max(1) as f64;
     let mean = f.errors_mm.iter().sum::<f64>() / n;
     let max = f.errors_mm.iter().cloned().fold(0.0, f64::max);
@@ -150,25 +151,28 @@ fn report(name: &str, f: &Figures) -> f64 {
          hole error mean {mean:.2} mm max {max:.2} mm, RMS(error/σ) {rms_norm:.2}",
         f.boards, f.placeable, f.found_placeable, f.found_other, f.false_boards
     );
-    mean
+    (mean, rms_norm)
 }
 
 #[test]
 fn pandar64_places_every_placeable_board() {
     let f = run(LidarModel::Pandar64, &[1, 2, 3, 7]);
-    let mean = report("Pandar64", &f);
+    let (mean, rms_norm) = report("Pandar64", &f);
     assert_eq!(f.false_boards, 0);
     assert_eq!(f.found_placeable, f.placeable);
     assert!(f.placeable >= 8, "too few placeable boards to judge: {}", f.placeable);
     assert!(mean <= 5.0, "mean hole error {mean} mm");
+    // The solver weighs holes by their σ: it must be neither far too small nor too large.
+    assert!((0.6..1.6).contains(&rms_norm), "RMS(error/σ) {rms_norm}");
 }
 
 #[test]
 fn vlp32c_and_vlp16_figures() {
     for (name, model) in [("VLP-32C", LidarModel::Vlp32c), ("VLP-16", LidarModel::Vlp16)] {
         let f = run(model, &[1, 2]);
-        let mean = report(name, &f);
+        let (mean, _) = report(name, &f);
         assert_eq!(f.false_boards, 0, "{name}");
+        assert_eq!(f.found_placeable, f.placeable, "{name}");
         if !f.errors_mm.is_empty() {
             assert!(mean <= 10.0, "{name}: mean hole error {mean} mm");
         }
