@@ -37,7 +37,7 @@
 //! 7. **Uncertainty**: each hole's σ combines the plateau's pose covariance with the
 //!    plane's offset and tilt errors, the latter divided by the cosine of the beam's
 //!    incidence (the points were moved along their beams). On the simulator the RMS of
-//!    error / σ is 1.06 (Pandar64-like) and 0.99 (VLP-32C-like) over 12 scenes each
+//!    error / σ is 1.11 (Pandar64-like) and 0.98 (VLP-32C-like) over 12 scenes each
 //!    (`tests/holes_sim.rs`, `sigma_calibration_over_many_scenes`).
 //!
 //! Several sweeps of a static scene may be concatenated into one `detect` call: the
@@ -724,7 +724,8 @@ impl HoleDetector {
         (last.saturating_sub(first)) as f64 * 0.01
     }
 
-    /// Coarse mask search over (x, y, yaw) on a subsample: 2 cm and 4° steps.
+    /// Coarse mask search over (x, y, yaw) on a subsample: 4° steps in yaw, 4 cm then
+    /// 2 cm in translation.
     /// Yaws ±40° about the "y down" convention (and the same turned by 180° for an
     /// asymmetric hole pattern) are tried.
     #[inline(never)]
@@ -759,23 +760,37 @@ impl HoleDetector {
                 }
             };
             let (ur, vr) = (range(lo[0], hi[0], hw), range(lo[1], hi[1], hh));
-            // At most ~400 centres per yaw: a wide window (little of the board seen)
-            // takes coarser steps; the medium grid recentres from there.
+            // Centres at twice the coarse step (at most ~100 per yaw: a wide window, little
+            // of the board seen, takes larger steps), then the best one's neighbours at
+            // the coarse step; the medium grid recentres from there.
             let area = (ur.1 - ur.0 + COARSE_STEP) * (vr.1 - vr.0 + COARSE_STEP);
-            let step = (area / 400.0).sqrt().clamp(COARSE_STEP, 2.0 * COARSE_STEP);
+            let step = (area / 100.0).sqrt().clamp(2.0 * COARSE_STEP, 4.0 * COARSE_STEP);
+            let mut here = (i64::MIN, [0.0; 2]);
             let mut u = ur.0;
             while u <= ur.1 {
                 let mut v = vr.0;
                 while v <= vr.1 {
                     let score =
                         self.coarse_mask.score_shifted(&self.sample, &self.gap_sample, u, v);
-                    if score > best.0 {
-                        // The centre back in the plane frame.
-                        best = (score, [c * u - s * v, s * u + c * v, yaw]);
+                    if score > here.0 {
+                        here = (score, [u, v]);
                     }
                     v += step;
                 }
                 u += step;
+            }
+            let [u0, v0] = here.1;
+            let half = (step / COARSE_STEP / 2.0).ceil() as i32;
+            for a in -half..=half {
+                for b in -half..=half {
+                    let (u, v) = (u0 + a as f64 * COARSE_STEP, v0 + b as f64 * COARSE_STEP);
+                    let score =
+                        self.coarse_mask.score_shifted(&self.sample, &self.gap_sample, u, v);
+                    if score > best.0 {
+                        // The centre back in the plane frame.
+                        best = (score, [c * u - s * v, s * u + c * v, yaw]);
+                    }
+                }
             }
         }
         best.1
