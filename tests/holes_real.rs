@@ -108,6 +108,15 @@ fn real_board_holes_on_a_0_6_m_grid() {
         for r in detector.refused() {
             println!("  refused at {:?}: {}", r.centroid.as_slice(), r.reason);
         }
+        for b in &boards {
+            println!(
+                "  board at {:?}: lines {:?}, σ {:?} mm, pose σ {:?}",
+                b.pose.translation.as_slice(),
+                b.hole_scan_lines,
+                b.hole_sigma_m.iter().map(|s| (s * 1e4).round() / 10.0).collect::<Vec<_>>(),
+                b.pose_sigma
+            );
+        }
         let ahead: Vec<_> =
             boards.iter().filter(|b| (b.pose.translation.x - 3.3).abs() < 0.5).collect();
         assert_eq!(ahead.len(), 1, "one board about 3.3 m ahead");

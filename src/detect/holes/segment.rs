@@ -23,6 +23,10 @@ pub(super) struct Segment {
     hi: [i64; 3],
 }
 
+/// How many voxels beyond a group's own the gathering reaches: a sparse ring up to 30 cm
+/// from the nearest planar voxel (a VLP-32C's 2.5° spacing at 6 m) still belongs.
+const REACH: i64 = 3;
+
 /// Label of voxels that belong to a region too large to be a board (walls, floor).
 const HUGE: u32 = u32::MAX - 1;
 
@@ -178,7 +182,7 @@ impl HoleDetector {
     }
 
     /// Collects into `seg` every point near the plane of group `root` within its voxel box
-    /// widened by two voxels (the scan lines whose own voxels were not planar); returns
+    /// widened by [`REACH`] voxels (the scan lines whose own voxels were not planar); returns
     /// the group's centroid and normal, or `None` when the group cannot be a board.
     #[inline(never)]
     pub(super) fn gather(&mut self, root: u32) -> Option<(Vec3, Vec3)> {
@@ -192,9 +196,9 @@ impl HoleDetector {
         let tol = self.config.plane_tolerance_m;
         let voxel_reach = tol + 0.87 * self.config.voxel_m;
         self.seg.clear();
-        for x in g.lo[0] - 2..=g.hi[0] + 2 {
-            for y in g.lo[1] - 2..=g.hi[1] + 2 {
-                for z in g.lo[2] - 2..=g.hi[2] + 2 {
+        for x in g.lo[0] - REACH..=g.hi[0] + REACH {
+            for y in g.lo[1] - REACH..=g.hi[1] + REACH {
+                for z in g.lo[2] - REACH..=g.hi[2] + REACH {
                     let Some(&j) = self.map.get(&coords_key([x, y, z])) else { continue };
                     let v = self.voxels[j as usize];
                     if n.dot(&(v.m.s / v.m.n - c)).abs() > voxel_reach {
