@@ -1,6 +1,8 @@
 //! The daemon end to end in replay mode (the binary, real detectors and solver): it
-//! notices the fixture room, calibrates, writes `current.json` matching the truth; a
-//! room that expects one board more is rejected and leaves `current.json` untouched.
+//! notices the fixture room, calibrates, writes `current.json` matching the truth — from
+//! the PCD cloud and from the sensor's own packets (the capture replayed at its pace,
+//! decoded with the unit's angle file); a room that expects one board more is rejected
+//! and leaves `current.json` untouched.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -15,15 +17,20 @@ fn fixture(file: &str) -> PathBuf {
     root().join("fixtures/six-boards-pandar64").join(file)
 }
 
-/// A replay configuration in `dir` for `room`, its store in `dir/store`; the trigger
-/// fires on six boards whatever the room expects.
+/// A replay configuration in `dir` for `room`, its store in `dir/store`, the LiDAR
+/// replaying the fixture's PCD cloud; the trigger fires on six boards whatever the room
+/// expects.
 fn config(dir: &Path, room: &Path) -> PathBuf {
+    let lidar = format!("source = \"replay:{}\"", fixture("cloud.pcd").display());
+    config_with_lidar(dir, room, &lidar)
+}
+
+fn config_with_lidar(dir: &Path, room: &Path, lidar: &str) -> PathBuf {
     let text = format!(
-        "room = {:?}\nstore = {:?}\n[camera]\nsource = \"replay:{}\"\n[lidar]\nsource = \"replay:{}\"\n[trigger]\nmode = \"auto\"\nsettle_s = 1.0\nsweeps = 1\nmin_boards = 6\n",
+        "room = {:?}\nstore = {:?}\n[camera]\nsource = \"replay:{}\"\n[lidar]\n{lidar}\n[trigger]\nmode = \"auto\"\nsettle_s = 1.0\nsweeps = 1\nmin_boards = 6\n",
         room,
         dir.join("store"),
         fixture("image.png").display(),
-        fixture("cloud.pcd").display()
     );
     let path = dir.join("roomcal.toml");
     std::fs::write(&path, text).unwrap();
@@ -41,15 +48,10 @@ fn run_once(config: &Path) -> String {
     text
 }
 
-#[test]
-fn replay_daemon_calibrates_and_a_short_room_is_rejected() {
-    let dir = std::env::temp_dir().join(format!("roomcal-daemon-replay-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let text = run_once(&config(&dir, &fixture("room.toml")));
-    assert!(text.contains("1 accepted"), "{text}");
-    let current_path = dir.join("store/current.json");
+/// The store's current calibration is accepted, generation 1, and within 4σ of the truth.
+fn assert_current_matches_truth(current_path: &Path) {
     let current: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&current_path).unwrap()).unwrap();
+        serde_json::from_str(&std::fs::read_to_string(current_path).unwrap()).unwrap();
     assert_eq!(current["status"], "accepted");
     assert_eq!(current["generation"], 1);
     let truth: Truth =
@@ -62,7 +64,33 @@ fn replay_daemon_calibrates_and_a_short_room_is_rejected() {
     let want = truth.lidar_to_camera.as_ref().unwrap().translation;
     let shift: f64 = (0..3).map(|i| (t[i].as_f64().unwrap() - want[i]).powi(2)).sum::<f64>().sqrt();
     let sigma_t = current["uncertainty"]["translation_m"].as_f64().unwrap();
+    println!("translation off by {:.1} mm (σ {:.1} mm)", shift * 1000.0, sigma_t * 1000.0);
     assert!(shift < 4.0 * sigma_t + 0.002, "translation off by {shift} m (σ {sigma_t})");
+}
+
+#[test]
+fn replay_daemon_calibrates_from_the_sensors_packets() {
+    let dir = std::env::temp_dir().join(format!("roomcal-daemon-pcap-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let lidar = format!(
+        "source = \"replay:{}\"\ncalibration = {:?}",
+        fixture("cloud.pcap").display(),
+        fixture("angles.csv")
+    );
+    let text = run_once(&config_with_lidar(&dir, &fixture("room.toml"), &lidar));
+    assert!(text.contains("1 accepted"), "{text}");
+    assert_current_matches_truth(&dir.join("store/current.json"));
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn replay_daemon_calibrates_and_a_short_room_is_rejected() {
+    let dir = std::env::temp_dir().join(format!("roomcal-daemon-replay-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let text = run_once(&config(&dir, &fixture("room.toml")));
+    assert!(text.contains("1 accepted"), "{text}");
+    let current_path = dir.join("store/current.json");
+    assert_current_matches_truth(&current_path);
 
     // The same store, a room that expects seven boards while six stand in the scene: the
     // run starts (the trigger is set to six) and the gate rejects it; current.json stays.

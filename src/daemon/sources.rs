@@ -71,16 +71,32 @@ impl SweepSource for PacketSweeps {
 struct Feeder<'b> {
     asm: SweepAssembler<'b>,
     tx: mpsc::Sender<Result<OwnedSweep, SweepError>>,
+    /// Complete sweeps handed on so far.
+    sent: usize,
 }
 
 impl Feeder<'_> {
     fn push(&mut self, port: u16, payload: &[u8]) {
-        let tx = &self.tx;
+        let (tx, sent) = (&self.tx, &mut self.sent);
         self.asm.push(port, payload, &mut |s| {
             if s.complete {
                 let _ =
                     tx.try_send(Ok(OwnedSweep { points: s.points.to_vec(), time: s.start_time }));
+                *sent += 1;
             }
+        });
+    }
+
+    /// The end of a replayed capture: a capture of exactly one turn (as the simulator
+    /// writes, cut where the sensor cuts) never crosses the cut, so its only sweep is
+    /// handed on here; in longer captures the trailing part-turn is dropped.
+    fn end_of_capture(&mut self) {
+        if self.sent > 0 {
+            return;
+        }
+        let tx = &self.tx;
+        self.asm.flush(&mut |s| {
+            let _ = tx.try_send(Ok(OwnedSweep { points: s.points.to_vec(), time: s.start_time }));
         });
     }
 }
@@ -102,7 +118,7 @@ pub async fn udp(
     let task = tokio::spawn(async move {
         let mut buf = vec![Point::default(); SWEEP_CAPACITY];
         let config = SweepConfig { data_port: addr.port(), ..SweepConfig::for_calibration(&cal) };
-        let mut feeder = Feeder { asm: SweepAssembler::new(cal, config, &mut buf), tx };
+        let mut feeder = Feeder { asm: SweepAssembler::new(cal, config, &mut buf), tx, sent: 0 };
         let mut packet = vec![0u8; 2048];
         loop {
             match socket.recv_from(&mut packet).await {
@@ -138,7 +154,7 @@ pub fn pcap_replay(path: &Path, cal: Calibration, speed: f64) -> Result<PacketSw
             // A fresh assembler per pass: the capture's clock jumps back when it loops, and
             // an assembler would keep those packets as reordered ones, never cutting.
             let mut feeder =
-                Feeder { asm: SweepAssembler::new(cal, config, &mut buf), tx: tx.clone() };
+                Feeder { asm: SweepAssembler::new(cal, config, &mut buf), tx: tx.clone(), sent: 0 };
             let start = tokio::time::Instant::now();
             for d in &datagrams {
                 let due = start + pacer.delay_until(d.timestamp_ns);
@@ -147,6 +163,7 @@ pub fn pcap_replay(path: &Path, cal: Calibration, speed: f64) -> Result<PacketSw
                 }
                 feeder.push(d.dst.port(), &d.payload);
             }
+            feeder.end_of_capture();
             if feeder.tx.is_closed() {
                 return;
             }
