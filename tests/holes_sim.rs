@@ -4,10 +4,13 @@
 //! static scene given together reduce the hole error; and (ignored, about a minute) the
 //! hole σ against the actual errors over 12 scenes per LiDAR model.
 
+#[path = "common/truth.rs"]
+mod truth;
+
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use roomcal::detect::holes::{HoleConfig, HoleDetector, LidarBoard};
+use roomcal::detect::holes::{HoleConfig, HoleDetector};
 use roomcal::geometry::{Se3, Vec3};
 use roomcal::lidar::Point;
 use roomcal::sim::raycast::{beam_elevations, AZIMUTH_STEP_DEG};
@@ -15,6 +18,7 @@ use roomcal::sim::rng::Rng;
 use roomcal::sim::world::World;
 use roomcal::sim::{simulate, BoardTruth, ImageNoise, Scene, SimOptions};
 use roomcal::target::{LidarModel, Room};
+use truth::best_truth;
 
 fn room() -> Room {
     roomcal::room::load(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/config/room.toml")))
@@ -126,20 +130,6 @@ fn run(model: LidarModel, seeds: &[u64]) -> Figures {
         }
     }
     f
-}
-
-/// The truth board this detection is, with the per-hole errors (m), when its holes are
-/// within 10 cm of a truth board's.
-fn best_truth(board: &LidarBoard, truth: &[BoardTruth]) -> Option<(usize, Vec<f64>)> {
-    truth.iter().enumerate().find_map(|(i, t)| {
-        let err: Vec<f64> = board
-            .holes
-            .iter()
-            .zip(&t.holes_lidar)
-            .map(|(h, th)| (h - Vec3::new(th[0], th[1], th[2])).norm())
-            .collect();
-        (err.iter().all(|&e| e < 0.1)).then_some((i, err))
-    })
 }
 
 /// Prints the figures; returns the mean hole error (mm) and RMS(error / σ).

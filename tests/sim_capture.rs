@@ -5,6 +5,9 @@
 //! and hole centres in them as in the PCD the simulator wrote, matching the truth.
 //! Figures printed with `cargo test --test sim_capture -- --nocapture`.
 
+#[path = "common/truth.rs"]
+mod truth;
+
 use std::path::{Path, PathBuf};
 
 use roomcal::detect::holes::{HoleConfig, HoleDetector, LidarBoard};
@@ -17,6 +20,7 @@ use roomcal::sim::{
     raycast, simulate, write_capture, write_scene, BoardTruth, ImageNoise, SimOptions,
 };
 use roomcal::target::{LidarModel, Room};
+use truth::best_truth;
 
 fn room() -> Room {
     roomcal::room::load(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/config/room.toml")))
@@ -113,20 +117,6 @@ fn max_point_error(run: &Run) -> f64 {
         .fold(0.0, f64::max)
 }
 
-/// The truth board a detection is (all holes within 10 cm, as tests/holes_sim.rs), with
-/// its per-hole errors (m).
-fn match_truth(board: &LidarBoard, truth: &[BoardTruth]) -> Option<(usize, Vec<f64>)> {
-    truth.iter().enumerate().find_map(|(i, t)| {
-        let err: Vec<f64> = board
-            .holes
-            .iter()
-            .zip(&t.holes_lidar)
-            .map(|(h, th)| (h - Vec3::new(th[0], th[1], th[2])).norm())
-            .collect();
-        err.iter().all(|&e| e < 0.1).then_some((i, err))
-    })
-}
-
 /// Boards found in both clouds, hole errors against the truth (mm) for the packet path, and
 /// the largest distance between the two paths' hole centres (mm).
 struct Detections {
@@ -143,7 +133,7 @@ fn detect_both(run: &Run) -> Detections {
     detector.detect(&run.from_packets, &mut packets);
     let mut errors_mm = Vec::new();
     for b in &packets {
-        let (_, err) = match_truth(b, &run.truth).expect("a detected board is a true board");
+        let (_, err) = best_truth(b, &run.truth).expect("a detected board is a true board");
         errors_mm.extend(err.iter().map(|e| e * 1e3));
     }
     let mut paths_apart_mm: f64 = 0.0;
