@@ -23,9 +23,9 @@ use crate::result::{
     BoardDetection, CalibrationResult, CameraResult, Extrinsic, Quality, Status, Uncertainty,
 };
 use crate::solve::{
-    covariance, hole_sigma_px, init::kabsch_from_pairs, initialise, BoardObservation,
-    IntrinsicsSeed, JointParams, JointProblem, LmOptions, Loss, ParamMask, PlanePoints, SolveError,
-    SolveReport,
+    covariance, covariance::with_fixed_intrinsics, hole_sigma_px, init::kabsch_from_pairs,
+    initialise, BoardObservation, IntrinsicsSeed, JointParams, JointProblem, LmOptions, Loss,
+    ParamMask, PlanePoints, SharedCovariance, SolveError, SolveReport,
 };
 use crate::target::{BoardSpec, Room};
 
@@ -320,14 +320,16 @@ fn solve_all(
         .solve(&mut params, &LmOptions { mask, ..LmOptions::default() })
         .map_err(solver_reason)?;
     iterations += report.iterations;
-    let mut sigma = covariance(&problem, &params, mask).map_err(solver_reason)?.uncertainty();
-    if options.two_stage {
-        // The intrinsics came from the corners alone: their σ is that stage's.
-        let corners_only = corner_uncertainty(&problem, &params)?;
-        (sigma.fx, sigma.fy, sigma.cx, sigma.cy) =
-            (corners_only.fx, corners_only.fy, corners_only.cx, corners_only.cy);
-        sigma.distortion = corners_only.distortion;
+    let sigma = if options.two_stage && problem.has_holes() {
+        // The intrinsics came from the corners alone: their σ is that stage's, and it
+        // carries into the extrinsic the second stage solved with them held.
+        let corners_only = corner_covariance(&problem, &params)?;
+        with_fixed_intrinsics(&problem, &params, &corners_only)
+    } else {
+        covariance(&problem, &params, mask)
     }
+    .map_err(solver_reason)?
+    .uncertainty();
     let with_lidar = room.lidar.is_some() && problem.has_holes();
     if room.lidar.is_some() && !with_lidar {
         return Err("no LiDAR board could be paired with a camera board".into());
@@ -354,11 +356,12 @@ fn solve_all(
     })
 }
 
-/// The σ of the intrinsics that the corners of `problem`'s boards alone give at `params`.
-fn corner_uncertainty(
+/// The covariance of the intrinsics that the corners of `problem`'s boards alone give at
+/// `params`.
+fn corner_covariance(
     problem: &JointProblem<'_, MAX_OBSERVATIONS>,
     params: &JointParams<Camera, MAX_OBSERVATIONS>,
-) -> Result<crate::solve::Uncertainty, String> {
+) -> Result<SharedCovariance, String> {
     let mut corners: JointProblem<'_, MAX_OBSERVATIONS> =
         JointProblem::new(problem.corner_sigma_px, problem.hole_sigma_px, problem.loss);
     for board in problem.boards() {
@@ -366,7 +369,7 @@ fn corner_uncertainty(
             BoardObservation { object: board.object, corners: board.corners, ..Default::default() };
         corners.add_board(only).map_err(solver_reason)?;
     }
-    Ok(covariance(&corners, params, ParamMask::free()).map_err(solver_reason)?.uncertainty())
+    covariance(&corners, params, ParamMask::free()).map_err(solver_reason)
 }
 
 /// Intrinsics and board poses from the corners alone, from the best of several starts.

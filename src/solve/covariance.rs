@@ -3,6 +3,10 @@
 //! complement, i.e. the shared block of the full inverse with the board poses
 //! marginalised) scaled by the residual variance `σ̂² = 2·cost / (m − n)`.
 //!
+//! For a two-stage run (intrinsics from the corners, then the extrinsic with them held),
+//! [`with_fixed_intrinsics`] adds what the first stage's intrinsic uncertainty does to the
+//! extrinsic: holding the intrinsics does not make them exact.
+//!
 //! Rotation and translation uncertainties are "worst axis" figures: the square root of
 //! the largest eigenvalue of the 3×3 covariance of the left-perturbation rotation vector
 //! (reported in degrees) and of the translation (metres).
@@ -12,7 +16,7 @@ use nalgebra::SMatrix;
 use super::linalg::{max_eigenvalue3, Cholesky};
 use super::lm::NormalEquations;
 use super::problem::{JointParams, JointProblem, ParamMask};
-use super::{Projector, SolveError, EXT_ROTATION, EXT_TRANSLATION, SHARED};
+use super::{Projector, SolveError, EXT_ROTATION, EXT_TRANSLATION, INTRINSICS, SHARED};
 use crate::geometry::Mat3;
 
 /// Covariance of `[fx fy cx cy d0..d4 | δω δt]`; fixed parameters have zero rows/columns.
@@ -94,4 +98,34 @@ pub fn covariance<C: Projector, const B: usize>(
         matrix.column_mut(i).fill(0.0);
     }
     Ok(SharedCovariance { matrix, residual_variance, dof, mask })
+}
+
+/// The covariance of a second stage that solved the extrinsic (and board poses) with the
+/// intrinsics held at a first stage's estimate whose covariance is `intrinsics`: the
+/// extrinsic block is its conditional covariance plus the first stage's spread carried
+/// through the second stage's sensitivity `G = −S_ee⁻¹ S_eK` (from the undamped reduced
+/// normal matrix of `problem` at `params`, intrinsics free), `Σ_ee = σ̂² S_ee⁻¹ + G Σ_KK Gᵀ`;
+/// the intrinsic block is the first stage's. Cross terms are left at zero.
+pub fn with_fixed_intrinsics<C: Projector, const B: usize>(
+    problem: &JointProblem<'_, B>,
+    params: &JointParams<C, B>,
+    intrinsics: &SharedCovariance,
+) -> Result<SharedCovariance, SolveError> {
+    const E: usize = SHARED - INTRINSICS;
+    let conditional = covariance(problem, params, ParamMask::free().fix_intrinsics())?;
+    let ne = NormalEquations::build(problem, params)?;
+    let mask = ne.effective_mask(problem.structural_mask(&params.camera));
+    let (s, _) = ne.reduce(0.0, mask)?;
+    let s_ee: SMatrix<f64, E, E> = s.fixed_view::<E, E>(INTRINSICS, INTRINSICS).into_owned();
+    let s_ek: SMatrix<f64, E, INTRINSICS> =
+        s.fixed_view::<E, INTRINSICS>(INTRINSICS, 0).into_owned();
+    let sensitivity = -(Cholesky::new(&s_ee)?.solve_matrix(&s_ek));
+    let sigma_kk: SMatrix<f64, INTRINSICS, INTRINSICS> =
+        intrinsics.matrix.fixed_view::<INTRINSICS, INTRINSICS>(0, 0).into_owned();
+    let carried = sensitivity * sigma_kk * sensitivity.transpose();
+    let mut matrix = SMatrix::<f64, SHARED, SHARED>::zeros();
+    matrix.fixed_view_mut::<INTRINSICS, INTRINSICS>(0, 0).copy_from(&sigma_kk);
+    let ee = conditional.matrix.fixed_view::<E, E>(INTRINSICS, INTRINSICS) + carried;
+    matrix.fixed_view_mut::<E, E>(INTRINSICS, INTRINSICS).copy_from(&ee);
+    Ok(SharedCovariance { matrix, ..conditional })
 }
