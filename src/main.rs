@@ -394,15 +394,23 @@ fn load_image(
     room: &roomcal::target::Room,
     path: &std::path::Path,
 ) -> Result<roomcal::detect::GreyImage, Failure> {
+    let size = (room.camera.width, room.camera.height);
+    load_image_sized(path, size, "the room's camera")
+}
+
+/// A frame read from disk that must be `width × height` pixels, like `whose` camera.
+fn load_image_sized(
+    path: &std::path::Path,
+    (width, height): (u32, u32),
+    whose: &str,
+) -> Result<roomcal::detect::GreyImage, Failure> {
     let image = roomcal::detect::load_grey(path).map_err(bad_input)?;
-    if (image.width, image.height) != (room.camera.width, room.camera.height) {
+    if (image.width, image.height) != (width, height) {
         return Err(bad_input(anyhow::anyhow!(
-            "image {}: {}x{} pixels, the room's camera is {}x{}",
+            "image {}: {}x{} pixels, {whose} is {width}x{height}",
             path.display(),
             image.width,
             image.height,
-            room.camera.width,
-            room.camera.height
         )));
     }
     Ok(image)
@@ -600,17 +608,8 @@ fn overlay(args: OverlayArgs) -> Result<(), Failure> {
         )));
     };
     let camera = result.camera.to_camera();
-    let image = roomcal::detect::load_grey(&args.image).map_err(bad_input)?;
-    if (image.width, image.height) != (camera.width, camera.height) {
-        return Err(bad_input(anyhow::anyhow!(
-            "image {}: {}x{} pixels, the calibration's camera is {}x{}",
-            args.image.display(),
-            image.width,
-            image.height,
-            camera.width,
-            camera.height
-        )));
-    }
+    let size = (camera.width, camera.height);
+    let image = load_image_sized(&args.image, size, "the calibration's camera")?;
     let cloud = roomcal::lidar::read_cloud(&args.cloud, None, None).map_err(bad_input)?;
     roomcal::report::overlay(&image.data, &camera, Some(&extrinsic.to_se3()), &[&cloud], &[])
         .save(&args.out)
