@@ -238,6 +238,18 @@ pub async fn open_lidar(config: &Config) -> Result<AnySweepSource, DaemonError> 
     })
 }
 
+/// Logs a source's failure and sleeps the backoff's next delay before `then` (retrying
+/// to open it, reopening it).
+async fn wait_after_failure(
+    backoff: &mut Backoff,
+    error: &(dyn std::fmt::Display + Sync),
+    then: &str,
+) {
+    let d = backoff.next_delay();
+    tracing::error!("{error}; {then} in {:.1} s", d.as_secs_f64());
+    tokio::time::sleep(d).await;
+}
+
 /// Camera task: publishes every frame; reopens a failed source with backoff.
 async fn camera_task(config: Config, tx: watch::Sender<Option<Arc<GreyFrame>>>) {
     let mut backoff = Backoff::default();
@@ -245,9 +257,7 @@ async fn camera_task(config: Config, tx: watch::Sender<Option<Arc<GreyFrame>>>) 
         let mut source = match open_camera(&config) {
             Ok(s) => s,
             Err(e) => {
-                let d = backoff.next_delay();
-                tracing::error!("{e}; retrying in {:.1} s", d.as_secs_f64());
-                tokio::time::sleep(d).await;
+                wait_after_failure(&mut backoff, &e, "retrying").await;
                 continue;
             }
         };
@@ -277,9 +287,7 @@ async fn camera_task(config: Config, tx: watch::Sender<Option<Arc<GreyFrame>>>) 
                     }
                 }
                 Err(e) => {
-                    let d = backoff.next_delay();
-                    tracing::error!("{e}; reopening in {:.1} s", d.as_secs_f64());
-                    tokio::time::sleep(d).await;
+                    wait_after_failure(&mut backoff, &e, "reopening").await;
                     break;
                 }
             }
@@ -294,9 +302,7 @@ async fn lidar_task(config: Config, tx: mpsc::Sender<OwnedSweep>) {
         let mut source = match open_lidar(&config).await {
             Ok(s) => s,
             Err(e) => {
-                let d = backoff.next_delay();
-                tracing::error!("{e}; retrying in {:.1} s", d.as_secs_f64());
-                tokio::time::sleep(d).await;
+                wait_after_failure(&mut backoff, &e, "retrying").await;
                 continue;
             }
         };
@@ -309,9 +315,7 @@ async fn lidar_task(config: Config, tx: mpsc::Sender<OwnedSweep>) {
                     }
                 }
                 Err(e) => {
-                    let d = backoff.next_delay();
-                    tracing::error!("{e}; reopening in {:.1} s", d.as_secs_f64());
-                    tokio::time::sleep(d).await;
+                    wait_after_failure(&mut backoff, &e, "reopening").await;
                     break;
                 }
             }
