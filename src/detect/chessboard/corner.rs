@@ -205,21 +205,14 @@ type Inverse = (f32, f32, f32);
 /// are orthogonal to, and the inverse normal matrix.
 fn solve_step(patch: &[f32], weight: &[f32], n: usize, half: f32) -> Option<((f32, f32), Inverse)> {
     let (mut a11, mut a12, mut a22, mut b1, mut b2) = (0f32, 0f32, 0f32, 0f32, 0f32);
-    for r in 1..n - 1 {
-        let dy = r as f32 - half;
-        for c in 1..n - 1 {
-            let dx = c as f32 - half;
-            let w = weight[r * PATCH + c];
-            let gx = 0.5 * (patch[r * PATCH + c + 1] - patch[r * PATCH + c - 1]);
-            let gy = 0.5 * (patch[(r + 1) * PATCH + c] - patch[(r - 1) * PATCH + c]);
-            let (gxx, gxy, gyy) = (w * gx * gx, w * gx * gy, w * gy * gy);
-            a11 += gxx;
-            a12 += gxy;
-            a22 += gyy;
-            b1 += gxx * dx + gxy * dy;
-            b2 += gxy * dx + gyy * dy;
-        }
-    }
+    for_each_gradient(patch, weight, n, half, |dx, dy, w, gx, gy| {
+        let (gxx, gxy, gyy) = (w * gx * gx, w * gx * gy, w * gy * gy);
+        a11 += gxx;
+        a12 += gxy;
+        a22 += gyy;
+        b1 += gxx * dx + gxy * dy;
+        b2 += gxy * dx + gyy * dy;
+    });
     let det = a11 * a22 - a12 * a12;
     // Also refuses NaN.
     if det.partial_cmp(&(1e-6 * (a11 + a22) * (a11 + a22))) != Some(core::cmp::Ordering::Greater) {
@@ -238,21 +231,35 @@ fn residual_meat(
     q: (f32, f32),
 ) -> (f32, f32, f32) {
     let (mut m11, mut m12, mut m22) = (0f32, 0f32, 0f32);
+    for_each_gradient(patch, weight, n, half, |dx, dy, w, gx, gy| {
+        let res = gx * (dx - q.0) + gy * (dy - q.1);
+        let k = w * w * res * res;
+        m11 += k * gx * gx;
+        m12 += k * gx * gy;
+        m22 += k * gy * gy;
+    });
+    (m11, m12, m22)
+}
+
+/// Calls `f(dx, dy, weight, gx, gy)` for every interior pixel of the `n × n` patch:
+/// its offset from the window centre, its weight and its central-difference gradient.
+#[inline(always)]
+fn for_each_gradient(
+    patch: &[f32],
+    weight: &[f32],
+    n: usize,
+    half: f32,
+    mut f: impl FnMut(f32, f32, f32, f32, f32),
+) {
     for r in 1..n - 1 {
         let dy = r as f32 - half;
         for c in 1..n - 1 {
             let dx = c as f32 - half;
-            let w = weight[r * PATCH + c];
             let gx = 0.5 * (patch[r * PATCH + c + 1] - patch[r * PATCH + c - 1]);
             let gy = 0.5 * (patch[(r + 1) * PATCH + c] - patch[(r - 1) * PATCH + c]);
-            let res = gx * (dx - q.0) + gy * (dy - q.1);
-            let k = w * w * res * res;
-            m11 += k * gx * gx;
-            m12 += k * gx * gy;
-            m22 += k * gy * gy;
+            f(dx, dy, weight[r * PATCH + c], gx, gy);
         }
     }
-    (m11, m12, m22)
 }
 
 fn sandwich(i: (f32, f32, f32), m: (f32, f32, f32)) -> (f32, f32, f32) {
