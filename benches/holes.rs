@@ -4,9 +4,13 @@
 //! fastest is the one least disturbed by other work on a shared machine). Plain timed
 //! loop (`cargo bench --bench holes`).
 
+#[path = "../tests/common/opencalib.rs"]
+mod opencalib;
+
 use std::path::Path;
 use std::time::Instant;
 
+use opencalib::opencalib_board;
 use roomcal::detect::holes::{HoleConfig, HoleDetector};
 use roomcal::sim::{simulate, ImageNoise, SimOptions};
 
@@ -45,20 +49,7 @@ fn real_frame() {
         println!("holes (real): skipped, {path} is absent");
         return;
     };
-    let mut holes = heapless::Vec::new();
-    for h in [[-0.3, -0.3], [0.3, -0.3], [-0.3, 0.3], [0.3, 0.3]] {
-        let _ = holes.push(h);
-    }
-    let spec = roomcal::target::BoardSpec {
-        width: 1.2,
-        height: 1.2,
-        inner_corners: [2, 2],
-        square: 0.05,
-        hole_radius: 0.11,
-        holes,
-        count: 1,
-        checker_offset: [0.0, 0.0],
-    };
+    let spec = opencalib_board();
     let mut detector = HoleDetector::new(&spec, HoleConfig::default());
     let mut boards = Vec::new();
     detector.detect(&points, &mut boards);

@@ -12,31 +12,16 @@
 //! whose midpoint lies on the hole's vertical through its centre, and the rings with gaps
 //! span the hole's height symmetrically about its centre.
 
+#[path = "common/opencalib.rs"]
+mod opencalib;
+
 use std::path::Path;
 
+use opencalib::opencalib_board;
 use roomcal::detect::holes::{HoleConfig, HoleDetector};
 use roomcal::lidar::{pcd, Point};
-use roomcal::target::BoardSpec;
 
 const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data/holeboard-real");
-
-/// OpenCalib's joint-calibration board as far as the LiDAR sees it.
-fn opencalib_board() -> BoardSpec {
-    let mut holes = heapless::Vec::new();
-    for h in [[-0.3, -0.3], [0.3, -0.3], [-0.3, 0.3], [0.3, 0.3]] {
-        holes.push(h).unwrap();
-    }
-    BoardSpec {
-        width: 1.2,
-        height: 1.2,
-        inner_corners: [2, 2],
-        square: 0.05,
-        hole_radius: 0.11,
-        holes,
-        count: 1,
-        checker_offset: [0.0, 0.0],
-    }
-}
 
 /// Independent estimate of one hole from the raw rings near `guess`: (y along the rings,
 /// z) of the centre and the number of rings with a gap there.
