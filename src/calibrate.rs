@@ -372,7 +372,12 @@ fn corner_covariance(
     covariance(&corners, params, ParamMask::free()).map_err(solver_reason)
 }
 
-/// Intrinsics and board poses from the corners alone, from the best of several starts.
+/// A start whose corner RMS is within this factor of the detector's corner σ fits the
+/// corners as well as their noise allows; the remaining starts are not tried.
+const FIT_AT_NOISE: f64 = 2.0;
+
+/// Intrinsics and board poses from the corners alone, from the best of several starts
+/// (tried in order until one fits the corners at their noise).
 fn intrinsics_start(
     room: &Room,
     object: &[Vec3],
@@ -416,8 +421,13 @@ fn intrinsics_start(
         match attempt {
             Ok((report, params)) => {
                 iterations += report.iterations;
+                let explains_corners = report.corner_rms_px <= FIT_AT_NOISE * corner_sigma;
                 if best.as_ref().is_none_or(|(cost, _)| report.final_cost < *cost) {
                     best = Some((report.final_cost, params));
+                }
+                if explains_corners {
+                    // A fit at the detector's noise cannot be bettered by another start.
+                    break;
                 }
             }
             Err(e) => last_error = Some(e),
