@@ -333,21 +333,24 @@ impl ChessboardDetector {
 /// Refines with the given window, and checks it against half that window: when the two
 /// disagree by more than [`MAX_WINDOW_SHIFT`], something else in the larger window (the
 /// board's edge under steep tilt, a stand in front of the board) biases it, and the
-/// smaller window is tried in turn, down to a half-size of 3. Returns the estimate and
+/// smaller window is tried in turn, down to a half-size of 4. Returns the estimate and
 /// its shift from the check; `None` when the fit itself fails.
 fn refine_stable(view: &View, x0: f32, y0: f32, radius: usize) -> Option<(corner::Refined, f32)> {
     let mut radius = radius;
     let mut current = corner::refine(view, x0, y0, radius, 10)?;
     // Below this half-size a window is too small to check against its half.
     while radius >= 6 {
-        let half = corner::refine(view, current.x, current.y, radius / 2, 10)?;
+        // Half the window, plus one pixel: a half-size of 3 alone is too noisy a check
+        // under heavy blur and noise (it moved good corners by 0.5 px).
+        let smaller = radius / 2 + 1;
+        let half = corner::refine(view, current.x, current.y, smaller, 10)?;
         let shift = ((half.x - current.x).powi(2) + (half.y - current.y).powi(2)).sqrt();
         // The half window is noisier: allow for some of its own spread.
         let half_sigma = (0.5 * (half.cxx + half.cyy)).max(0.0).sqrt() * SIGMA_SCALE;
         if shift <= MAX_WINDOW_SHIFT + (2.0 * half_sigma).min(0.2) {
             return Some((current, shift));
         }
-        radius /= 2;
+        radius = smaller;
         current = half;
     }
     Some((current, 0.0))
