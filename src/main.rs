@@ -73,6 +73,11 @@ struct CalibrateArgs {
     /// quality gate's change limits.
     #[arg(long)]
     current: Option<PathBuf>,
+    /// The images are frames, and the clouds sweeps, of one standing vehicle: the frames
+    /// are averaged and the sweeps accumulated into one frame as the daemon does (any
+    /// number of each), instead of image i pairing with cloud i.
+    #[arg(long)]
+    standing: bool,
 }
 
 #[derive(Args)]
@@ -198,6 +203,10 @@ struct SimulateArgs {
     /// are frames of one vehicle, for multi-frame calibrations.
     #[arg(long)]
     rig_seed: Option<u64>,
+    /// Frames of a standing vehicle: also image-2.png, cloud-2.pcd, … up to N, the same
+    /// room with new sensor noise (for `calibrate --standing`, as the daemon averages them).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=100))]
+    frames: u16,
     /// LiDAR range noise sigma (m).
     #[arg(long, default_value_t = sim::DEFAULT_RANGE_NOISE_M)]
     range_noise: f64,
@@ -307,6 +316,7 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
             LayoutArg::Band => sim::Layout::Band,
         },
         rig_seed: args.rig_seed,
+        standing_frames: usize::from(args.frames),
         image: sim::ImageNoise {
             supersample: args.supersample,
             blur_px: args.blur,
@@ -430,7 +440,7 @@ fn load_cloud(
 fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
     use roomcal::calibrate::{CalibrateOptions, Detectors, FrameDetections};
     let room = roomcal::room::load(&args.room).map_err(bad_input)?;
-    if !args.cloud.is_empty() && args.cloud.len() != args.image.len() {
+    if !args.standing && !args.cloud.is_empty() && args.cloud.len() != args.image.len() {
         return Err(bad_input(anyhow::anyhow!(
             "{} images and {} clouds: image i pairs with cloud i, give as many of each",
             args.image.len(),
@@ -453,26 +463,33 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
         ),
         None => None,
     };
+    let mut images =
+        args.image.iter().map(|path| load_image(&room, path)).collect::<Result<Vec<_>, _>>()?;
+    let mut clouds = args
+        .cloud
+        .iter()
+        .map(|path| load_cloud(&room, path, args.lidar_calibration.as_deref()))
+        .collect::<Result<Vec<_>, _>>()?;
+    if args.standing {
+        (images, clouds) = standing_frame(images, clouds);
+    }
     let mut detectors = Detectors::new(&room).map_err(bad_input)?;
-    let (mut images, mut clouds, mut frames) = (Vec::new(), Vec::new(), Vec::new());
-    for (i, image_path) in args.image.iter().enumerate() {
-        let image = load_image(&room, image_path)?;
+    let mut frames = Vec::new();
+    for (i, image) in images.iter().enumerate() {
         let mut frame = FrameDetections {
-            camera: detectors.detect_image(&image).map_err(bad_input)?,
+            camera: detectors.detect_image(image).map_err(bad_input)?,
             lidar: Vec::new(),
         };
-        if let Some(cloud_path) = args.cloud.get(i) {
-            let cloud = load_cloud(&room, cloud_path, args.lidar_calibration.as_deref())?;
-            frame.lidar = detectors.detect_cloud(&cloud);
+        if let Some(cloud) = clouds.get(i) {
+            frame.lidar = detectors.detect_cloud(cloud);
+            let name = match args.standing {
+                true => "the accumulated sweeps".to_string(),
+                false => args.cloud[i].display().to_string(),
+            };
             for refused in detectors.refused_in_cloud() {
-                eprintln!(
-                    "{}: a board-sized plane was not placed: {refused:?}",
-                    cloud_path.display()
-                );
+                eprintln!("{name}: a board-sized plane was not placed: {refused:?}");
             }
-            clouds.push(cloud);
         }
-        images.push(image);
         frames.push(frame);
     }
     // Room without a LiDAR, or images only: intrinsics only.
@@ -504,6 +521,23 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
             ),
         }),
     }
+}
+
+/// One frame of a standing vehicle: its images averaged (every image was loaded at the
+/// room's size) and its sweeps accumulated.
+fn standing_frame(
+    images: Vec<roomcal::detect::GreyImage>,
+    clouds: Vec<Vec<roomcal::lidar::Point>>,
+) -> (Vec<roomcal::detect::GreyImage>, Vec<Vec<roomcal::lidar::Point>>) {
+    let pixels: Vec<&[u8]> = images.iter().map(|i| i.data.as_slice()).collect();
+    let averaged = roomcal::capture::mean_pixels(&pixels).map(|data| roomcal::detect::GreyImage {
+        width: images[0].width,
+        height: images[0].height,
+        data,
+    });
+    let cloud: Vec<roomcal::lidar::Point> = clouds.into_iter().flatten().collect();
+    let clouds = if cloud.is_empty() { Vec::new() } else { vec![cloud] };
+    (averaged.into_iter().collect(), clouds)
 }
 
 fn write_result(

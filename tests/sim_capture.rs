@@ -224,7 +224,7 @@ fn real_pandar64_azimuth_offsets_decode_in_place() {
         &calibration::PANDAR64_AZIMUTH,
     )
     .unwrap();
-    let cast = raycast::sweep(&world, &cal, 0.02, &mut Rng::new(5));
+    let cast = raycast::sweep(&world, &cal, 0.02, 0, &mut Rng::new(5));
     assert!(cast.truth.board_points[0] > 500);
     let packets = roomcal::sim::capture::packets(&cast.firings).unwrap();
     let (decoded, stats) =

@@ -57,16 +57,27 @@ pub fn average_frames(frames: &[GreyFrame]) -> Option<GreyFrame> {
     if frames.iter().any(|f| f.width != first.width || f.height != first.height) {
         return None;
     }
+    let all: Vec<&[u8]> = frames.iter().map(|f| f.pixels.as_slice()).collect();
+    let pixels = mean_pixels(&all)?;
+    let time = frames.iter().map(|f| f.time).sum::<f64>() / frames.len() as f64;
+    Some(GreyFrame { width: first.width, height: first.height, pixels, time })
+}
+
+/// The rounded per-pixel mean of equally long pixel buffers; `None` if there are none or
+/// their lengths differ.
+pub fn mean_pixels(frames: &[&[u8]]) -> Option<Vec<u8>> {
+    let first = frames.first()?;
+    if frames.iter().any(|f| f.len() != first.len()) {
+        return None;
+    }
     let n = frames.len() as u32;
-    let mut sum = vec![0u32; first.pixels.len()];
+    let mut sum = vec![0u32; first.len()];
     for f in frames {
-        for (s, &p) in sum.iter_mut().zip(&f.pixels) {
+        for (s, &p) in sum.iter_mut().zip(f.iter()) {
             *s += u32::from(p);
         }
     }
-    let pixels = sum.iter().map(|&s| ((s + n / 2) / n) as u8).collect();
-    let time = frames.iter().map(|f| f.time).sum::<f64>() / f64::from(n);
-    Some(GreyFrame { width: first.width, height: first.height, pixels, time })
+    Some(sum.iter().map(|&s| ((s + n / 2) / n) as u8).collect())
 }
 
 /// Exponential backoff for reopening a failed device: `initial`, doubling up to `max`,

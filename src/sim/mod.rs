@@ -59,6 +59,10 @@ pub struct SimOptions {
     /// Seed of the rig (the true LiDAR mounting; default: `seed`): scenes with one rig
     /// seed and different seeds are frames of one vehicle in differently set-up rooms.
     pub rig_seed: Option<u64>,
+    /// Frames of a standing vehicle: besides the scene's image and sweep, this many
+    /// minus one more of the same room, each with its own sensor noise (and each sweep its
+    /// own azimuth phase), as the daemon captures them to average and accumulate.
+    pub standing_frames: usize,
 }
 
 impl Default for SimOptions {
@@ -74,6 +78,7 @@ impl Default for SimOptions {
             image: ImageNoise::default(),
             layout: Layout::Grid,
             rig_seed: None,
+            standing_frames: 1,
         }
     }
 }
@@ -150,7 +155,18 @@ pub struct Scene {
     pub cloud: Option<Vec<Point>>,
     /// The same sweep as the sensor reports it, for packet captures (with `cloud`).
     pub firings: Option<Firings>,
+    /// The standing vehicle's further frames and sweeps ([`SimOptions::standing_frames`]).
+    pub more: Vec<StandingFrame>,
     pub truth: Truth,
+}
+
+/// One more frame and sweep of a standing vehicle: the same room, new sensor noise.
+#[derive(Clone, Debug)]
+pub struct StandingFrame {
+    /// Grey frame, row-major.
+    pub image: Vec<u8>,
+    /// The sweep (absent for an intrinsics-only room).
+    pub cloud: Option<Vec<Point>>,
 }
 
 /// Simulates one scene of `room`.
@@ -192,11 +208,29 @@ pub fn simulate(room: &Room, options: &SimOptions) -> Result<Scene, SimError> {
         Some(lidar) => {
             let cal =
                 raycast::calibration(lidar.model).ok_or(SimError::NoBeamTable(lidar.model))?;
-            let cast = raycast::sweep(&world, &cal, options.range_noise_m, &mut rng.fork(5));
+            let cast = raycast::sweep(&world, &cal, options.range_noise_m, 0, &mut rng.fork(5));
             (Some(cast.points), Some(cast.firings), Some(cast.truth))
         }
         None => (None, None, None),
     };
+    // Forked after everything above, so the first frame is the same with or without more.
+    let mut standing = rng.fork(6);
+    let frames = options.standing_frames.max(1);
+    let more = (1..frames)
+        .map(|k| {
+            let image =
+                render::render(&world, &camera, &camera_in_lidar, &options.image, &mut standing);
+            let phase = (k * usize::from(raycast::AZIMUTH_STEP) / frames) as u16;
+            let cloud = room.lidar.as_ref().and_then(|lidar| {
+                let cal = raycast::calibration(lidar.model)?;
+                Some(
+                    raycast::sweep(&world, &cal, options.range_noise_m, phase, &mut standing)
+                        .points,
+                )
+            });
+            StandingFrame { image, cloud }
+        })
+        .collect();
     let boards = poses
         .iter()
         .zip(&in_lidar)
@@ -223,7 +257,7 @@ pub fn simulate(room: &Room, options: &SimOptions) -> Result<Scene, SimError> {
         image_blur_px: options.image.blur_px,
         boards,
     };
-    Ok(Scene { room, image, cloud, firings, truth })
+    Ok(Scene { room, image, cloud, firings, more, truth })
 }
 
 /// Width of the densest band of beams the band layout aims at (degrees).
@@ -244,7 +278,8 @@ fn band_row_px(camera: &Camera, lidar_to_camera: &Se3, elevations: &[f64]) -> f6
         .map_or(camera.height as f64 / 2.0, |px| px.y.clamp(0.0, camera.height as f64))
 }
 
-/// Writes `image.png`, `cloud.pcd` (binary), `truth.json` and the `room.toml` it came from.
+/// Writes `image.png`, `cloud.pcd` (binary), `truth.json` and the `room.toml` it came from,
+/// and a standing vehicle's further frames as `image-2.png`, `cloud-2.pcd`, … .
 pub fn write_scene(scene: &Scene, dir: &Path) -> Result<(), SimError> {
     let fail = |path: &Path, e: &dyn std::fmt::Display| SimError::Write {
         path: path.to_owned(),
@@ -261,6 +296,18 @@ pub fn write_scene(scene: &Scene, dir: &Path) -> Result<(), SimError> {
         let cloud_path = dir.join("cloud.pcd");
         crate::lidar::pcd::write(&cloud_path, cloud, crate::lidar::pcd::PcdFormat::Binary)
             .map_err(|e| fail(&cloud_path, &e))?;
+    }
+    for (k, frame) in scene.more.iter().enumerate() {
+        let image_path = dir.join(format!("image-{}.png", k + 2));
+        image::GrayImage::from_raw(camera.width, camera.height, frame.image.clone())
+            .expect("the renderer makes width × height pixels")
+            .save(&image_path)
+            .map_err(|e| fail(&image_path, &e))?;
+        if let Some(cloud) = &frame.cloud {
+            let cloud_path = dir.join(format!("cloud-{}.pcd", k + 2));
+            crate::lidar::pcd::write(&cloud_path, cloud, crate::lidar::pcd::PcdFormat::Binary)
+                .map_err(|e| fail(&cloud_path, &e))?;
+        }
     }
     let truth_path = dir.join("truth.json");
     let json = serde_json::to_string_pretty(&scene.truth).expect("truth serialises");

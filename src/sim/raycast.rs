@@ -97,8 +97,16 @@ pub struct CastSweep {
     pub truth: SweepTruth,
 }
 
-/// Casts one sweep of the unit `cal` describes.
-pub fn sweep(world: &World, cal: &Calibration, range_noise_m: f64, rng: &mut Rng) -> CastSweep {
+/// Casts one sweep of the unit `cal` describes, its firings `phase` (0.01°, less than
+/// [`AZIMUTH_STEP`]) after the room's zero: a spinning LiDAR is not phase-locked to the
+/// room, so the sweeps of a standing vehicle cross the boards at slightly different places.
+pub fn sweep(
+    world: &World,
+    cal: &Calibration,
+    range_noise_m: f64,
+    phase: u16,
+    rng: &mut Rng,
+) -> CastSweep {
     let lasers = cal.model.lasers();
     let sequences = usize::from(36000 / AZIMUTH_STEP);
     let boards = world.boards.len();
@@ -112,7 +120,7 @@ pub fn sweep(world: &World, cal: &Calibration, range_noise_m: f64, rng: &mut Rng
     let origin = Vec3::zeros();
     for sequence in 0..sequences {
         let step = (sequence * usize::from(AZIMUTH_STEP)) as u32;
-        let azimuth = ((u32::from(START_AZIMUTH) + step) % 36000) as u16;
+        let azimuth = ((u32::from(START_AZIMUTH) + u32::from(phase) + step) % 36000) as u16;
         let time = sequence as f64 / sequences as f64 * SWEEP_PERIOD_S;
         for laser in 0..lasers {
             let mut ret = SimReturn { laser: laser as u16, azimuth, range: 0.0, intensity: 0 };
