@@ -7,6 +7,8 @@ board planes), with the paper's cost alone (--without-planes) and in two stages
 (mean and worst over the seeds), the mean reported σ, and the overlay error: how far
 from the truth the result draws LiDAR points 10 m out (mean px over a grid of the image),
 which is what a fusion stack sees; intrinsic and extrinsic errors partly cancel in it.
+Also a standing vehicle (`simulate --frames 10`, `calibrate --standing`): the daemon's
+default capture (5 frames averaged, 3 sweeps accumulated) and 10 of each.
 
     cargo build --release && scripts/calibration_table.py [--seeds 1 2 3] [--work DIR]
 """
@@ -148,11 +150,18 @@ def simulate(work, name, seed, sim_args):
     return scene
 
 
-def calibrate(scenes, out, mode_args):
-    """Runs `roomcal calibrate` on the scenes' image/cloud pairs; (status, result)."""
+def calibrate(scenes, out, mode_args, standing=None):
+    """Runs `roomcal calibrate` on the scenes' image/cloud pairs, or with `standing` =
+    (frames, sweeps) on that many frames and sweeps of the one scene; (status, result)."""
     pairs = []
     for scene in scenes:
         pairs += ["--image", os.path.join(scene, "image.png"), "--cloud", os.path.join(scene, "cloud.pcd")]
+    if standing:
+        frames, sweeps = standing
+        suffix = lambda k: "" if k == 1 else f"-{k}"
+        pairs = [a for k in range(1, frames + 1) for a in ("--image", os.path.join(scenes[0], f"image{suffix(k)}.png"))]
+        pairs += [a for k in range(1, sweeps + 1) for a in ("--cloud", os.path.join(scenes[0], f"cloud{suffix(k)}.pcd"))]
+        mode_args = mode_args + ["--standing"]
     status = run([ROOMCAL, "calibrate", "--room", os.path.join(scenes[0], "room.toml"), "--out", out] + pairs + mode_args)
     with open(out) as f:
         return status, json.load(f)
@@ -194,6 +203,21 @@ def main():
                 status, result = calibrate(scenes, out, mode_args)
                 runs[mode].append((status, errors(result, truth)))
         table(name, runs, f" (rigs {args.seeds})")
+    # A standing vehicle: several frames and sweeps of one room, as the daemon captures.
+    for frames, sweeps, what in [(5, 3, "the daemon's default capture"), (10, 10, "ten of each")]:
+        name = f"standing vehicle, {frames} frames + {sweeps} sweeps ({what}), six boards, Pandar64, band layout"
+        if args.only not in name:
+            continue
+        runs = {m: [] for m, _ in MODES}
+        for seed in args.seeds:
+            scene = simulate(work, "standing", seed, ["--layout", "band", "--frames", "10"])
+            with open(os.path.join(scene, "truth.json")) as f:
+                truth = json.load(f)
+            for mode, mode_args in MODES:
+                out = os.path.join(scene, f"result-{frames}-{sweeps}-{mode.split()[0].strip(chr(39))}.json")
+                status, result = calibrate([scene], out, mode_args, standing=(frames, sweeps))
+                runs[mode].append((status, errors(result, truth)))
+        table(name, runs)
 
 
 

@@ -372,12 +372,13 @@ fn corner_covariance(
     covariance(&corners, params, ParamMask::free()).map_err(solver_reason)
 }
 
-/// A start whose corner RMS is within this factor of the detector's corner σ fits the
-/// corners as well as their noise allows; the remaining starts are not tried.
-const FIT_AT_NOISE: f64 = 2.0;
+/// Two starts whose final costs agree within this fraction reached the same minimum.
+const SAME_MINIMUM: f64 = 1e-9;
 
-/// Intrinsics and board poses from the corners alone, from the best of several starts
-/// (tried in order until one fits the corners at their noise).
+/// Intrinsics and board poses from the corners alone, from the best of several starts,
+/// tried in order until two of them reach the same lowest minimum. (One start fitting the
+/// corners at their noise is not enough: on a 90° lens the closed form's start settled
+/// 4 % off in focal length at 1.75× the corner noise.)
 fn intrinsics_start(
     room: &Room,
     object: &[Vec3],
@@ -421,12 +422,14 @@ fn intrinsics_start(
         match attempt {
             Ok((report, params)) => {
                 iterations += report.iterations;
-                let explains_corners = report.corner_rms_px <= FIT_AT_NOISE * corner_sigma;
-                if best.as_ref().is_none_or(|(cost, _)| report.final_cost < *cost) {
-                    best = Some((report.final_cost, params));
+                let cost = report.final_cost;
+                let confirmed = best.as_ref().is_some_and(|(best_cost, _)| {
+                    (cost - best_cost).abs() <= SAME_MINIMUM * best_cost.abs().max(1.0)
+                });
+                if best.as_ref().is_none_or(|(best_cost, _)| cost < *best_cost) {
+                    best = Some((cost, params));
                 }
-                if explains_corners {
-                    // A fit at the detector's noise cannot be bettered by another start.
+                if confirmed {
                     break;
                 }
             }
