@@ -1,5 +1,13 @@
 //! The camera frame: every pixel's sub-samples traced through the exact inverse of the
-//! camera model into the room, then lens blur, vignetting, uneven light and sensor noise.
+//! camera model into the room, with vignetting and uneven light, blurred by the lens
+//! before the pixels integrate it, then sensor noise.
+//!
+//! The lens blur acts on the light before it reaches the pixels, so it is applied to the
+//! sub-samples, at their resolution, and only then are they averaged into pixels: the
+//! pixel values are the scene seen through the lens's Gaussian and the pixel's square, as
+//! a real sensor's are. Blurring whole pixels instead (box first, then a Gaussian sampled
+//! at whole-pixel offsets) gives a staircase point-spread function whose aliasing moved
+//! checkerboard corners by ±0.03 px depending on where they fell within a pixel.
 
 use crate::geometry::{Camera, Se3, Vec2, Vec3};
 
@@ -9,7 +17,8 @@ use super::world::{Surface, World};
 /// How the camera image is degraded.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ImageNoise {
-    /// Sub-samples per pixel: `supersample²`, on a rank-1 lattice.
+    /// Sub-samples per pixel: `supersample²`; on a rank-1 lattice without blur, on a
+    /// square grid (blurred at that resolution) with it.
     pub supersample: u32,
     /// Gaussian blur σ (px); 0 turns it off.
     pub blur_px: f64,
@@ -45,13 +54,14 @@ pub fn render(
             let first_row = chunk * rows_per_chunk;
             scope.spawn(move || {
                 let tracer = Tracer { world, camera, camera_in_lidar, noise };
-                tracer.shade_rows(first_row, out);
+                if noise.blur_px > 0.0 {
+                    tracer.shade_rows_blurred(first_row, out);
+                } else {
+                    tracer.shade_rows(first_row, out);
+                }
             });
         }
     });
-    if noise.blur_px > 0.0 {
-        gaussian_blur(&mut radiance, w, h, noise.blur_px);
-    }
     radiance
         .iter()
         .map(|&v| {
@@ -96,6 +106,81 @@ impl Tracer<'_> {
         }
     }
 
+    /// Shades the rows from `first_row` on into `out` (whole rows) through the lens blur:
+    /// band by band, the sub-samples of the band's rows and of enough rows round them on a
+    /// `supersample × supersample` grid per pixel, blurred at that resolution, averaged
+    /// into pixels. Every band gives what one whole-image pass would.
+    fn shade_rows_blurred(&self, first_row: usize, out: &mut [f32]) {
+        const BAND_ROWS: usize = 32;
+        let (w, h) = (self.camera.width as usize, self.camera.height as usize);
+        let s = self.noise.supersample.max(1) as usize;
+        let kernel = gaussian_kernel(self.noise.blur_px * s as f64);
+        let margin = kernel.len() / 2;
+        let (fine_w, fine_h) = (w * s, h * s);
+        for (band, band_out) in out.chunks_mut(BAND_ROWS * w).enumerate() {
+            let y0 = first_row + band * BAND_ROWS;
+            let rows = band_out.len() / w;
+            let lo = (y0 * s).saturating_sub(margin);
+            let hi = ((y0 + rows) * s + margin).min(fine_h);
+            let mut fine = self.shade_fine_rows(lo, hi, s);
+            let mut tmp = vec![0f32; fine.len()];
+            convolve_lines(&fine, &mut tmp, &kernel, hi - lo, fine_w, fine_w, 1);
+            convolve_lines(&tmp, &mut fine, &kernel, fine_w, hi - lo, 1, fine_w);
+            let norm = 1.0 / (s * s) as f32;
+            for (r, row_out) in band_out.chunks_mut(w).enumerate() {
+                let first_fine = (y0 + r) * s - lo;
+                for (x, value) in row_out.iter_mut().enumerate() {
+                    let sum: f32 = (0..s)
+                        .map(|j| fine[(first_fine + j) * fine_w + x * s..][..s].iter().sum::<f32>())
+                        .sum();
+                    *value = sum * norm;
+                }
+            }
+        }
+    }
+
+    /// Radiance of the sub-sample rows `lo..hi` (`s` per pixel row, `s` per pixel column),
+    /// row-major, before any blur.
+    fn shade_fine_rows(&self, lo: usize, hi: usize, s: usize) -> Vec<f32> {
+        let w = self.camera.width as usize;
+        let corner_row = |y: usize| -> Vec<Option<Vec3>> {
+            (0..=w)
+                .map(|x| self.camera.unproject(&Vec2::new(x as f64 - 0.5, y as f64 - 0.5)))
+                .collect()
+        };
+        let mut fine = vec![0f32; (hi - lo) * w * s];
+        let mut top = corner_row(lo / s);
+        let mut bottom = corner_row(lo / s + 1);
+        let mut top_row = lo / s;
+        for (j, fine_row) in (lo..hi).zip(fine.chunks_mut(w * s)) {
+            let y = j / s;
+            if y != top_row {
+                top = std::mem::replace(&mut bottom, corner_row(y + 1));
+                top_row = y;
+            }
+            let row = j % s;
+            for (x, cell) in fine_row.chunks_mut(s).enumerate() {
+                let corners = [top[x], top[x + 1], bottom[x], bottom[x + 1]];
+                for (i, value) in cell.iter_mut().enumerate() {
+                    // Each cell's sample sits off its centre so that the pixel's s² samples
+                    // fall in s² different sub-rows and sub-columns (n rooks): an edge along
+                    // either axis is then resolved in 1/s² px steps, not 1/s.
+                    let fx = (i as f64 + (row as f64 + 0.5) / s as f64) / s as f64;
+                    let fy = (row as f64 + (i as f64 + 0.5) / s as f64) / s as f64;
+                    let albedo = self.albedo_at(x, y, fx, fy, corners);
+                    let light = illumination(
+                        self.camera,
+                        self.noise,
+                        x as f64 - 0.5 + fx,
+                        y as f64 - 0.5 + fy,
+                    );
+                    *value = (255.0 * albedo * light) as f32;
+                }
+            }
+        }
+        fine
+    }
+
     /// Mean grey level over the pixel's sub-samples (pixel centres at integer
     /// coordinates, as OpenCV has them), with the light falling on it.
     fn shade_pixel(&self, x: usize, y: usize, corners: [Option<Vec3>; 4]) -> f64 {
@@ -107,20 +192,26 @@ impl Tracer<'_> {
             // edge along either axis is resolved in 1/n px steps rather than 1/√n.
             let fx = (k as f64 + 0.5) / n as f64;
             let fy = ((k * generator) % n) as f64 / n as f64 + 0.5 / n as f64;
-            let ray = match corners {
-                [Some(a), Some(b), Some(c), Some(d)] => Some(
-                    (a * (1.0 - fx) * (1.0 - fy)
-                        + b * fx * (1.0 - fy)
-                        + c * (1.0 - fx) * fy
-                        + d * fx * fy)
-                        .normalize(),
-                ),
-                _ => self.camera.unproject(&Vec2::new(x as f64 - 0.5 + fx, y as f64 - 0.5 + fy)),
-            };
-            sum += ray.map_or(0.0, |ray| self.albedo_seen(&ray));
+            sum += self.albedo_at(x, y, fx, fy, corners);
         }
         let albedo = sum / n as f64;
         255.0 * albedo * illumination(self.camera, self.noise, x as f64, y as f64)
+    }
+
+    /// The albedo seen at (fx, fy) ∈ [0, 1)² within pixel (x, y), whose corner rays are
+    /// `corners` (top left, top right, bottom left, bottom right).
+    fn albedo_at(&self, x: usize, y: usize, fx: f64, fy: f64, corners: [Option<Vec3>; 4]) -> f64 {
+        let ray = match corners {
+            [Some(a), Some(b), Some(c), Some(d)] => Some(
+                (a * (1.0 - fx) * (1.0 - fy)
+                    + b * fx * (1.0 - fy)
+                    + c * (1.0 - fx) * fy
+                    + d * fx * fy)
+                    .normalize(),
+            ),
+            _ => self.camera.unproject(&Vec2::new(x as f64 - 0.5 + fx, y as f64 - 0.5 + fy)),
+        };
+        ray.map_or(0.0, |ray| self.albedo_seen(&ray))
     }
 
     /// The albedo of whatever the camera ray (camera frame) looks at.
@@ -162,18 +253,13 @@ fn illumination(camera: &Camera, noise: &ImageNoise, x: f64, y: f64) -> f64 {
     (1.0 - noise.vignetting * r2) * (1.0 + noise.gradient * (x / w - 0.5))
 }
 
-/// Separable Gaussian blur in place, borders clamped.
-fn gaussian_blur(image: &mut [f32], w: usize, h: usize, sigma: f64) {
+/// A normalised Gaussian kernel of `sigma` samples, cut at 3σ.
+fn gaussian_kernel(sigma: f64) -> Vec<f32> {
     let radius = (3.0 * sigma).ceil() as isize;
-    let kernel: Vec<f32> = (-radius..=radius)
-        .map(|k| (-(k * k) as f64 / (2.0 * sigma * sigma)).exp() as f32)
-        .collect();
-    let norm: f32 = kernel.iter().sum();
-    let kernel: Vec<f32> = kernel.iter().map(|k| k / norm).collect();
-    let mut tmp = vec![0f32; w * h];
-    // Rows (neighbours one apart), then columns (neighbours a row apart).
-    convolve_lines(image, &mut tmp, &kernel, h, w, w, 1);
-    convolve_lines(&tmp, image, &kernel, w, h, 1, w);
+    let kernel: Vec<f64> =
+        (-radius..=radius).map(|k| (-(k * k) as f64 / (2.0 * sigma * sigma)).exp()).collect();
+    let norm: f64 = kernel.iter().sum();
+    kernel.iter().map(|k| (k / norm) as f32).collect()
 }
 
 /// Convolves `lines` lines of `len` samples (line `i` starts at `i · line_step`,
