@@ -5,23 +5,18 @@
 //! length and of the translation (scripts/calibration_table.py measures the same over
 //! more scenes and modes).
 
-use std::path::Path;
+#[path = "common/band_room.rs"]
+mod band_room;
 
+use band_room::{band_options, design_room};
 use roomcal::calibrate::{calibrate, CalibrateOptions, Detectors, FrameDetections};
 use roomcal::result::Status;
-use roomcal::sim::{simulate, ImageNoise, Layout, SimOptions};
+use roomcal::sim::{simulate, Layout, SimOptions};
 
 #[test]
 fn band_room_calibrates_within_its_uncertainty() {
-    let room =
-        roomcal::room::load(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/config/room.toml")))
-            .unwrap();
-    let options = SimOptions {
-        seed: 2,
-        layout: Layout::Band,
-        image: ImageNoise { supersample: 2, ..ImageNoise::default() },
-        ..SimOptions::default()
-    };
+    let room = design_room();
+    let options = band_options(2);
     let scene = simulate(&room, &options).unwrap();
     let mut detectors = Detectors::new(&scene.room).unwrap();
     let frame = FrameDetections {
@@ -78,9 +73,7 @@ fn band_room_calibrates_within_its_uncertainty() {
 /// first start that fits is wrong.
 #[test]
 fn wide_lens_intrinsics_find_the_lowest_minimum() {
-    let mut room =
-        roomcal::room::load(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/config/room.toml")))
-            .unwrap();
+    let mut room = design_room();
     for seed in 1..=3 {
         let options = SimOptions {
             seed,

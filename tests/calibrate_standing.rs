@@ -4,27 +4,22 @@
 //! points, so the extrinsic's translation σ must shrink and the estimate stay within its
 //! uncertainty. The simulator's first frame must not change when more are asked for.
 
-use std::path::Path;
+#[path = "common/band_room.rs"]
+mod band_room;
 
+use band_room::{band_options, design_room};
 use roomcal::calibrate::{calibrate, CalibrateOptions, Calibration, Detectors, FrameDetections};
 use roomcal::capture::mean_pixels;
 use roomcal::lidar::Point;
 use roomcal::result::Status;
-use roomcal::sim::{simulate, ImageNoise, Layout, Scene, SimOptions};
+use roomcal::sim::{simulate, Scene, SimOptions};
 
 const FRAMES: usize = 4;
 
 #[test]
 fn standing_frames_shrink_the_extrinsic_uncertainty() {
-    let room =
-        roomcal::room::load(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/config/room.toml")))
-            .unwrap();
-    let options = SimOptions {
-        seed: 2,
-        layout: Layout::Band,
-        image: ImageNoise { supersample: 2, ..ImageNoise::default() },
-        ..SimOptions::default()
-    };
+    let room = design_room();
+    let options = band_options(2);
     let standing =
         simulate(&room, &SimOptions { standing_frames: FRAMES, ..options.clone() }).unwrap();
     assert_eq!(standing.more.len(), FRAMES - 1);
