@@ -204,11 +204,14 @@ pub fn simulate(room: &Room, options: &SimOptions) -> Result<Scene, SimError> {
     let in_lidar: Vec<Se3> = poses.iter().map(|p| camera_in_lidar.compose(p)).collect();
     let world = World::new(&room.board, in_lidar.clone(), &mut rng.fork(3));
     let image = render::render(&world, &camera, &camera_in_lidar, &options.image, &mut rng.fork(4));
-    let (cloud, firings, sweep_truth) = match &room.lidar {
-        Some(lidar) => {
-            let cal =
-                raycast::calibration(lidar.model).ok_or(SimError::NoBeamTable(lidar.model))?;
-            let cast = raycast::sweep(&world, &cal, options.range_noise_m, 0, &mut rng.fork(5));
+    let beams = room
+        .lidar
+        .as_ref()
+        .map(|lidar| raycast::calibration(lidar.model).ok_or(SimError::NoBeamTable(lidar.model)))
+        .transpose()?;
+    let (cloud, firings, sweep_truth) = match &beams {
+        Some(cal) => {
+            let cast = raycast::sweep(&world, cal, options.range_noise_m, 0, &mut rng.fork(5));
             (Some(cast.points), Some(cast.firings), Some(cast.truth))
         }
         None => (None, None, None),
@@ -221,12 +224,8 @@ pub fn simulate(room: &Room, options: &SimOptions) -> Result<Scene, SimError> {
             let image =
                 render::render(&world, &camera, &camera_in_lidar, &options.image, &mut standing);
             let phase = (k * usize::from(raycast::AZIMUTH_STEP) / frames) as u16;
-            let cloud = room.lidar.as_ref().and_then(|lidar| {
-                let cal = raycast::calibration(lidar.model)?;
-                Some(
-                    raycast::sweep(&world, &cal, options.range_noise_m, phase, &mut standing)
-                        .points,
-                )
+            let cloud = beams.as_ref().map(|cal| {
+                raycast::sweep(&world, cal, options.range_noise_m, phase, &mut standing).points
             });
             StandingFrame { image, cloud }
         })
@@ -286,28 +285,24 @@ pub fn write_scene(scene: &Scene, dir: &Path) -> Result<(), SimError> {
         message: e.to_string(),
     };
     std::fs::create_dir_all(dir).map_err(|e| fail(dir, &e))?;
-    let image_path = dir.join("image.png");
     let camera = &scene.truth.camera;
-    image::GrayImage::from_raw(camera.width, camera.height, scene.image.clone())
-        .expect("the renderer makes width × height pixels")
-        .save(&image_path)
-        .map_err(|e| fail(&image_path, &e))?;
-    if let Some(cloud) = &scene.cloud {
-        let cloud_path = dir.join("cloud.pcd");
-        crate::lidar::pcd::write(&cloud_path, cloud, crate::lidar::pcd::PcdFormat::Binary)
-            .map_err(|e| fail(&cloud_path, &e))?;
-    }
-    for (k, frame) in scene.more.iter().enumerate() {
-        let image_path = dir.join(format!("image-{}.png", k + 2));
-        image::GrayImage::from_raw(camera.width, camera.height, frame.image.clone())
+    // Frame 1 is `image.png` / `cloud.pcd`, frame k > 1 `image-k.png` / `cloud-k.pcd`.
+    let write_frame = |suffix: &str, image: &[u8], cloud: Option<&Vec<Point>>| {
+        let image_path = dir.join(format!("image{suffix}.png"));
+        image::GrayImage::from_raw(camera.width, camera.height, image.to_vec())
             .expect("the renderer makes width × height pixels")
             .save(&image_path)
             .map_err(|e| fail(&image_path, &e))?;
-        if let Some(cloud) = &frame.cloud {
-            let cloud_path = dir.join(format!("cloud-{}.pcd", k + 2));
+        if let Some(cloud) = cloud {
+            let cloud_path = dir.join(format!("cloud{suffix}.pcd"));
             crate::lidar::pcd::write(&cloud_path, cloud, crate::lidar::pcd::PcdFormat::Binary)
                 .map_err(|e| fail(&cloud_path, &e))?;
         }
+        Ok(())
+    };
+    write_frame("", &scene.image, scene.cloud.as_ref())?;
+    for (k, frame) in scene.more.iter().enumerate() {
+        write_frame(&format!("-{}", k + 2), &frame.image, frame.cloud.as_ref())?;
     }
     let truth_path = dir.join("truth.json");
     let json = serde_json::to_string_pretty(&scene.truth).expect("truth serialises");

@@ -17,8 +17,9 @@ use super::world::{Surface, World};
 /// How the camera image is degraded.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ImageNoise {
-    /// Sub-samples per pixel: `supersample²`; on a rank-1 lattice without blur, on a
-    /// square grid (blurred at that resolution) with it.
+    /// Sub-samples per pixel: `supersample²`; on a rank-1 lattice without blur, with it
+    /// one per cell of a `supersample × supersample` grid, placed n-rooks (blurred at that
+    /// grid's resolution).
     pub supersample: u32,
     /// Gaussian blur σ (px); 0 turns it off.
     pub blur_px: f64,
@@ -89,15 +90,10 @@ impl Tracer<'_> {
     /// the model's domain) the sub-samples are inverted one by one.
     fn shade_rows(&self, first_row: usize, out: &mut [f32]) {
         let w = self.camera.width as usize;
-        let lattice_row = |y: usize| -> Vec<Option<Vec3>> {
-            (0..=w)
-                .map(|x| self.camera.unproject(&Vec2::new(x as f64 - 0.5, y as f64 - 0.5)))
-                .collect()
-        };
-        let mut top = lattice_row(first_row);
+        let mut top = self.corner_rays(first_row);
         for (r, row_out) in out.chunks_mut(w).enumerate() {
             let y = first_row + r;
-            let bottom = lattice_row(y + 1);
+            let bottom = self.corner_rays(y + 1);
             for (x, value) in row_out.iter_mut().enumerate() {
                 let corners = [top[x], top[x + 1], bottom[x], bottom[x + 1]];
                 *value = self.shade_pixel(x, y, corners) as f32;
@@ -107,8 +103,8 @@ impl Tracer<'_> {
     }
 
     /// Shades the rows from `first_row` on into `out` (whole rows) through the lens blur:
-    /// band by band, the sub-samples of the band's rows and of enough rows round them on a
-    /// `supersample × supersample` grid per pixel, blurred at that resolution, averaged
+    /// band by band, the sub-samples of the band's rows and of enough rows round them, one
+    /// per cell of a `supersample × supersample` grid per pixel, blurred at that resolution, averaged
     /// into pixels. Every band gives what one whole-image pass would.
     fn shade_rows_blurred(&self, first_row: usize, out: &mut [f32]) {
         const BAND_ROWS: usize = 32;
@@ -143,19 +139,14 @@ impl Tracer<'_> {
     /// row-major, before any blur.
     fn shade_fine_rows(&self, lo: usize, hi: usize, s: usize) -> Vec<f32> {
         let w = self.camera.width as usize;
-        let corner_row = |y: usize| -> Vec<Option<Vec3>> {
-            (0..=w)
-                .map(|x| self.camera.unproject(&Vec2::new(x as f64 - 0.5, y as f64 - 0.5)))
-                .collect()
-        };
         let mut fine = vec![0f32; (hi - lo) * w * s];
-        let mut top = corner_row(lo / s);
-        let mut bottom = corner_row(lo / s + 1);
+        let mut top = self.corner_rays(lo / s);
+        let mut bottom = self.corner_rays(lo / s + 1);
         let mut top_row = lo / s;
         for (j, fine_row) in (lo..hi).zip(fine.chunks_mut(w * s)) {
             let y = j / s;
             if y != top_row {
-                top = std::mem::replace(&mut bottom, corner_row(y + 1));
+                top = std::mem::replace(&mut bottom, self.corner_rays(y + 1));
                 top_row = y;
             }
             let row = j % s;
@@ -179,6 +170,14 @@ impl Tracer<'_> {
             }
         }
         fine
+    }
+
+    /// The rays through the top-left corners of pixel row `y`'s pixels, and past its last
+    /// pixel (`width + 1` of them; `None` outside the model's domain).
+    fn corner_rays(&self, y: usize) -> Vec<Option<Vec3>> {
+        (0..=self.camera.width as usize)
+            .map(|x| self.camera.unproject(&Vec2::new(x as f64 - 0.5, y as f64 - 0.5)))
+            .collect()
     }
 
     /// Mean grey level over the pixel's sub-samples (pixel centres at integer
