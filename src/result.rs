@@ -146,6 +146,16 @@ impl Extrinsic {
             translation: self.translation.into(),
         }
     }
+
+    /// How far `other` is from this motion: the angle of the rotation between them
+    /// (degrees) and the distance between the translations (metres).
+    pub fn difference(&self, other: &Extrinsic) -> (f64, f64) {
+        let (a, b) = (self.to_se3(), other.to_se3());
+        let angle = crate::geometry::se3::so3_log(&(b.rotation * a.rotation.transpose()))
+            .norm()
+            .to_degrees();
+        (angle, (b.translation - a.translation).norm())
+    }
 }
 
 impl CalibrationResult {

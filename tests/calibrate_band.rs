@@ -38,12 +38,8 @@ fn band_room_calibrates_within_its_uncertainty() {
 
     let (r, t) = (&joint.result, &scene.truth);
     let u = &r.uncertainty;
-    let truth_ext = t.lidar_to_camera.as_ref().unwrap().to_se3();
-    let ext = r.lidar_to_camera.as_ref().unwrap().to_se3();
-    let rot = roomcal::geometry::se3::so3_log(&(ext.rotation * truth_ext.rotation.transpose()))
-        .norm()
-        .to_degrees();
-    let shift = (ext.translation - truth_ext.translation).norm();
+    let (rot, shift) =
+        t.lidar_to_camera.as_ref().unwrap().difference(r.lidar_to_camera.as_ref().unwrap());
     let (dfx, dcx, dcy) =
         (r.camera.fx - t.camera.fx, r.camera.cx - t.camera.cx, r.camera.cy - t.camera.cy);
     println!(

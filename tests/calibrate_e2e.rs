@@ -60,12 +60,11 @@ fn calibrates_the_six_board_fixture() {
     let (r, t, u) = (&result.camera, &truth.camera, &result.uncertainty);
     let fx_err = (r.fx - t.fx).abs();
     let principal_err = (r.cx - t.cx).abs().max((r.cy - t.cy).abs());
-    let want = truth.lidar_to_camera.as_ref().unwrap().to_se3();
-    let got = result.lidar_to_camera.as_ref().unwrap().to_se3();
-    let rotation_err = roomcal::geometry::se3::so3_log(&(got.rotation * want.rotation.transpose()))
-        .norm()
-        .to_degrees();
-    let translation_err = (got.translation - want.translation).norm();
+    let (rotation_err, translation_err) = truth
+        .lidar_to_camera
+        .as_ref()
+        .unwrap()
+        .difference(result.lidar_to_camera.as_ref().unwrap());
     println!(
         "errors: fx {fx_err:.2} px ({:.3} %), principal {principal_err:.2} px, rotation {rotation_err:.4}°, translation {:.1} mm; corner RMS {:.3} px",
         fx_err / t.fx * 100.0,

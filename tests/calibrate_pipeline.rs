@@ -102,17 +102,14 @@ struct Errors {
 
 fn errors(scene: &Scene, result: &roomcal::result::CalibrationResult) -> Errors {
     let (t, r) = (&scene.truth.camera, &result.camera);
-    let truth = scene.truth.lidar_to_camera.as_ref().unwrap().to_se3();
-    let got = result.lidar_to_camera.as_ref().expect("an extrinsic").to_se3();
-    let rotation_deg =
-        roomcal::geometry::se3::so3_log(&(got.rotation * truth.rotation.transpose()))
-            .norm()
-            .to_degrees();
+    let got = result.lidar_to_camera.as_ref().expect("an extrinsic");
+    let (rotation_deg, translation_m) =
+        scene.truth.lidar_to_camera.as_ref().unwrap().difference(got);
     Errors {
         fx_rel: ((r.fx - t.fx) / t.fx).abs().max(((r.fy - t.fy) / t.fy).abs()),
         principal_px: (r.cx - t.cx).abs().max((r.cy - t.cy).abs()),
         rotation_deg,
-        translation_m: (got.translation - truth.translation).norm(),
+        translation_m,
     }
 }
 

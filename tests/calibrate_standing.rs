@@ -46,9 +46,12 @@ fn standing_frames_shrink_the_extrinsic_uncertainty() {
     }
 
     let (u1, u4) = (&one.result.uncertainty, &all.result.uncertainty);
-    let truth = standing.truth.lidar_to_camera.as_ref().unwrap().to_se3();
-    let ext = all.result.lidar_to_camera.as_ref().unwrap().to_se3();
-    let shift = (ext.translation - truth.translation).norm();
+    let (_, shift) = standing
+        .truth
+        .lidar_to_camera
+        .as_ref()
+        .unwrap()
+        .difference(all.result.lidar_to_camera.as_ref().unwrap());
     println!(
         "σ t {:.1} → {:.1} mm, σ rot {:.3} → {:.3}°, hole RMS {:.3} → {:.3} px, corner RMS {:.3} → {:.3} px; \
          four frames: translation off by {:.1} mm",
