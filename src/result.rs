@@ -1,9 +1,37 @@
 //! The result file (JSON) and `roomcal detect`'s detections, exactly as DESIGN.md
 //! specifies them.
 
+use std::path::{Path, PathBuf};
+
 use serde::{Deserialize, Serialize};
 
 use crate::geometry::{Camera, CameraModel};
+use crate::target::{CameraSpec, RoomError};
+
+/// Why a result file (or the store's `current.json`) read back cannot be used; names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum ResultFileError {
+    #[error("calibration {path}: cannot read: {source}")]
+    Read { path: PathBuf, source: std::io::Error },
+    #[error("calibration {path}: not a calibration result: {message}")]
+    Parse { path: PathBuf, message: String },
+    /// A field outside the range a calibration can have (the room file's ranges).
+    #[error("calibration {path}: {source}")]
+    Invalid { path: PathBuf, source: RoomError },
+}
+
+/// Reads a result file (or the store's `current.json`) and validates the calibration in
+/// it ([`CalibrationResult::validate`]): the one loader for calibrations read back.
+pub fn load(path: &Path) -> Result<CalibrationResult, ResultFileError> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|source| ResultFileError::Read { path: path.to_owned(), source })?;
+    let result: CalibrationResult = serde_json::from_str(&text)
+        .map_err(|e| ResultFileError::Parse { path: path.to_owned(), message: e.to_string() })?;
+    result
+        .validate()
+        .map_err(|source| ResultFileError::Invalid { path: path.to_owned(), source })?;
+    Ok(result)
+}
 
 /// Whether the quality gate accepted the calibration.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -85,6 +113,25 @@ pub struct CalibrationResult {
 }
 
 impl CameraResult {
+    /// Checks the camera as the room file's `[camera]` is checked (the same keys:
+    /// `camera.fx` …): size, focal lengths within the image's scale, principal point in
+    /// the image, distortion of the model's length, finite and bounded.
+    pub fn validate(&self) -> Result<(), RoomError> {
+        let distortion = heapless::Vec::from_slice(&self.distortion)
+            .map_err(|_| RoomError::DistortionLength { expected: 5, got: self.distortion.len() })?;
+        CameraSpec {
+            model: self.model,
+            width: self.width,
+            height: self.height,
+            fx: Some(self.fx),
+            fy: Some(self.fy),
+            cx: Some(self.cx),
+            cy: Some(self.cy),
+            distortion: Some(distortion),
+        }
+        .validate()
+    }
+
     /// The result block of a camera.
     pub fn from_camera(camera: &Camera) -> Self {
         let n = match camera.model {
@@ -159,6 +206,22 @@ impl Extrinsic {
 }
 
 impl CalibrationResult {
+    /// Checks the calibration itself: the camera ([`CameraResult::validate`]) and the
+    /// extrinsic, a rotation with a translation within the vehicle's size (the room
+    /// file's `[lidar]` rules, keys `lidar_to_camera.rotation` / `.translation`).
+    pub fn validate(&self) -> Result<(), RoomError> {
+        self.camera.validate()?;
+        if let Some(e) = &self.lidar_to_camera {
+            crate::target::validate_mounting(
+                "lidar_to_camera.rotation",
+                &e.rotation,
+                "lidar_to_camera.translation",
+                &e.translation,
+            )?;
+        }
+        Ok(())
+    }
+
     /// The camera and the extrinsic as an OpenCV FileStorage YAML (`camera_matrix`,
     /// `distortion_coefficients`, and `lidar_to_camera` as a 4×4 matrix when present),
     /// readable with `cv::FileStorage` / `cv2.FileStorage`.

@@ -20,6 +20,30 @@ pub const MAX_BOARDS: usize = 16;
 /// How far `lidar.rotation` may be from orthonormal (max |RᵀR − I| and |det R − 1|).
 pub const ROTATION_TOLERANCE: f64 = 1e-6;
 
+// Physical ranges of the room file's numbers (README "Limits"). Every number outside its
+// range is refused by [`Room::validate`] with its key, before anything is sized from it.
+
+/// Largest board outline side (m): calibration boards are a metre or two; a few metres
+/// at most fit a room and a camera's view.
+pub const MAX_BOARD_SIDE_M: f64 = 5.0;
+/// Smallest checkerboard square (m): below 5 mm no detector finds the corners at room distance.
+pub const MIN_SQUARE_M: f64 = 0.005;
+/// Smallest and largest camera image side (px): the chessboard detector needs 32, and
+/// 16384 is beyond any vehicle camera.
+pub const MIN_IMAGE_SIDE: u32 = 32;
+pub const MAX_IMAGE_SIDE: u32 = 16384;
+/// Most pixels of a camera image (64 Mpx): bounds every buffer sized from an image, and
+/// image files are refused above it from their header, before decoding.
+pub const MAX_IMAGE_PIXELS: u64 = 64 << 20;
+/// Focal lengths (px) must lie within these multiples of the image's larger side: 0.05×
+/// is wider than any fisheye, 50× narrower than any vehicle telephoto lens.
+pub const MIN_FOCAL_PER_SIDE: f64 = 0.05;
+pub const MAX_FOCAL_PER_SIDE: f64 = 50.0;
+/// Largest magnitude of a distortion coefficient: real lenses fit well below 10.
+pub const MAX_DISTORTION: f64 = 100.0;
+/// Largest magnitude of a translation component between sensors on one vehicle (m).
+pub const MAX_TRANSLATION_M: f64 = 10.0;
+
 /// A calibration board: outline, checkerboard and holes (room file `[board]`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -29,17 +53,19 @@ pub struct BoardSpec {
     /// Outline height (m, along board y).
     pub height: f64,
     /// Inner corners: columns (along x), rows (along y).
+    #[serde(deserialize_with = "exact::array")]
     pub inner_corners: [u32; 2],
     /// Side of one square (m).
     pub square: f64,
     /// Radius of every hole (m).
     pub hole_radius: f64,
     /// Hole centres in the board plane (m).
+    #[serde(deserialize_with = "exact::points")]
     pub holes: heapless::Vec<[f64; 2], MAX_HOLES>,
     /// Boards standing in the room.
     pub count: u32,
     /// Centre of the checkerboard in the board frame (m).
-    #[serde(default)]
+    #[serde(default, deserialize_with = "exact::array")]
     pub checker_offset: [f64; 2],
 }
 
@@ -97,7 +123,9 @@ impl LidarModel {
 #[serde(deny_unknown_fields)]
 pub struct LidarSpec {
     pub model: LidarModel,
+    #[serde(deserialize_with = "exact::matrix")]
     pub rotation: [[f64; 3]; 3],
+    #[serde(deserialize_with = "exact::array")]
     pub translation: [f64; 3],
 }
 
@@ -168,6 +196,10 @@ pub struct Room {
 pub enum RoomError {
     /// A size that must be positive is not.
     NonPositive { key: &'static str, value: f64 },
+    /// A number outside its physical range, NaN and infinities included.
+    OutOfRange { key: &'static str, index: Index, value: f64, range: Range },
+    /// `camera.width × camera.height` above [`MAX_IMAGE_PIXELS`].
+    ImageTooLarge { width: u32, height: u32 },
     /// Fewer than two inner corners along a direction.
     TooFewInnerCorners { cols: u32, rows: u32 },
     /// The checkerboard does not fit inside the board outline.
@@ -181,11 +213,108 @@ pub enum RoomError {
     /// More boards than the solver holds.
     TooManyBoards { count: u32 },
     /// `lidar.rotation` is not a rotation.
-    RotationNotOrthonormal { deviation: f64 },
+    RotationNotOrthonormal { key: &'static str, deviation: f64 },
     /// A `[lidar]` table with a board that has no holes to see.
     LidarWithoutHoles,
     /// A nominal distortion with the wrong number of coefficients.
     DistortionLength { expected: usize, got: usize },
+}
+
+/// Which entry of a list- or matrix-valued key a number is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Index {
+    /// The key is a single number.
+    None,
+    /// `key[i]`.
+    One(u8),
+    /// `key[i][j]`.
+    Two(u8, u8),
+}
+
+/// The closed range `[min, max]` (or `(min, max]` when `min_open`) a number must lie in,
+/// and its unit for messages; `max = ∞` means unbounded above (the number must still be
+/// finite).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Range {
+    pub min: f64,
+    pub min_open: bool,
+    pub max: f64,
+    pub unit: &'static str,
+}
+
+impl Range {
+    /// `(0, max]`.
+    pub const fn positive(max: f64, unit: &'static str) -> Range {
+        Range { min: 0.0, min_open: true, max, unit }
+    }
+
+    /// `[min, max]`.
+    pub const fn closed(min: f64, max: f64, unit: &'static str) -> Range {
+        Range { min, min_open: false, max, unit }
+    }
+
+    /// Whether `value` is finite and inside the range (NaN never is).
+    pub fn contains(&self, value: f64) -> bool {
+        let above_min = if self.min_open { value > self.min } else { value >= self.min };
+        value.is_finite() && above_min && value <= self.max
+    }
+
+    /// `Ok` if `value` is in the range, else the error naming `key`.
+    pub fn check(&self, key: &'static str, index: Index, value: f64) -> Result<(), RoomError> {
+        match self.contains(value) {
+            true => Ok(()),
+            false => Err(RoomError::OutOfRange { key, index, value, range: *self }),
+        }
+    }
+}
+
+impl fmt::Display for Range {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let unit = self.unit;
+        let space = if unit.is_empty() { "" } else { " " };
+        if self.min == f64::NEG_INFINITY && self.max == f64::INFINITY {
+            return write!(f, "must be a finite number");
+        }
+        match (self.min_open && self.min == 0.0, self.max.is_finite()) {
+            (true, true) => write!(f, "must be positive and at most {}{space}{unit}", self.max),
+            (true, false) => write!(f, "must be a positive finite number"),
+            (false, false) => {
+                write!(f, "must be a finite number of at least {}{space}{unit}", self.min)
+            }
+            (false, true) => {
+                let open = if self.min_open { '(' } else { '[' };
+                write!(
+                    f,
+                    "must be a finite number in {open}{}, {}]{space}{unit}",
+                    self.min, self.max
+                )
+            }
+        }
+    }
+}
+
+/// A number as a person writes it: plain, or in exponent form when very large or small
+/// (`1e308`, not 309 digits).
+struct Number(f64);
+
+impl fmt::Display for Number {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let v = self.0;
+        match v.is_finite() && v != 0.0 && !(1e-4..1e6).contains(&v.abs()) {
+            true => write!(f, "{v:e}"),
+            false => write!(f, "{v}"),
+        }
+    }
+}
+
+impl fmt::Display for Index {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match *self {
+            Index::None => Ok(()),
+            Index::One(i) => write!(f, "[{i}]"),
+            Index::Two(i, j) => write!(f, "[{i}][{j}]"),
+        }
+    }
 }
 
 impl fmt::Display for RoomError {
@@ -194,6 +323,13 @@ impl fmt::Display for RoomError {
             RoomError::NonPositive { key, value } => {
                 write!(f, "`{key}` must be positive, got {value}")
             }
+            RoomError::OutOfRange { key, index, value, range } => {
+                write!(f, "`{key}{index}` = {}: {range}", Number(value))
+            }
+            RoomError::ImageTooLarge { width, height } => write!(
+                f,
+                "`camera.width` × `camera.height` = {width} × {height}: more than {MAX_IMAGE_PIXELS} pixels"
+            ),
             RoomError::TooFewInnerCorners { cols, rows } => write!(
                 f,
                 "`board.inner_corners` must be at least 2 in each direction, got [{cols}, {rows}]"
@@ -214,9 +350,9 @@ impl fmt::Display for RoomError {
             RoomError::TooManyBoards { count } => {
                 write!(f, "`board.count` is {count}, at most {MAX_BOARDS} boards are supported")
             }
-            RoomError::RotationNotOrthonormal { deviation } => write!(
+            RoomError::RotationNotOrthonormal { key, deviation } => write!(
                 f,
-                "`lidar.rotation` is not orthonormal with determinant +1 (off by {deviation:.3e}, tolerance {ROTATION_TOLERANCE:e})"
+                "`{key}` is not orthonormal with determinant +1 (off by {deviation:.3e}, tolerance {ROTATION_TOLERANCE:e})"
             ),
             RoomError::LidarWithoutHoles => {
                 write!(f, "`lidar`: a LiDAR calibration needs `board.holes`, and the list is empty")
@@ -270,13 +406,20 @@ impl BoardSpec {
         inside && self.holes.iter().all(|h| (x - h[0]) * (x - h[0]) + (y - h[1]) * (y - h[1]) > r2)
     }
 
-    /// Checks sizes, the checkerboard and the holes against the outline.
+    /// Checks every number's range, then the checkerboard and the holes against the
+    /// outline.
     pub fn validate(&self) -> Result<(), RoomError> {
-        positive("board.width", self.width)?;
-        positive("board.height", self.height)?;
-        positive("board.square", self.square)?;
-        if !self.holes.is_empty() {
-            positive("board.hole_radius", self.hole_radius)?;
+        let side = Range::positive(MAX_BOARD_SIDE_M, "m");
+        side.check("board.width", Index::None, self.width)?;
+        side.check("board.height", Index::None, self.height)?;
+        Range::closed(MIN_SQUARE_M, MAX_BOARD_SIDE_M, "m").check(
+            "board.square",
+            Index::None,
+            self.square,
+        )?;
+        let offset = Range::closed(-MAX_BOARD_SIDE_M, MAX_BOARD_SIDE_M, "m");
+        for (i, &v) in self.checker_offset.iter().enumerate() {
+            offset.check("board.checker_offset", Index::One(i as u8), v)?;
         }
         if self.count == 0 {
             return Err(RoomError::NonPositive { key: "board.count", value: 0.0 });
@@ -292,6 +435,14 @@ impl BoardSpec {
         let [ox, oy] = self.checker_offset;
         if ox.abs() + hx > self.width / 2.0 || oy.abs() + hy > self.height / 2.0 {
             return Err(RoomError::CheckerOutsideBoard);
+        }
+        if !self.holes.is_empty() {
+            side.check("board.hole_radius", Index::None, self.hole_radius)?;
+        }
+        for (i, hole) in self.holes.iter().enumerate() {
+            for (j, &v) in hole.iter().enumerate() {
+                offset.check("board.holes", Index::Two(i as u8, j as u8), v)?;
+            }
         }
         self.validate_holes()
     }
@@ -321,19 +472,27 @@ impl BoardSpec {
 }
 
 impl CameraSpec {
-    /// Checks the image size and the nominal intrinsics.
+    /// Checks the image size and the nominal intrinsics: focal lengths within the image's
+    /// scale, the principal point inside the image, distortion finite and bounded.
     pub fn validate(&self) -> Result<(), RoomError> {
-        if self.width == 0 {
-            return Err(RoomError::NonPositive { key: "camera.width", value: 0.0 });
+        let side = Range::closed(MIN_IMAGE_SIDE as f64, MAX_IMAGE_SIDE as f64, "px");
+        side.check("camera.width", Index::None, f64::from(self.width))?;
+        side.check("camera.height", Index::None, f64::from(self.height))?;
+        if u64::from(self.width) * u64::from(self.height) > MAX_IMAGE_PIXELS {
+            return Err(RoomError::ImageTooLarge { width: self.width, height: self.height });
         }
-        if self.height == 0 {
-            return Err(RoomError::NonPositive { key: "camera.height", value: 0.0 });
-        }
-        if let Some(fx) = self.fx {
-            positive("camera.fx", fx)?;
-        }
-        if let Some(fy) = self.fy {
-            positive("camera.fy", fy)?;
+        let scale = f64::from(self.width.max(self.height));
+        let focal = Range::closed(MIN_FOCAL_PER_SIDE * scale, MAX_FOCAL_PER_SIDE * scale, "px");
+        let optional = [
+            ("camera.fx", self.fx, focal),
+            ("camera.fy", self.fy, focal),
+            ("camera.cx", self.cx, Range::closed(0.0, f64::from(self.width), "px")),
+            ("camera.cy", self.cy, Range::closed(0.0, f64::from(self.height), "px")),
+        ];
+        for (key, value, range) in optional {
+            if let Some(v) = value {
+                range.check(key, Index::None, v)?;
+            }
         }
         if let Some(d) = &self.distortion {
             let expected = match self.model {
@@ -343,6 +502,77 @@ impl CameraSpec {
             if d.len() != expected {
                 return Err(RoomError::DistortionLength { expected, got: d.len() });
             }
+            let bound = Range::closed(-MAX_DISTORTION, MAX_DISTORTION, "");
+            for (i, &v) in d.iter().enumerate() {
+                bound.check("camera.distortion", Index::One(i as u8), v)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Checks a sensor mounting: `rotation` (named `rotation_key`) a rotation — finite,
+/// orthonormal with determinant +1 within [`ROTATION_TOLERANCE`] — and `translation`
+/// finite and within [`MAX_TRANSLATION_M`]. Used for the room's nominal mounting and for
+/// the extrinsic of a result file read back.
+pub fn validate_mounting(
+    rotation_key: &'static str,
+    rotation: &[[f64; 3]; 3],
+    translation_key: &'static str,
+    translation: &[f64; 3],
+) -> Result<(), RoomError> {
+    // Finite first (NaN slips through the orthonormality test's comparisons), then a rotation.
+    let entry = Range::closed(f64::NEG_INFINITY, f64::INFINITY, "");
+    for (i, row) in rotation.iter().enumerate() {
+        for (j, &v) in row.iter().enumerate() {
+            entry.check(rotation_key, Index::Two(i as u8, j as u8), v)?;
+        }
+    }
+    let r = rotation;
+    let r =
+        Mat3::new(r[0][0], r[0][1], r[0][2], r[1][0], r[1][1], r[1][2], r[2][0], r[2][1], r[2][2]);
+    let orth = (r.transpose() * r - Mat3::identity()).abs().max();
+    let det = (r.determinant() - 1.0).abs();
+    let deviation = orth.max(det);
+    if deviation.is_nan() || deviation > ROTATION_TOLERANCE {
+        return Err(RoomError::RotationNotOrthonormal { key: rotation_key, deviation });
+    }
+    let shift = Range::closed(-MAX_TRANSLATION_M, MAX_TRANSLATION_M, "m");
+    for (i, &v) in translation.iter().enumerate() {
+        shift.check(translation_key, Index::One(i as u8), v)?;
+    }
+    Ok(())
+}
+
+impl QualitySpec {
+    /// Checks that every limit is a finite number that makes sense: residual, σ and
+    /// change limits positive (a zero limit would reject every run), the coverage a
+    /// fraction, board counts within what a room holds.
+    pub fn validate(&self) -> Result<(), RoomError> {
+        let positive = Range::positive(f64::INFINITY, "");
+        let limits = [
+            ("quality.max_corner_rms_px", self.max_corner_rms_px),
+            ("quality.max_hole_rms_px", self.max_hole_rms_px),
+            ("quality.max_sigma_focal_rel", self.max_sigma_focal_rel),
+            ("quality.max_sigma_principal_px", self.max_sigma_principal_px),
+            ("quality.max_sigma_rotation_deg", self.max_sigma_rotation_deg),
+            ("quality.max_sigma_translation_m", self.max_sigma_translation_m),
+            ("quality.max_change_focal_rel", self.max_change_focal_rel),
+            ("quality.max_change_principal_px", self.max_change_principal_px),
+            ("quality.max_change_rotation_deg", self.max_change_rotation_deg),
+            ("quality.max_change_translation_m", self.max_change_translation_m),
+        ];
+        for (key, value) in limits {
+            positive.check(key, Index::None, value)?;
+        }
+        Range::closed(0.0, 1.0, "").check(
+            "quality.min_coverage",
+            Index::None,
+            self.min_coverage,
+        )?;
+        if let Some(n) = self.min_boards {
+            let boards = Range::closed(0.0, MAX_BOARDS as f64, "boards");
+            boards.check("quality.min_boards", Index::None, f64::from(n))?;
         }
         Ok(())
     }
@@ -360,16 +590,9 @@ impl LidarSpec {
         Vec3::new(self.translation[0], self.translation[1], self.translation[2])
     }
 
-    /// Checks that the rotation is orthonormal with determinant +1.
+    /// Checks the nominal mounting (see [`validate_mounting`]).
     pub fn validate(&self) -> Result<(), RoomError> {
-        let r = self.rotation_matrix();
-        let orth = (r.transpose() * r - Mat3::identity()).abs().max();
-        let det = (r.determinant() - 1.0).abs();
-        let deviation = orth.max(det);
-        if deviation.is_nan() || deviation > ROTATION_TOLERANCE {
-            return Err(RoomError::RotationNotOrthonormal { deviation });
-        }
-        Ok(())
+        validate_mounting("lidar.rotation", &self.rotation, "lidar.translation", &self.translation)
     }
 }
 
@@ -384,7 +607,7 @@ impl Room {
             }
             lidar.validate()?;
         }
-        Ok(())
+        self.quality.validate()
     }
 
     /// Whether this room calibrates the camera only (no `[lidar]`).
@@ -393,9 +616,81 @@ impl Room {
     }
 }
 
-fn positive(key: &'static str, value: f64) -> Result<(), RoomError> {
-    if value.is_nan() || value <= 0.0 || !value.is_finite() {
-        return Err(RoomError::NonPositive { key, value });
+/// Strict-length deserialisers: serde's `[T; N]` takes the first N elements of a longer
+/// array and drops the rest silently, so `inner_corners = [7, 5, 3]` would be read as
+/// `[7, 5]`. These refuse any array that has not exactly N elements (toml names the key).
+mod exact {
+    use core::fmt;
+    use core::marker::PhantomData;
+
+    use serde::de::{Deserialize, Deserializer, Error, SeqAccess, Visitor};
+
+    /// `[T; N]` from an array of exactly N elements.
+    struct Exact<T, const N: usize>([T; N]);
+
+    impl<'de, T: Deserialize<'de> + Copy + Default, const N: usize> Deserialize<'de> for Exact<T, N> {
+        fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+            struct V<T, const N: usize>(PhantomData<T>);
+            impl<'de, T: Deserialize<'de> + Copy + Default, const N: usize> Visitor<'de> for V<T, N> {
+                type Value = Exact<T, N>;
+                fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                    write!(f, "an array of exactly {N} elements")
+                }
+                fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
+                    let mut out = [T::default(); N];
+                    for (i, slot) in out.iter_mut().enumerate() {
+                        *slot = seq
+                            .next_element()?
+                            .ok_or_else(|| A::Error::invalid_length(i, &self))?;
+                    }
+                    if seq.next_element::<serde::de::IgnoredAny>()?.is_some() {
+                        return Err(A::Error::invalid_length(N + 1, &self));
+                    }
+                    Ok(Exact(out))
+                }
+            }
+            d.deserialize_seq(V::<T, N>(PhantomData))
+        }
     }
-    Ok(())
+
+    pub fn array<'de, D, T, const N: usize>(d: D) -> Result<[T; N], D::Error>
+    where
+        D: Deserializer<'de>,
+        T: Deserialize<'de> + Copy + Default,
+    {
+        Ok(Exact::<T, N>::deserialize(d)?.0)
+    }
+
+    pub fn matrix<'de, D: Deserializer<'de>>(d: D) -> Result<[[f64; 3]; 3], D::Error> {
+        let rows = Exact::<Exact3, 3>::deserialize(d)?.0;
+        Ok([rows[0].0, rows[1].0, rows[2].0])
+    }
+
+    /// A matrix row (named so that `Exact` of it is `Copy + Default`).
+    #[derive(Clone, Copy, Default)]
+    struct Exact3([f64; 3]);
+
+    impl<'de> Deserialize<'de> for Exact3 {
+        fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+            Ok(Exact3(array(d)?))
+        }
+    }
+
+    /// A point list: each point exactly two coordinates.
+    pub fn points<'de, D, const M: usize>(d: D) -> Result<heapless::Vec<[f64; 2], M>, D::Error>
+    where
+        D: Deserializer<'de>,
+    {
+        let pts = heapless::Vec::<Exact2, M>::deserialize(d)?;
+        Ok(pts.iter().map(|p| p.0).collect())
+    }
+
+    #[derive(Clone, Copy, Default)]
+    struct Exact2([f64; 2]);
+
+    impl<'de> Deserialize<'de> for Exact2 {
+        fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+            Ok(Exact2(array(d)?))
+        }
+    }
 }

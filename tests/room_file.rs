@@ -117,7 +117,7 @@ fn non_positive_sizes() {
         ("width = 1920", "width = 0", "camera.width"),
     ] {
         let m = error_of(&GOOD.replacen(from, to, 1));
-        assert_mentions(&m, &[key, "positive"]);
+        assert_mentions(&m, &[key, "must be"]);
     }
 }
 
@@ -139,4 +139,58 @@ fn room_round_trips_through_toml() {
     let room = parse(GOOD, Path::new("room.toml")).unwrap();
     let again = parse(&roomcal::room::to_toml(&room), Path::new("again.toml")).unwrap();
     assert_eq!(room, again);
+}
+
+#[test]
+fn arrays_must_have_exactly_their_length() {
+    for (from, to, key) in [
+        ("inner_corners = [7, 5]", "inner_corners = [7, 5, 3]", "inner_corners"),
+        ("inner_corners = [7, 5]", "inner_corners = [7]", "inner_corners"),
+        ("[-0.45, -0.35], [0.45, -0.35]", "[-0.45, -0.35, 0.0], [0.45, -0.35]", "holes"),
+        (
+            "translation = [0.05, 0.42, -0.28]",
+            "translation = [0.05, 0.42, -0.28, 1]",
+            "translation",
+        ),
+        ("[1.0, 0.0, 0.0]]", "[1.0, 0.0, 0.0, 0.0]]", "rotation"),
+    ] {
+        let m = error_of(&GOOD.replacen(from, to, 1));
+        assert_mentions(&m, &[key, "exactly"]);
+    }
+}
+
+#[test]
+fn every_number_is_range_checked_before_use() {
+    let camera = "width = 1920\nheight = 1200";
+    for (from, to, key) in [
+        ("width = 1.2", "width = 1e308", "`board.width` = 1e308: must be positive and at most 5 m"),
+        ("square = 0.08", "square = 0.004", "`board.square` = 0.004"),
+        ("hole_radius = 0.08", "hole_radius = nan", "`board.hole_radius` = NaN"),
+        (
+            camera,
+            "width = 1920\nheight = 1200\ncx = 1921.0",
+            "`camera.cx` = 1921: must be a finite number in [0, 1920] px",
+        ),
+        (camera, "width = 1920\nheight = 1200\nfx = 50.0", "`camera.fx` = 50"),
+        (
+            camera,
+            "width = 1920\nheight = 1200\ndistortion = [0.0, 0.0, 0.0, 0.0, 1e3]",
+            "`camera.distortion[4]`",
+        ),
+        (camera, "width = 31\nheight = 1200", "`camera.width` = 31"),
+        ("translation = [0.05", "translation = [10.5", "`lidar.translation[0]` = 10.5"),
+        ("[[0.0, -1.0, 0.0]", "[[0.0, -inf, 0.0]", "`lidar.rotation[0][1]` = -inf"),
+    ] {
+        let m = error_of(&GOOD.replacen(from, to, 1));
+        assert_mentions(&m, &[key]);
+    }
+    let m = error_of(&format!("{GOOD}\n[quality]\nmin_boards = 17\n"));
+    assert_mentions(&m, &["`quality.min_boards` = 17"]);
+    // Nominal intrinsics inside the ranges are accepted.
+    let nominal = GOOD.replacen(
+        camera,
+        "width = 1920\nheight = 1200\nfx = 1400.0\nfy = 1400.0\ncx = 960.0\ncy = 600.0",
+        1,
+    );
+    parse(&nominal, Path::new("room.toml")).expect("sane nominal intrinsics");
 }

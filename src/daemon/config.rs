@@ -222,21 +222,9 @@ pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
                 raw.lidar.source
             )));
         };
+    check_numbers(&raw).map_err(|e| invalid(e.to_string()))?;
+    check_paths(&raw).map_err(invalid)?;
     let t = raw.trigger;
-    let positive = [
-        ("trigger.settle_s", t.settle_s),
-        ("trigger.detect_interval_s", t.detect_interval_s),
-        ("trigger.capture_timeout_s", t.capture_timeout_s),
-        ("camera.replay_fps", raw.camera.replay_fps),
-    ];
-    for (key, v) in positive {
-        if !(v.is_finite() && v >= 0.0) || (key != "trigger.settle_s" && v == 0.0) {
-            return Err(invalid(format!("{key} = {v}: must be a positive number")));
-        }
-    }
-    if t.frames == 0 || t.sweeps == 0 {
-        return Err(invalid("trigger.frames and trigger.sweeps must be at least 1".into()));
-    }
     if let Some(s) = &raw.service {
         crate::service::transport::Endpoint::parse(&s.transport)
             .map_err(|e| invalid(format!("service.transport: {e}")))?;
@@ -271,6 +259,70 @@ pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
             secret_file: resolve(&s.secret_file),
         }),
     })
+}
+
+/// Longest time setting (s): an hour; longer waits are typing mistakes.
+pub const MAX_SECONDS: f64 = 3600.0;
+/// Most frames averaged, and sweeps accumulated, per run: each frame is held in memory
+/// (a 64 Mpx camera's 100 frames are 6.4 GB), so this bounds the run's buffers.
+pub const MAX_FRAMES: usize = 100;
+/// Most generations and rejected runs the store may be told to keep.
+pub const MAX_KEEP: usize = 10_000;
+/// Fastest replay rate (frames per second) and replay speed-up.
+pub const MAX_REPLAY_RATE: f64 = 1000.0;
+/// Largest `trigger.still_m` (m): the vehicle counts as still below this motion.
+pub const MAX_STILL_M: f64 = 10.0;
+
+/// Every number within its range (README "Limits"); the error names the key.
+fn check_numbers(raw: &RawConfig) -> Result<(), crate::target::RoomError> {
+    use crate::target::{Index, Range};
+    let t = &raw.trigger;
+    let seconds = Range::closed(0.0, MAX_SECONDS, "s");
+    let positive_seconds = Range::positive(MAX_SECONDS, "s");
+    let rate = Range::positive(MAX_REPLAY_RATE, "");
+    let count = |max: usize| Range::closed(1.0, max as f64, "");
+    let numbers = [
+        ("keep", raw.keep as f64, count(MAX_KEEP)),
+        ("camera.replay_fps", raw.camera.replay_fps, rate),
+        ("lidar.replay_speed", raw.lidar.replay_speed, rate),
+        ("trigger.settle_s", t.settle_s, seconds),
+        ("trigger.leave_s", t.leave_s, seconds),
+        ("trigger.still_m", f64::from(t.still_m), Range::closed(0.0, MAX_STILL_M, "m")),
+        ("trigger.frames", t.frames as f64, count(MAX_FRAMES)),
+        ("trigger.sweeps", t.sweeps as f64, count(MAX_FRAMES)),
+        ("trigger.detect_interval_s", t.detect_interval_s, positive_seconds),
+        ("trigger.capture_timeout_s", t.capture_timeout_s, positive_seconds),
+    ];
+    for (key, value, range) in numbers {
+        range.check(key, Index::None, value)?;
+    }
+    if let Some(n) = t.min_boards {
+        let boards = Range::closed(0.0, crate::target::MAX_BOARDS as f64, "boards");
+        boards.check("trigger.min_boards", Index::None, n as f64)?;
+    }
+    Ok(())
+}
+
+/// Every path given is non-empty (an empty one would resolve to the config's folder).
+fn check_paths(raw: &RawConfig) -> Result<(), String> {
+    let mut paths = vec![("room", raw.room.as_os_str()), ("store", raw.store.as_os_str())];
+    if let Some(c) = &raw.lidar.calibration {
+        paths.push(("lidar.calibration", c.as_os_str()));
+    }
+    if let Some(s) = &raw.service {
+        paths.push(("service.secret_file", s.secret_file.as_os_str()));
+    }
+    for (key, sources) in
+        [("camera.source", &raw.camera.source), ("lidar.source", &raw.lidar.source)]
+    {
+        if sources.strip_prefix("replay:").is_some_and(str::is_empty) {
+            return Err(format!("{key} `{sources}`: the replay path is empty"));
+        }
+    }
+    match paths.into_iter().find(|(_, p)| p.is_empty()) {
+        Some((key, _)) => Err(format!("{key} is empty: a path is needed")),
+        None => Ok(()),
+    }
 }
 
 /// Request and response IDs: CAN identifiers, distinct, both 11-bit or both 29-bit (one
@@ -384,5 +436,44 @@ secret_file = "/etc/roomcal/secret"
             .unwrap_err()
             .to_string()
             .contains("service.transport"));
+    }
+
+    #[test]
+    fn numbers_and_paths_out_of_range_name_their_key() {
+        let cases = [
+            ("settle_s = 2.0", "settle_s = nan", "`trigger.settle_s` = NaN"),
+            ("settle_s = 2.0", "settle_s = 1e308", "`trigger.settle_s` = 1e308"),
+            ("settle_s = 2.0", "settle_s = 2.0\nleave_s = -1.0", "`trigger.leave_s` = -1"),
+            ("settle_s = 2.0", "settle_s = 2.0\nstill_m = nan", "`trigger.still_m` = NaN"),
+            ("settle_s = 2.0", "settle_s = 2.0\nframes = 100000", "`trigger.frames` = 100000"),
+            ("settle_s = 2.0", "settle_s = 2.0\nsweeps = 0", "`trigger.sweeps` = 0"),
+            ("settle_s = 2.0", "settle_s = 2.0\nmin_boards = 99", "`trigger.min_boards` = 99"),
+            ("settle_s = 2.0", "settle_s = 2.0\ncapture_timeout_s = 0", "capture_timeout_s"),
+            ("settle_s = 2.0", "settle_s = 2.0\ndetect_interval_s = inf", "detect_interval_s"),
+            (
+                "\"udp:0.0.0.0:2368\"",
+                "\"udp:0.0.0.0:2368\"\nreplay_speed = -1.0",
+                "`lidar.replay_speed` = -1",
+            ),
+            (
+                "\"v4l2:/dev/video0\"",
+                "\"v4l2:/dev/video0\"\nreplay_fps = 1e9",
+                "`camera.replay_fps`",
+            ),
+            (
+                "store = \"/var/lib/roomcal\"",
+                "store = \"/var/lib/roomcal\"\nkeep = 0",
+                "`keep` = 0",
+            ),
+            ("store = \"/var/lib/roomcal\"", "store = \"\"", "store is empty"),
+            ("room = \"room.toml\"", "room = \"\"", "room is empty"),
+            ("\"v4l2:/dev/video0\"", "\"replay:\"", "replay path is empty"),
+        ];
+        for (from, to, expect) in cases {
+            let text = DESIGN.replacen(from, to, 1);
+            assert_ne!(text, DESIGN, "{from}");
+            let e = parse(&text, Path::new("x.toml")).unwrap_err().to_string();
+            assert!(e.contains("x.toml") && e.contains(expect), "`{expect}` not in: {e}");
+        }
     }
 }
