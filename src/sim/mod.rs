@@ -10,6 +10,7 @@
 
 pub mod capture;
 pub mod layout;
+pub mod random_room;
 pub mod raycast;
 pub mod render;
 pub mod rng;
@@ -89,7 +90,7 @@ pub enum SimError {
     #[error("cannot lay out {count} boards without overlap or leaving the image (board {board} did not fit); use fewer boards or a wider field of view")]
     Layout { count: usize, board: usize },
     #[error(
-        "the simulator has no beam table for LiDAR model {0:?} (use pandar64, vlp32c or vlp16)"
+        "the simulator has no beam table for LiDAR model {0:?} (use pandar64, pandar40p, vlp32c or vlp16)"
     )]
     NoBeamTable(LidarModel),
     #[error("distortion needs {expected} coefficients for this camera model, got {got}")]

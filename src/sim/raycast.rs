@@ -28,8 +28,8 @@ const MAX_RANGE_M: f64 = 200.0;
 /// elevations ([`calibration::PANDAR64_UNIT_ELEVATION`]; decoding its packets needs the
 /// angle file the capture comes with) with every azimuth offset 0, as the simulator has
 /// always cast it (the fixtures' truth depends on it; tests/sim_capture.rs also casts and
-/// decodes the unit's real offsets); the nominal tables, offsets included, for the VLP-32C
-/// and VLP-16.
+/// decodes the unit's real offsets); the nominal tables, offsets included, for the VLP-32C,
+/// VLP-16 and Pandar40P.
 pub fn calibration(model: LidarModel) -> Option<Calibration> {
     match model {
         LidarModel::Pandar64 => Calibration::from_degrees(
@@ -40,6 +40,7 @@ pub fn calibration(model: LidarModel) -> Option<Calibration> {
         .ok(),
         LidarModel::Vlp32c => Some(Calibration::nominal(Model::Vlp32c)),
         LidarModel::Vlp16 => Some(Calibration::nominal(Model::Vlp16)),
+        LidarModel::Pandar40p => Some(Calibration::nominal(Model::Pandar40p)),
         _ => None,
     }
 }
@@ -51,6 +52,7 @@ pub fn beam_elevations(model: LidarModel) -> Option<&'static [f64]> {
         LidarModel::Pandar64 => Some(&PANDAR64_DEG),
         LidarModel::Vlp32c => Some(&VLP32C_DEG),
         LidarModel::Vlp16 => Some(&VLP16_DEG),
+        LidarModel::Pandar40p => Some(&PANDAR40P_DEG),
         _ => None,
     }
 }
@@ -68,6 +70,7 @@ const fn widen<const N: usize>(table: &[f32; N]) -> [f64; N] {
 static PANDAR64_DEG: [f64; 64] = widen(&calibration::PANDAR64_UNIT_ELEVATION);
 static VLP32C_DEG: [f64; 32] = widen(&calibration::VLP32C_ELEVATION);
 static VLP16_DEG: [f64; 16] = widen(&calibration::VLP16_ELEVATION);
+static PANDAR40P_DEG: [f64; 40] = widen(&calibration::PANDAR40P_ELEVATION);
 
 /// What one sweep saw of the boards.
 #[derive(Clone, Debug, Default, PartialEq)]

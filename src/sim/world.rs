@@ -84,6 +84,20 @@ impl World {
         }
     }
 
+    /// The same room with its shell moved: the floor `floor_z` and the ceiling
+    /// `ceiling_z` (LiDAR frame, so the floor's depth is the sensor's mounting height), the
+    /// front wall at `front_x` and the side walls at ±`side_y` (randomised rooms).
+    pub fn with_shell(mut self, floor_z: f64, ceiling_z: f64, front_x: f64, side_y: f64) -> Self {
+        (self.floor_z, self.ceiling_z, self.front_x, self.side_y) =
+            (floor_z, ceiling_z, front_x, side_y);
+        self
+    }
+
+    /// Adds an axis-aligned box (a person, a stand, a cabinet) between `min` and `max`.
+    pub fn add_box(&mut self, min: Vec3, max: Vec3) {
+        self.crates.push(Crate { min, max });
+    }
+
     /// The first surface along the unit ray `origin + s·dir`, s > 0.
     pub fn cast(&self, origin: &Vec3, dir: &Vec3) -> Option<Hit> {
         let mut best: Option<Hit> = None;
