@@ -99,6 +99,24 @@ impl Calibration {
     pub fn holes_in_camera(&self, board: &UsedBoard) -> Vec<Vec3> {
         self.holes_board.iter().map(|h| board.pose.act(h)).collect()
     }
+
+    /// A used board's residuals as the solution leaves them: the RMS (px) of its corners
+    /// against the board model seen through its pose, and of its LiDAR hole centres seen
+    /// through the extrinsic against the board's holes (`None` without LiDAR holes).
+    pub fn board_rms(&self, spec: &BoardSpec, board: &UsedBoard) -> (f64, Option<f64>) {
+        let corners = board.corners.iter().enumerate().map(|(i, seen)| {
+            let model = board.pose.act(&spec.corner(i));
+            self.camera.project(&model).map(|px| (px - seen).norm_squared())
+        });
+        let holes = self.lidar_to_camera.filter(|_| !board.holes_lidar.is_empty()).map(|t| {
+            let pairs = board.holes_lidar.iter().zip(self.holes_in_camera(board));
+            rms(pairs.map(|(l, b)| {
+                let (seen, model) = (self.camera.project(&t.act(l)), self.camera.project(&b));
+                seen.zip(model).map(|(s, m)| (s - m).norm_squared())
+            }))
+        });
+        (rms(corners), holes)
+    }
 }
 
 /// The detectors of a room, with their workspaces (made once, reused for every frame).
@@ -742,6 +760,20 @@ pub fn coverage(camera: &Camera, boards: &[UsedBoard]) -> f64 {
         cells[j * 4 + i] = true;
     }
     cells.iter().filter(|&&c| c).count() as f64 / 16.0
+}
+
+/// RMS of squared residuals; a point that does not project counts as infinitely off.
+fn rms(squares: impl Iterator<Item = Option<f64>>) -> f64 {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for sq in squares {
+        sum += sq.unwrap_or(f64::INFINITY);
+        n += 1;
+    }
+    if n == 0 {
+        0.0
+    } else {
+        (sum / n as f64).sqrt()
+    }
 }
 
 fn median(values: impl Iterator<Item = f64>) -> f64 {

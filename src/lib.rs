@@ -43,6 +43,10 @@ pub mod daemon;
 #[cfg(feature = "std")]
 pub mod detect;
 #[cfg(feature = "std")]
+pub mod export;
+#[cfg(feature = "std")]
+pub mod font;
+#[cfg(feature = "std")]
 pub mod report;
 #[cfg(feature = "std")]
 pub mod result;

@@ -7,6 +7,8 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
+mod cli;
+
 use roomcal::geometry::CameraModel;
 use roomcal::sim::{self, SimOptions};
 use roomcal::target::LidarModel;
@@ -15,7 +17,10 @@ use roomcal::target::LidarModel;
 #[command(
     name = "roomcal",
     version,
-    about = "Joint camera intrinsic and LiDAR-camera extrinsic calibration"
+    about = "Calibrates a vehicle's camera and LiDAR together from the boards of a calibration room.",
+    after_help = "Example: roomcal calibrate --room room.toml --image image.png --cloud cloud.pcd \
+                  --out result.json --report report.png\n\
+                  Each subcommand's --help says what it is for, with an example."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -24,21 +29,32 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Calibrate the camera (and the LiDAR→camera extrinsic) from image/cloud pairs.
+    /// Calibrates the camera (and the LiDAR→camera extrinsic) from image/cloud pairs.
+    #[command(after_help = "Example: roomcal calibrate --room room.toml --image image.png \
+                            --cloud cloud.pcd --out result.json --report report.png --export exports")]
     Calibrate(CalibrateArgs),
-    /// Detect the boards in one image and/or one cloud and write them as JSON.
+    /// Detects the boards in one image and/or one cloud and writes them as JSON.
+    #[command(after_help = "Example: roomcal detect --room room.toml --image image.png \
+                            --cloud cloud.pcd --out detections.json")]
     Detect(DetectArgs),
-    /// Draw a cloud onto an image through a calibration (a result file) as a PNG: the
-    /// check by eye of any calibration on any scene, boards or none.
+    /// Draws a cloud onto an image through a calibration, to check any calibration by eye.
+    #[command(
+        after_help = "Example: roomcal overlay --calibration result.json --image image.png \
+                            --cloud cloud.pcd --out overlay.png"
+    )]
     Overlay(OverlayArgs),
-    /// Render a synthetic calibration room with ground truth (image.png, cloud.pcd, truth.json).
+    /// Renders a synthetic calibration room with ground truth (image, cloud, truth.json).
+    #[command(after_help = "Example: roomcal simulate --room room.toml --out scene --seed 7")]
     Simulate(SimulateArgs),
-    /// Run the vehicle daemon: notice the room, calibrate, write the store, serve UDS.
+    /// Runs the vehicle daemon: notices the room, calibrates, writes the store, serves UDS.
     #[cfg(feature = "daemon")]
+    #[command(after_help = "Example: roomcal daemon --config config/replay.toml --once")]
     Daemon(DaemonArgs),
-    /// Decode a LiDAR packet capture (pcap/pcapng) into a PCD cloud (x y z intensity ring).
+    /// Decodes a LiDAR packet capture (pcap/pcapng) into a PCD cloud (x y z intensity ring).
+    #[command(after_help = "Example: roomcal decode --lidar vlp16 capture.pcap --out cloud.pcd")]
     Decode(DecodeArgs),
-    /// Ask the daemon over CAN (UDS on ISO-TP): status, results, start a run, roll back.
+    /// Asks the daemon over CAN (UDS on ISO-TP) for its status or results, or starts a run.
+    #[command(after_help = "Example: roomcal query --endpoint socketcand:127.0.0.1:29536 status")]
     Query(QueryArgs),
 }
 
@@ -78,6 +94,17 @@ struct CalibrateArgs {
     /// number of each), instead of image i pairing with cloud i.
     #[arg(long)]
     standing: bool,
+    /// Also write the calibration for other stacks into this directory (accepted runs
+    /// only): camera.camera_info.yaml (ROS), sensor_kit_calibration.yaml (Autoware),
+    /// calib.txt (KITTI).
+    #[arg(long, value_name = "DIR")]
+    export: Option<PathBuf>,
+    /// Print the result file to stdout instead of the summary.
+    #[arg(long, conflicts_with = "quiet")]
+    json: bool,
+    /// Print only the status line.
+    #[arg(long)]
+    quiet: bool,
 }
 
 #[derive(Args)]
@@ -247,14 +274,20 @@ enum LayoutArg {
     Band,
 }
 
-/// An error with the exit code it maps to.
+/// An error with the exit code it maps to; `error: None` when the output already said it.
 struct Failure {
     code: u8,
-    error: anyhow::Error,
+    error: Option<anyhow::Error>,
+}
+
+impl Failure {
+    fn new(code: u8, error: impl Into<anyhow::Error>) -> Failure {
+        Failure { code, error: Some(error.into()) }
+    }
 }
 
 fn bad_input(error: impl Into<anyhow::Error>) -> Failure {
-    Failure { code: 2, error: error.into() }
+    Failure::new(2, error)
 }
 
 fn main() -> ExitCode {
@@ -272,7 +305,9 @@ fn main() -> ExitCode {
     match outcome {
         Ok(()) => ExitCode::SUCCESS,
         Err(Failure { code, error }) => {
-            eprintln!("roomcal: {}", describe(&error));
+            if let Some(error) = error {
+                eprintln!("roomcal: {}", describe(&error));
+            }
             ExitCode::from(code)
         }
     }
@@ -394,7 +429,7 @@ fn query(args: QueryArgs) -> Result<(), Failure> {
     };
     let answer = query_blocking(&options, command)
         .with_context(|| format!("query {} over {}", args.command, args.endpoint))
-        .map_err(|error| Failure { code: 1, error })?;
+        .map_err(|error| Failure::new(1, error))?;
     println!("{answer}");
     Ok(())
 }
@@ -468,6 +503,7 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
     }
     let mut detectors = Detectors::new(&room).map_err(bad_input)?;
     let mut frames = Vec::new();
+    let mut refused = Vec::new();
     for (i, image) in images.iter().enumerate() {
         let mut frame = FrameDetections {
             camera: detectors.detect_image(image).map_err(bad_input)?,
@@ -479,9 +515,13 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
                 true => "the accumulated sweeps".to_string(),
                 false => args.cloud[i].display().to_string(),
             };
-            for refused in detectors.refused_in_cloud() {
-                eprintln!("{name}: a board-sized plane was not placed: {refused:?}");
+            let planes = detectors.refused_in_cloud().to_vec();
+            if !args.quiet {
+                for plane in &planes {
+                    eprintln!("{}", refused_message(&name, plane));
+                }
             }
+            refused.push(planes);
         }
         frames.push(frame);
     }
@@ -499,20 +539,34 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
             without_planes: args.without_planes,
         },
     );
-    write_result(&args.out, &run.result)?;
+    let mut written = write_result(&args.out, &run.result)?;
     if let Some(report) = &args.report {
-        write_report(report, &images, &clouds, &run)?;
+        let first_refused = refused.first().map_or(&[][..], Vec::as_slice);
+        write_report(report, &images, &clouds, &run, first_refused)?;
+        written.push(report.display().to_string());
     }
-    print_summary(&args, &frames, &run);
+    let accepted = run.result.status == roomcal::result::Status::Accepted;
+    if let Some(dir) = args.export.as_ref().filter(|_| accepted) {
+        let files = roomcal::export::write_dir(dir, &run.result).map_err(bad_input)?;
+        written.extend(files.iter().map(|f| f.display().to_string()));
+    }
+    if args.json {
+        print!("{}", result_json(&run.result));
+    } else if args.quiet {
+        println!("{}", cli::summary::status_line(&run.result));
+    } else {
+        let refused_count = refused.iter().map(Vec::len).sum();
+        for line in cli::summary::lines(&room, &frames, &run, refused_count, &written) {
+            println!("{line}");
+        }
+        if let Some(dir) = args.export.as_ref().filter(|_| !accepted) {
+            println!("  not written {}: a rejected calibration is not exported", dir.display());
+        }
+    }
     match run.result.status {
         roomcal::result::Status::Accepted => Ok(()),
-        roomcal::result::Status::Rejected => Err(Failure {
-            code: 3,
-            error: anyhow::anyhow!(
-                "rejected: {}",
-                run.result.reason.as_deref().unwrap_or("no reason given")
-            ),
-        }),
+        // The status line (or the JSON's status and reason) has said why.
+        roomcal::result::Status::Rejected => Err(Failure { code: 3, error: None }),
     }
 }
 
@@ -533,92 +587,45 @@ fn standing_frame(
     (averaged.into_iter().collect(), clouds)
 }
 
+/// A refused LiDAR plane as a sentence: the file, where the plane is, why it is not a
+/// board, and what to do.
+fn refused_message(cloud: &str, plane: &roomcal::detect::holes::RefusedBoard) -> String {
+    format!("{cloud}: {plane}; not used as a board ({})", plane.reason.advice())
+}
+
+/// The result file's text.
+fn result_json(result: &roomcal::result::CalibrationResult) -> String {
+    serde_json::to_string_pretty(result).expect("results serialise") + "\n"
+}
+
+/// Writes the result file and its OpenCV YAML beside it; returns both paths.
 fn write_result(
     path: &std::path::Path,
     result: &roomcal::result::CalibrationResult,
-) -> Result<(), Failure> {
-    let json = serde_json::to_string_pretty(result).expect("results serialise") + "\n";
+) -> Result<Vec<String>, Failure> {
     let yaml_path = path.with_extension("yaml");
-    std::fs::write(path, json)
+    std::fs::write(path, result_json(result))
         .and_then(|()| std::fs::write(&yaml_path, result.to_opencv_yaml()))
         .with_context(|| format!("writing {} and {}", path.display(), yaml_path.display()))
-        .map_err(bad_input)
+        .map_err(bad_input)?;
+    Ok(vec![path.display().to_string(), yaml_path.display().to_string()])
 }
 
+/// The report picture of the first frame (see `roomcal::report::calibration_report`).
 fn write_report(
     path: &std::path::Path,
     images: &[roomcal::detect::GreyImage],
     clouds: &[Vec<roomcal::lidar::Point>],
     run: &roomcal::calibrate::Calibration,
+    refused: &[roomcal::detect::holes::RefusedBoard],
 ) -> Result<(), Failure> {
     let Some(first) = images.first() else { return Ok(()) };
-    let boards: Vec<roomcal::report::ReportBoard<'_>> = run
-        .boards
-        .iter()
-        .filter(|b| b.frame == 0)
-        .map(|b| roomcal::report::ReportBoard {
-            corners: &b.corners,
-            holes_camera: run.holes_in_camera(b),
-            holes_lidar: &b.holes_lidar,
-        })
-        .collect();
     let cloud: Vec<&[roomcal::lidar::Point]> =
         clouds.first().map(|c| c.as_slice()).into_iter().collect();
-    roomcal::report::overlay(
-        &first.data,
-        &run.camera,
-        run.lidar_to_camera.as_ref(),
-        &cloud,
-        &boards,
-    )
-    .save(path)
-    .with_context(|| format!("writing the report {}", path.display()))
-    .map_err(bad_input)
-}
-
-fn print_summary(
-    args: &CalibrateArgs,
-    frames: &[roomcal::calibrate::FrameDetections],
-    run: &roomcal::calibrate::Calibration,
-) {
-    let r = &run.result;
-    let c = &r.camera;
-    let u = &r.uncertainty;
-    let seen: usize = frames.iter().map(|f| f.camera.len()).sum();
-    let placed: usize = frames.iter().map(|f| f.lidar.len()).sum();
-    println!("roomcal calibrate: {} frame(s), {seen} complete camera boards, {placed} LiDAR boards placed", frames.len());
-    println!(
-        "  status      {:?}{}",
-        r.status,
-        r.reason.as_ref().map_or(String::new(), |why| format!(": {why}"))
-    );
-    println!("  fx fy       {:.3} {:.3} px   (σ {:.3} {:.3})", c.fx, c.fy, u.fx, u.fy);
-    println!("  cx cy       {:.3} {:.3} px   (σ {:.3} {:.3})", c.cx, c.cy, u.cx, u.cy);
-    println!(
-        "  distortion  {:?}",
-        c.distortion.iter().map(|d| format!("{d:.5}")).collect::<Vec<_>>()
-    );
-    if let Some(e) = &r.lidar_to_camera {
-        let t = e.to_se3();
-        let rvec = roomcal::geometry::se3::so3_log(&t.rotation).map(f64::to_degrees);
-        println!(
-            "  rotation    [{:.4} {:.4} {:.4}]° (rotation vector, σ {:.4}°)",
-            rvec.x, rvec.y, rvec.z, u.rotation_deg
-        );
-        println!(
-            "  translation [{:.4} {:.4} {:.4}] m (σ {:.1} mm)",
-            e.translation[0],
-            e.translation[1],
-            e.translation[2],
-            u.translation_m * 1000.0
-        );
-    }
-    println!("  residuals   corners {:.3} px RMS, holes {:.3} px RMS, {} boards used, {} solver iterations", r.quality.corner_rms_px, r.quality.hole_rms_px, r.quality.boards, run.iterations);
-    println!(
-        "  written     {} (+ {})",
-        args.out.display(),
-        args.out.with_extension("yaml").display()
-    );
+    roomcal::report::calibration_report(&first.data, &cloud, run, refused)
+        .save(path)
+        .with_context(|| format!("writing the report {}", path.display()))
+        .map_err(bad_input)
 }
 
 fn overlay(args: OverlayArgs) -> Result<(), Failure> {
@@ -669,7 +676,7 @@ fn detect(args: DetectArgs) -> Result<(), Failure> {
             });
         }
         for refused in detectors.refused_in_cloud() {
-            eprintln!("{}: a board-sized plane was not placed: {refused:?}", path.display());
+            eprintln!("{}", refused_message(&path.display().to_string(), refused));
         }
     }
     let json = serde_json::to_string_pretty(&out).expect("detections serialise") + "\n";
@@ -710,10 +717,12 @@ fn daemon(args: DaemonArgs) -> Result<(), Failure> {
     roomcal::daemon::init_logging();
     let config = roomcal::daemon::config::load(&args.config).map_err(bad_input)?;
     let room = roomcal::room::load(&config.room).map_err(bad_input)?;
-    let calibrator = RoomCalibrator::new(room).map_err(bad_input)?;
+    let calibrator = RoomCalibrator::new(room)
+        .map_err(bad_input)?
+        .with_report(config.store.join("last-run.png"));
     let runtime = tokio::runtime::Runtime::new()
         .context("starting the async runtime")
-        .map_err(|error| Failure { code: 1, error })?;
+        .map_err(|error| Failure::new(1, error))?;
     let summary = runtime
         .block_on(roomcal::daemon::run(
             config,
@@ -721,7 +730,7 @@ fn daemon(args: DaemonArgs) -> Result<(), Failure> {
             RunOptions { once: args.once },
             stop_signal(),
         ))
-        .map_err(|e| Failure { code: 1, error: e.into() })?;
+        .map_err(|e| Failure::new(1, e))?;
     println!(
         "roomcal daemon: {} run(s): {} accepted, {} rejected, {} failed; generation {} in force",
         summary.runs, summary.accepted, summary.rejected, summary.failed, summary.generation

@@ -1,19 +1,32 @@
 //! The overlay report: the camera frame with the LiDAR points projected through the
-//! solved calibration (coloured by range), the detected corners, and each board's hole
-//! centres as the camera places them and as the LiDAR measured them.
+//! solved calibration (coloured by range, with its colour bar), the detected corners, each
+//! board's hole centres as the camera places them and as the LiDAR measured them, and —
+//! for a calibration run — the board numbers, a legend of the marks, the status, the σ and
+//! RMS figures and the LiDAR planes that were refused, each with its reason. Text is drawn
+//! with the built-in bitmap font ([`crate::font`]).
 
 use image::{Rgb, RgbImage};
 
+use crate::calibrate::Calibration;
+use crate::detect::holes::RefusedBoard;
+use crate::font;
 use crate::geometry::{Camera, Se3, Vec2, Vec3};
 use crate::lidar::Point;
+use crate::result::Status;
 
 /// Colours of the report's marks.
 const CORNER: Rgb<u8> = Rgb([0, 230, 0]);
 const HOLE_CAMERA: Rgb<u8> = Rgb([40, 120, 255]);
 const HOLE_LIDAR: Rgb<u8> = Rgb([255, 40, 40]);
+const REFUSED: Rgb<u8> = Rgb([255, 160, 0]);
+const TEXT: Rgb<u8> = Rgb([255, 255, 255]);
+const ACCEPTED_TEXT: Rgb<u8> = Rgb([90, 255, 90]);
+const REJECTED_TEXT: Rgb<u8> = Rgb([255, 90, 90]);
 
 /// One board as the report draws it.
 pub struct ReportBoard<'a> {
+    /// The board's number in the result file's `boards` (and the summary's lines).
+    pub number: usize,
     pub corners: &'a [Vec2],
     /// Hole centres carried into the camera frame through the board's pose.
     pub holes_camera: Vec<Vec3>,
@@ -21,7 +34,41 @@ pub struct ReportBoard<'a> {
     pub holes_lidar: &'a [Vec3],
 }
 
-/// Draws the overlay on a grey frame.
+/// The report of a calibration run on its first frame: [`overlay`] plus the board numbers,
+/// the legend, the status with the σ and RMS figures, and the refused LiDAR planes (LiDAR
+/// frame) drawn where they stand with their reasons.
+pub fn calibration_report(
+    grey: &[u8],
+    clouds: &[&[Point]],
+    run: &Calibration,
+    refused: &[RefusedBoard],
+) -> RgbImage {
+    let boards: Vec<ReportBoard<'_>> = run
+        .boards
+        .iter()
+        .enumerate()
+        .filter(|(_, b)| b.frame == 0)
+        .map(|(number, b)| ReportBoard {
+            number,
+            corners: &b.corners,
+            holes_camera: run.holes_in_camera(b),
+            holes_lidar: &b.holes_lidar,
+        })
+        .collect();
+    let extrinsic = run.lidar_to_camera.as_ref();
+    let (mut image, range_max) = frame_with_marks(grey, &run.camera, extrinsic, clouds, &boards);
+    let scale = text_scale(&image);
+    for board in &boards {
+        label_board(&mut image, board, scale);
+    }
+    let refused_lines = draw_refused(&mut image, &run.camera, extrinsic, refused, scale);
+    let mut left = status_lines(run);
+    left.extend(refused_lines.into_iter().map(|l| (l, REFUSED)));
+    let legend = legend_entries(extrinsic.is_some(), !refused.is_empty());
+    with_footer(&image, &left, &legend, range_max, scale)
+}
+
+/// Draws the overlay on a grey frame, with the colour bar of the points' ranges.
 pub fn overlay(
     grey: &[u8],
     camera: &Camera,
@@ -29,20 +76,51 @@ pub fn overlay(
     clouds: &[&[Point]],
     boards: &[ReportBoard<'_>],
 ) -> RgbImage {
+    let (mut image, range_max) = frame_with_marks(grey, camera, lidar_to_camera, clouds, boards);
+    if let Some(max) = range_max {
+        let scale = text_scale(&image);
+        let s = i64::from(scale);
+        let (w, h) = (i64::from(image.width()), i64::from(image.height()));
+        let length = (w / 4).max(60);
+        let height = range_bar_height(scale);
+        let (x, y) = (w - length - 20 * s, h - height - 10 * s);
+        panel(&mut image, x - 6 * s, y - 4 * s, length + 16 * s, height + 6 * s);
+        draw_range_bar(&mut image, x, y, length, max, scale);
+    }
+    image
+}
+
+/// The frame with the LiDAR points (coloured by range) and every board's marks; returns
+/// the range the colours span (`None` without points drawn).
+fn frame_with_marks(
+    grey: &[u8],
+    camera: &Camera,
+    lidar_to_camera: Option<&Se3>,
+    clouds: &[&[Point]],
+    boards: &[ReportBoard<'_>],
+) -> (RgbImage, Option<f64>) {
     let (w, h) = (camera.width, camera.height);
     let mut image = RgbImage::from_fn(w, h, |x, y| {
-        let g = grey[(y * w + x) as usize] / 2 + 40;
+        // A frame of another size than the camera's draws black where it has no pixel.
+        let g = grey.get((y * w + x) as usize).map_or(0, |g| g / 2 + 40);
         Rgb([g, g, g])
     });
-    if let Some(t) = lidar_to_camera {
+    let range_max = lidar_to_camera.and_then(|t| {
         let view = ViewBounds::of(camera);
-        for p in clouds.iter().flat_map(|c| c.iter()) {
-            let q = t.act(&Vec3::new(p.x as f64, p.y as f64, p.z as f64));
-            if let Some(px) = view.project(camera, &q) {
-                dot(&mut image, &px, 1, range_colour(q.norm()));
-            }
+        let seen: Vec<(Vec2, f64)> = clouds
+            .iter()
+            .flat_map(|c| c.iter())
+            .filter_map(|p| {
+                let q = t.act(&Vec3::new(p.x as f64, p.y as f64, p.z as f64));
+                view.project(camera, &q).map(|px| (px, q.norm()))
+            })
+            .collect();
+        let max = colour_span(seen.iter().map(|(_, r)| *r))?;
+        for (px, range) in &seen {
+            dot(&mut image, px, 1, range_colour(*range / max));
         }
-    }
+        Some(max)
+    });
     for board in boards {
         for c in board.corners {
             cross(&mut image, c, 4, CORNER);
@@ -61,7 +139,7 @@ pub fn overlay(
             }
         }
     }
-    image
+    (image, range_max)
 }
 
 /// The part of the undistorted image plane (x/z, y/z) the image sees, with a margin: a
@@ -111,9 +189,21 @@ impl ViewBounds {
     }
 }
 
-/// A rainbow over 0–30 m (near red, far violet).
-fn range_colour(range: f64) -> Rgb<u8> {
-    let t = (range / 30.0).clamp(0.0, 1.0);
+/// The range (m) the colour scale spans: the 98th percentile of the drawn points' ranges
+/// rounded up to 5 m, so that a few far returns do not wash the scene into one colour.
+fn colour_span(ranges: impl Iterator<Item = f64>) -> Option<f64> {
+    let mut ranges: Vec<f64> = ranges.filter(|r| r.is_finite()).collect();
+    if ranges.is_empty() {
+        return None;
+    }
+    let at = (ranges.len() - 1) * 98 / 100;
+    let (_, p98, _) = ranges.select_nth_unstable_by(at, f64::total_cmp);
+    Some(((*p98 / 5.0).ceil() * 5.0).max(5.0))
+}
+
+/// A rainbow over `t` in 0–1 (near red, far violet).
+fn range_colour(t: f64) -> Rgb<u8> {
+    let t = t.clamp(0.0, 1.0);
     let hue = t * 270.0;
     let x = 1.0 - ((hue / 60.0) % 2.0 - 1.0).abs();
     let (r, g, b) = match (hue / 60.0) as u32 {
@@ -173,5 +263,281 @@ fn ring(image: &mut RgbImage, at: &Vec2, radius: f64, colour: Rgb<u8>) {
             (at.y + radius * a.sin()).round() as i64,
             colour,
         );
+    }
+}
+
+/// Font scale for an image: 2 on a 1920-pixel frame, never below 1.
+fn text_scale(image: &RgbImage) -> u32 {
+    (image.width() / 900).max(1)
+}
+
+/// Darkens a rectangle so that text on it reads over any frame.
+fn panel(image: &mut RgbImage, x: i64, y: i64, w: i64, h: i64) {
+    for py in y.max(0)..(y + h).min(i64::from(image.height())) {
+        for px in x.max(0)..(x + w).min(i64::from(image.width())) {
+            let p = image.get_pixel_mut(px as u32, py as u32);
+            p.0 = p.0.map(|v| v / 4);
+        }
+    }
+}
+
+/// Height in pixels of `lines` lines of text at `scale`.
+fn lines_height(lines: usize, scale: u32) -> i64 {
+    lines as i64 * i64::from(font::LINE_HEIGHT * scale)
+}
+
+/// One label on a dark panel, its top-left corner at (`x`, `y`) moved inside the image.
+fn label(image: &mut RgbImage, x: i64, y: i64, text: &str, colour: Rgb<u8>, scale: u32) {
+    let s = i64::from(scale);
+    let (w, h) = (i64::from(font::text_width(text, scale)) + 4 * s, 9 * s);
+    let x = x.min(i64::from(image.width()) - w).max(0);
+    let y = y.min(i64::from(image.height()) - h).max(0);
+    panel(image, x, y, w, h);
+    font::draw_text(image, x + 2 * s, y + s, scale, text, colour);
+}
+
+/// `text` broken at spaces into lines of at most `chars` characters, continuation lines
+/// indented (a word longer than a line is cut).
+fn wrap(text: &str, chars: usize) -> Vec<String> {
+    const INDENT: &str = "    ";
+    let mut lines = Vec::new();
+    let mut current = String::new();
+    for word in text.split(' ') {
+        let word: String = word.chars().take(chars.saturating_sub(INDENT.len())).collect();
+        if !current.is_empty() && current.chars().count() + 1 + word.chars().count() > chars {
+            lines.push(std::mem::replace(&mut current, INDENT.to_string()));
+        } else if !current.is_empty() {
+            current.push(' ');
+        }
+        current.push_str(&word);
+    }
+    lines.push(current);
+    lines
+}
+
+/// Height of the range bar with its title and tick labels.
+fn range_bar_height(scale: u32) -> i64 {
+    lines_height(2, scale) + 8 * i64::from(scale)
+}
+
+/// The colour scale of the LiDAR points: a bar `length` pixels long from 0 to `max`
+/// metres with labelled ticks, its title above; top-left corner at (`x`, `y`).
+fn draw_range_bar(image: &mut RgbImage, x: i64, y: i64, length: i64, max: f64, scale: u32) {
+    let s = i64::from(scale);
+    let line = lines_height(1, scale);
+    let thick = 6 * s;
+    font::draw_text(image, x, y, scale, "LiDAR point range (m)", TEXT);
+    let bar_y = y + line;
+    for i in 0..=length {
+        let colour = range_colour(i as f64 / length as f64);
+        for dy in 0..thick {
+            put(image, x + i, bar_y + dy, colour);
+        }
+    }
+    let step = if max <= 10.0 {
+        1.0
+    } else if max <= 30.0 {
+        5.0
+    } else {
+        10.0
+    };
+    let ticks = (max / step).round() as i64;
+    for k in 0..=ticks {
+        let metres = k as f64 * step;
+        let at = x + (metres / max * length as f64).round() as i64;
+        for dy in thick..thick + 2 * s {
+            put(image, at, bar_y + dy, TEXT);
+        }
+        let text = format!("{metres:.0}");
+        let half = i64::from(font::text_width(&text, scale)) / 2;
+        font::draw_text(image, at - half, bar_y + thick + 3 * s, scale, &text, TEXT);
+    }
+}
+
+/// The board's number just above its top row of corners.
+fn label_board(image: &mut RgbImage, board: &ReportBoard<'_>, scale: u32) {
+    if board.corners.is_empty() {
+        return;
+    }
+    let n = board.corners.len() as f64;
+    let mid_x = board.corners.iter().map(|c| c.x).sum::<f64>() / n;
+    let top = board.corners.iter().map(|c| c.y).fold(f64::INFINITY, f64::min);
+    let big = scale + 1;
+    let text = format!("board {}", board.number);
+    let half = i64::from(font::text_width(&text, big)) / 2;
+    let height = lines_height(1, big);
+    label(image, mid_x as i64 - half, top as i64 - height - 6 * i64::from(big), &text, TEXT, big);
+}
+
+/// Marks each refused plane where the extrinsic puts it (an orange ✕ in a ring with its
+/// tag and reason) and returns one line per refused plane for the footer.
+fn draw_refused(
+    image: &mut RgbImage,
+    camera: &Camera,
+    lidar_to_camera: Option<&Se3>,
+    refused: &[RefusedBoard],
+    scale: u32,
+) -> Vec<String> {
+    let s = i64::from(scale);
+    let mut lines = Vec::new();
+    for (k, plane) in refused.iter().enumerate() {
+        let tag = format!("R{}", k + 1);
+        let pixel = lidar_to_camera.and_then(|t| {
+            let q = t.act(&plane.centroid);
+            (q.z > 0.0).then(|| camera.project(&q)).flatten()
+        });
+        let inside = pixel.filter(|px| {
+            (0.0..f64::from(image.width())).contains(&px.x)
+                && (0.0..f64::from(image.height())).contains(&px.y)
+        });
+        if let Some(px) = inside {
+            diagonal_cross(image, &px, 12 * s, REFUSED);
+            ring(image, &px, 18.0 * s as f64, REFUSED);
+            let text = format!("{tag}: refused: {}", plane.reason);
+            let (x, y) = (px.x as i64, px.y as i64);
+            // Beside the mark, on whichever side has room.
+            let width = i64::from(font::text_width(&text, scale)) + 4 * s;
+            let left = if x + 22 * s + width <= i64::from(image.width()) {
+                x + 22 * s
+            } else {
+                x - 22 * s - width
+            };
+            label(image, left, y - 5 * s, &text, REFUSED, scale);
+        }
+        let place = if inside.is_some() { "" } else { " (outside the picture)" };
+        lines.push(format!("{tag}{place}: {plane}"));
+    }
+    lines
+}
+
+/// The marks the legend explains.
+#[derive(Clone, Copy)]
+enum Mark {
+    Corner,
+    HoleFromBoard,
+    HoleFromLidar,
+    Points,
+    Refused,
+}
+
+fn legend_entries(with_lidar: bool, with_refused: bool) -> Vec<(Mark, &'static str)> {
+    let mut entries = vec![
+        (Mark::Corner, "detected checkerboard corners"),
+        (Mark::HoleFromBoard, "hole centres from the board (camera's board pose)"),
+    ];
+    if with_lidar {
+        entries.push((Mark::HoleFromLidar, "hole centres from the LiDAR (through the extrinsic)"));
+        entries.push((Mark::Points, "LiDAR points, coloured by range"));
+    }
+    if with_refused {
+        entries.push((Mark::Refused, "LiDAR plane refused as a board (tag R1, R2, ...)"));
+    }
+    entries
+}
+
+/// The legend, each mark drawn as in the picture before its meaning; returns its height.
+fn draw_legend(image: &mut RgbImage, x: i64, y: i64, entries: &[(Mark, &str)], scale: u32) -> i64 {
+    let s = i64::from(scale);
+    let line = lines_height(1, scale);
+    for (k, (mark, text)) in entries.iter().enumerate() {
+        let top = y + k as i64 * line;
+        let at = Vec2::new((x + 6 * s) as f64, (top + 3 * s) as f64);
+        let colour = match mark {
+            Mark::Corner => {
+                cross(image, &at, 4 * s, CORNER);
+                CORNER
+            }
+            Mark::HoleFromBoard => {
+                ring(image, &at, 4.0 * s as f64, HOLE_CAMERA);
+                HOLE_CAMERA
+            }
+            Mark::HoleFromLidar => {
+                ring(image, &at, 3.0 * s as f64, HOLE_LIDAR);
+                cross(image, &at, 2 * s, HOLE_LIDAR);
+                HOLE_LIDAR
+            }
+            Mark::Points => {
+                for (i, t) in [0.05, 0.35, 0.65, 0.95].iter().enumerate() {
+                    let p = Vec2::new(at.x + (i as f64 - 1.5) * 3.0 * s as f64, at.y);
+                    dot(image, &p, s / 2, range_colour(*t));
+                }
+                TEXT
+            }
+            Mark::Refused => {
+                diagonal_cross(image, &at, 3 * s, REFUSED);
+                REFUSED
+            }
+        };
+        font::draw_text(image, x + 16 * s, top, scale, text, colour);
+    }
+    lines_height(entries.len(), scale)
+}
+
+/// The status (coloured by the verdict) and the σ and RMS figures.
+fn status_lines(run: &Calibration) -> Vec<(String, Rgb<u8>)> {
+    let r = &run.result;
+    let (u, c, q) = (&r.uncertainty, &r.camera, &r.quality);
+    let mut lines = vec![match r.status {
+        Status::Accepted => ("ACCEPTED".to_string(), ACCEPTED_TEXT),
+        Status::Rejected => (
+            format!("REJECTED: {}", r.reason.as_deref().unwrap_or("no reason given")),
+            REJECTED_TEXT,
+        ),
+    }];
+    lines.push((format!("fx {:.2} fy {:.2} px (σ {:.2} {:.2})", c.fx, c.fy, u.fx, u.fy), TEXT));
+    lines.push((format!("cx {:.2} cy {:.2} px (σ {:.2} {:.2})", c.cx, c.cy, u.cx, u.cy), TEXT));
+    if run.lidar_to_camera.is_some() {
+        let (deg, mm) = (u.rotation_deg, u.translation_m * 1e3);
+        lines.push((format!("extrinsic σ {deg:.3}° / {mm:.1} mm (largest axis)"), TEXT));
+    }
+    let (corners, holes, boards) = (q.corner_rms_px, q.hole_rms_px, q.boards);
+    let lidar = run.boards.iter().filter(|b| !b.holes_lidar.is_empty()).count();
+    lines.push((
+        format!("RMS corners {corners:.3} px, holes {holes:.3} px; {boards} boards used, {lidar} with LiDAR holes"),
+        TEXT,
+    ));
+    lines
+}
+
+/// The frame above a footer: `left` lines (wrapped) on the left, the legend and the range
+/// bar on the right, so that no text hides the scene.
+fn with_footer(
+    frame: &RgbImage,
+    left: &[(String, Rgb<u8>)],
+    legend: &[(Mark, &str)],
+    range_max: Option<f64>,
+    scale: u32,
+) -> RgbImage {
+    let s = i64::from(scale);
+    let width = i64::from(frame.width());
+    let split = width * 11 / 20;
+    let chars = ((split - 20 * s) / i64::from(font::ADVANCE * scale)).max(10) as usize;
+    let wrapped: Vec<(String, Rgb<u8>)> =
+        left.iter().flat_map(|(t, c)| wrap(t, chars).into_iter().map(move |l| (l, *c))).collect();
+    let bar = range_max.map_or(0, |_| range_bar_height(scale) + 6 * s);
+    let right = lines_height(legend.len(), scale) + bar;
+    let footer = lines_height(wrapped.len(), scale).max(right) + 16 * s;
+    let height = i64::from(frame.height()) + footer;
+    let mut image = RgbImage::from_pixel(frame.width(), height as u32, Rgb([24, 24, 24]));
+    image::imageops::replace(&mut image, frame, 0, 0);
+    let top = i64::from(frame.height()) + 8 * s;
+    for (k, (text, colour)) in wrapped.iter().enumerate() {
+        font::draw_text(&mut image, 10 * s, top + lines_height(k, scale), scale, text, *colour);
+    }
+    let legend_height = draw_legend(&mut image, split, top, legend, scale);
+    if let Some(max) = range_max {
+        let length = width - split - 30 * s;
+        draw_range_bar(&mut image, split, top + legend_height + 6 * s, length, max, scale);
+    }
+    image
+}
+
+fn diagonal_cross(image: &mut RgbImage, at: &Vec2, size: i64, colour: Rgb<u8>) {
+    let Some((cx, cy)) = anchor(image, at) else { return };
+    for d in -size..=size {
+        for w in 0..2 {
+            put(image, cx + d + w, cy + d, colour);
+            put(image, cx + d + w, cy - d, colour);
+        }
     }
 }

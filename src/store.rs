@@ -220,6 +220,7 @@ impl Store {
         if let Some(yaml) = extrinsic_yaml(&record.result) {
             write_atomic(&self.dir.join("extrinsic.yaml"), yaml.as_bytes())?;
         }
+        crate::export::write_each(&self.dir, &record.result, write_atomic)?;
         prune(&self.history_dir(), self.keep)
     }
 }

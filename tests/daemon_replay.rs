@@ -91,10 +91,18 @@ fn replay_daemon_calibrates_and_a_short_room_is_rejected() {
     assert!(text.contains("1 accepted"), "{text}");
     let current_path = dir.join("store/current.json");
     assert_current_matches_truth(&current_path);
+    // Beside current.json: the exports for other stacks and the run's report picture.
+    let store = dir.join("store");
+    for file in ["camera.camera_info.yaml", "sensor_kit_calibration.yaml", "calib.txt"] {
+        assert!(store.join(file).is_file(), "{file} missing from the store");
+    }
+    let picture = image::open(store.join("last-run.png")).expect("the run's report picture");
+    assert!(picture.width() == 1920 && picture.height() > 1200);
 
     // The same store, a room that expects seven boards while six stand in the scene: the
     // run starts (the trigger is set to six) and the gate rejects it; current.json stays.
     let before = std::fs::read(&current_path).unwrap();
+    let exports_before = std::fs::read(store.join("calib.txt")).unwrap();
     let seven = dir.join("room7.toml");
     std::fs::write(
         &seven,
@@ -108,4 +116,6 @@ fn replay_daemon_calibrates_and_a_short_room_is_rejected() {
         before,
         "a rejected run replaced current.json"
     );
+    let exports = std::fs::read(store.join("calib.txt")).unwrap();
+    assert_eq!(exports, exports_before, "a rejected run changed the exports");
 }

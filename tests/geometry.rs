@@ -6,9 +6,9 @@
 use nalgebra::{Matrix4, SMatrix};
 use roomcal::geometry::camera::{FISHEYE_MAX_THETA, MAX_INTRINSICS};
 use roomcal::geometry::se3::{
-    act_jacobian_local, act_jacobian_rvec, quaternion_to_rotation, rotation_to_quaternion, skew,
-    so3_exp, so3_left_jacobian, so3_left_jacobian_inv, so3_log, so3_right_jacobian,
-    so3_right_jacobian_inv,
+    act_jacobian_local, act_jacobian_rvec, quaternion_to_rotation, rotation_to_quaternion,
+    rotation_to_rpy, rpy_to_rotation, skew, so3_exp, so3_left_jacobian, so3_left_jacobian_inv,
+    so3_log, so3_right_jacobian, so3_right_jacobian_inv,
 };
 use roomcal::geometry::{Camera, CameraModel, Mat3, Se3, Vec2, Vec3, Vec6};
 use std::f64::consts::PI;
@@ -240,6 +240,29 @@ fn se3_exp_log_compose_inverse_quaternion() {
     );
     assert!(quaternion_to_rotation(&[0.0; 4]).is_none());
     assert!(quaternion_to_rotation(&[f64::NAN, 0.0, 0.0, 1.0]).is_none());
+}
+
+#[test]
+fn roll_pitch_yaw_round_trip_and_follow_urdf_order() {
+    // URDF: R = Rz(yaw) · Ry(pitch) · Rx(roll), each a rotation about a fixed axis.
+    let (roll, pitch, yaw) = (0.3, -0.4, 1.2);
+    let about = |axis: Vec3, angle: f64| so3_exp(&(axis * angle));
+    let urdf = about(Vec3::z(), yaw) * about(Vec3::y(), pitch) * about(Vec3::x(), roll);
+    assert!((rpy_to_rotation(&[roll, pitch, yaw]) - urdf).norm() < 1e-15);
+    let [r, p, y] = rotation_to_rpy(&urdf);
+    assert!((r - roll).abs() < 1e-14 && (p - pitch).abs() < 1e-14 && (y - yaw).abs() < 1e-14);
+    let mut rng = Rng(11);
+    for _ in 0..500 {
+        let rotation = so3_exp(&rng.rvec(3.1));
+        let rpy = rotation_to_rpy(&rotation);
+        assert!(rpy[1].abs() <= PI / 2.0 && rpy[0].abs() <= PI && rpy[2].abs() <= PI);
+        assert!((rpy_to_rotation(&rpy) - rotation).norm() < 1e-12, "{rpy:?}");
+    }
+    // Gimbal lock: pitch ±90° still gives back the rotation.
+    for pitch in [PI / 2.0, -PI / 2.0] {
+        let locked = about(Vec3::z(), 0.7) * about(Vec3::y(), pitch) * about(Vec3::x(), 0.2);
+        assert!((rpy_to_rotation(&rotation_to_rpy(&locked)) - locked).norm() < 1e-12);
+    }
 }
 
 // ---------------------------------------------------------------- cameras

@@ -129,7 +129,12 @@ impl Backend for DaemonBackend {
         match self.store.rollback(super::unix_now()) {
             Ok(rec) => {
                 let generation = rec.generation;
-                tracing::info!(generation, restored_from = ?rec.restored_from, "rolled back");
+                match rec.restored_from {
+                    Some(from) => tracing::info!(
+                        "rolled back: generation {generation} restores generation {from}"
+                    ),
+                    None => tracing::info!("rolled back: generation {generation} in force"),
+                }
                 if let Ok(mut s) = self.shared.lock() {
                     s.current = Some(rec);
                 }

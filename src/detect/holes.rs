@@ -1364,3 +1364,49 @@ impl Hasher for KeyHasher {
         self.0 = h ^ (h >> 32);
     }
 }
+
+/// A refused plane as a user reads it: where it is (in the sensor's x forward, y left,
+/// z up), how big it was and why it is not a board, e.g. "plane of 127 points 6.2 m away
+/// (3.6 m ahead, 4.9 m right, 1.3 m below), turned 12° from facing the sensor: only 0
+/// hole(s) crossed by two or more scan lines (need 2)".
+impl core::fmt::Display for RefusedBoard {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        let c = &self.centroid;
+        let side = |v: f64, plus: &'static str, minus: &'static str| {
+            (v.abs(), if v >= 0.0 { plus } else { minus })
+        };
+        let (ahead, ahead_word) = side(c.x, "ahead", "behind");
+        let (left, left_word) = side(c.y, "left", "right");
+        let (up, up_word) = side(c.z, "above", "below");
+        // The normal points away from the sensor: its angle to the line of sight is how
+        // far the plane is turned from facing the sensor.
+        let facing = c.norm().max(1e-9);
+        let cos = (self.normal.dot(c) / facing).clamp(-1.0, 1.0);
+        write!(
+            f,
+            "plane of {} points {:.1} m away ({ahead:.1} m {ahead_word}, {left:.1} m {left_word}, \
+             {up:.1} m {up_word}), turned {:.0}° from facing the sensor: {}",
+            self.points,
+            c.norm(),
+            cos.abs().acos().to_degrees(),
+            self.reason
+        )
+    }
+}
+
+impl Refusal {
+    /// What a person can do about this refusal, as a short imperative clause.
+    pub fn advice(&self) -> &'static str {
+        match self {
+            Refusal::TooFewPoints { .. } | Refusal::LinesMissing { .. } => {
+                "if it is a board, bring it closer or clear what hides it"
+            }
+            Refusal::NoHolePattern { .. } | Refusal::NoHoleGaps { .. } => {
+                "if it is a board, check the room file's hole positions and radius"
+            }
+            Refusal::HolesUnseen { .. } | Refusal::Unconstrained { .. } => {
+                "if it is a board, bring it closer or into the LiDAR's denser beams"
+            }
+        }
+    }
+}

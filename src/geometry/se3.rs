@@ -1,6 +1,6 @@
 //! Rigid motions in 3-D parameterised by a rotation vector (axis × angle) and a
 //! translation: `p' = exp(ω) p + t`, with the SO(3)/SE(3) exponential and logarithm,
-//! their Jacobians, quaternion conversion and the point-action Jacobians the solver needs.
+//! their Jacobians, quaternion and roll-pitch-yaw conversions and the point-action Jacobians the solver needs.
 //!
 //! Conventions: a twist `ξ ∈ ℝ⁶` is rotation first, translation second (`ξ = [ω; ρ]`);
 //! `Se3::exp(ξ) = (exp(ω), J_l(ω) ρ)` (the standard SE(3) `V` matrix is the SO(3) left
@@ -186,6 +186,30 @@ pub fn rotation_to_quaternion(r: &Mat3) -> [f64; 4] {
         *v *= sign / n;
     }
     q
+}
+
+/// Roll, pitch, yaw (rad) of a rotation in the URDF / ROS convention: fixed axes x, y,
+/// z in that order, `R = Rz(yaw) · Ry(pitch) · Rx(roll)`; pitch in [−π/2, π/2]. At
+/// gimbal lock (|pitch| = π/2) roll is set to 0 and yaw takes the whole turn.
+pub fn rotation_to_rpy(r: &Mat3) -> [f64; 3] {
+    let pitch = libm::asin((-r[(2, 0)]).clamp(-1.0, 1.0));
+    if r[(2, 0)].abs() < 1.0 - 1e-12 {
+        let roll = libm::atan2(r[(2, 1)], r[(2, 2)]);
+        let yaw = libm::atan2(r[(1, 0)], r[(0, 0)]);
+        [roll, pitch, yaw]
+    } else {
+        [0.0, pitch, libm::atan2(-r[(0, 1)], r[(1, 1)])]
+    }
+}
+
+/// The rotation of roll, pitch, yaw (rad): `Rz(yaw) · Ry(pitch) · Rx(roll)`.
+pub fn rpy_to_rotation(rpy: &[f64; 3]) -> Mat3 {
+    let axis = |i: usize, angle: f64| {
+        let mut v = Vec3::zeros();
+        v[i] = angle;
+        so3_exp(&v)
+    };
+    axis(2, rpy[2]) * axis(1, rpy[1]) * axis(0, rpy[0])
 }
 
 /// A rigid motion: `p' = rotation · p + translation`.

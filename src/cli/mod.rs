@@ -1,0 +1,3 @@
+//! Parts of the command line that outgrew `main.rs`, one file per concern.
+
+pub mod summary;

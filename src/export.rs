@@ -1,0 +1,209 @@
+//! Exports for other stacks (DESIGN.md "Exports for other stacks"): the calibration as the
+//! files ROS, Autoware and KITTI-style pipelines read, written by `roomcal calibrate
+//! --export DIR` and by the store beside `current.json`.
+//!
+//! - `camera.camera_info.yaml`: ROS `camera_info` as camera_calibration_parsers writes it
+//!   (`plumb_bob` = k1 k2 p1 p2 k3, `equidistant` = Kannala-Brandt k1..k4); no
+//!   rectification (identity R), `P = [K | 0]` from the calibrated K.
+//! - `sensor_kit_calibration.yaml`: Autoware's shape, parent `sensor_kit_base_link` taken
+//!   to be the LiDAR frame (roomcal measures the camera against the LiDAR, not against the
+//!   vehicle); the camera entry is its `camera_link` (x forward, y left, z up), not the
+//!   optical frame the result file uses (see [`OPTICAL_FROM_LINK`]).
+//! - `calib.txt`: KITTI, `P0:` (3×4) and `Tr_velo_to_cam:` (3×4, LiDAR → optical camera
+//!   frame), row-major.
+//!
+//! Numbers are written with Rust's shortest round-trip formatting, so a reader gets back
+//! exactly the `f64` of the result file.
+
+use std::path::{Path, PathBuf};
+
+use crate::geometry::se3::{rotation_to_rpy, Se3};
+use crate::geometry::{CameraModel, Mat3};
+use crate::result::{CalibrationResult, Extrinsic};
+
+/// The camera's name in the exports for a one-camera room.
+pub const CAMERA_NAME: &str = "camera";
+
+/// The LiDAR's name in `sensor_kit_calibration.yaml` for a one-LiDAR room.
+pub const LIDAR_NAME: &str = "lidar";
+
+/// `p_optical = OPTICAL_FROM_LINK · p_link`: the optical frame (x right, y down, z
+/// forward; camera_info's and the result file's) from ROS's `camera_link` body frame (x
+/// forward, y left, z up). The same fixed joint as Autoware's sensor kits,
+/// `camera_link → camera_optical_link` = rpy(−π/2, 0, −π/2).
+pub const OPTICAL_FROM_LINK: [[f64; 3]; 3] = [[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]];
+
+/// One export file: its name in the export directory and its text.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExportFile {
+    pub name: String,
+    pub text: String,
+}
+
+/// Why the exports could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum ExportError {
+    #[error(
+        "export {path}: cannot write it ({source}); check the directory exists and is writable"
+    )]
+    Io { path: PathBuf, source: std::io::Error },
+}
+
+/// Every export of a result: the camera_info always, the Autoware and KITTI files as far
+/// as the result has a LiDAR (`calib.txt` then carries `P0:` alone).
+pub fn files(result: &CalibrationResult) -> Vec<ExportFile> {
+    let mut out = vec![ExportFile {
+        name: format!("{CAMERA_NAME}.camera_info.yaml"),
+        text: camera_info_yaml(result, CAMERA_NAME),
+    }];
+    if let Some(e) = &result.lidar_to_camera {
+        out.push(ExportFile {
+            name: "sensor_kit_calibration.yaml".into(),
+            text: sensor_kit_yaml(e, CAMERA_NAME, LIDAR_NAME),
+        });
+    }
+    out.push(ExportFile { name: "calib.txt".into(), text: kitti_calib(result) });
+    out
+}
+
+/// Writes every export of `result` into `dir` through `write` (the store passes its
+/// atomic writer), stopping at the first error.
+pub fn write_each<E>(
+    dir: &Path,
+    result: &CalibrationResult,
+    mut write: impl FnMut(&Path, &[u8]) -> Result<(), E>,
+) -> Result<(), E> {
+    for file in files(result) {
+        write(&dir.join(&file.name), file.text.as_bytes())?;
+    }
+    Ok(())
+}
+
+/// Creates `dir` if needed and writes the exports there; returns the paths written.
+pub fn write_dir(dir: &Path, result: &CalibrationResult) -> Result<Vec<PathBuf>, ExportError> {
+    let io = |path: &Path| {
+        let path = path.to_path_buf();
+        move |source| ExportError::Io { path, source }
+    };
+    std::fs::create_dir_all(dir).map_err(io(dir))?;
+    let mut written = Vec::new();
+    write_each(dir, result, |path, bytes| {
+        written.push(path.to_path_buf());
+        std::fs::write(path, bytes).map_err(io(path))
+    })?;
+    Ok(written)
+}
+
+/// The pose of the camera's `camera_link` in the LiDAR frame: `p_lidar = rotation ·
+/// p_link + translation` (what `sensor_kit_calibration.yaml` holds for the camera).
+pub fn camera_link_in_lidar(lidar_to_camera: &Extrinsic) -> Se3 {
+    let camera_to_lidar = lidar_to_camera.to_se3().inverse();
+    camera_to_lidar.compose(&Se3 { rotation: optical_from_link(), translation: Default::default() })
+}
+
+/// [`OPTICAL_FROM_LINK`] as a matrix.
+pub fn optical_from_link() -> Mat3 {
+    let m = &OPTICAL_FROM_LINK;
+    Mat3::new(m[0][0], m[0][1], m[0][2], m[1][0], m[1][1], m[1][2], m[2][0], m[2][1], m[2][2])
+}
+
+/// ROS `camera_info` YAML (camera_calibration_parsers' keys and layout).
+pub fn camera_info_yaml(result: &CalibrationResult, camera_name: &str) -> String {
+    let c = &result.camera;
+    let model = match c.model {
+        CameraModel::PinholeRadtan => "plumb_bob",
+        CameraModel::Fisheye => "equidistant",
+    };
+    let k = [c.fx, 0.0, c.cx, 0.0, c.fy, c.cy, 0.0, 0.0, 1.0];
+    let rect = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+    format!(
+        "image_width: {}\nimage_height: {}\ncamera_name: {camera_name}\n{}distortion_model: {model}\n{}{}{}",
+        c.width,
+        c.height,
+        ros_matrix("camera_matrix", 3, 3, &k),
+        ros_matrix("distortion_coefficients", 1, c.distortion.len(), &c.distortion),
+        ros_matrix("rectification_matrix", 3, 3, &rect),
+        ros_matrix("projection_matrix", 3, 4, &projection(result)),
+    )
+}
+
+/// Autoware's `sensor_kit_calibration.yaml`: the LiDAR as the parent frame (identity) and
+/// the camera's `camera_link` in it.
+pub fn sensor_kit_yaml(lidar_to_camera: &Extrinsic, camera_name: &str, lidar_name: &str) -> String {
+    let camera = camera_link_in_lidar(lidar_to_camera);
+    format!(
+        "# roomcal: the LiDAR-camera extrinsic in Autoware's sensor_kit_calibration.yaml shape.\n\
+         # Each entry is the pose of a child frame in the parent: p_parent = R * p_child + [x, y, z],\n\
+         # R = Rz(yaw) * Ry(pitch) * Rx(roll) (URDF fixed-axis roll-pitch-yaw); metres and radians.\n\
+         # The parent sensor_kit_base_link is the LiDAR's own frame ({lidar_name}: identity): roomcal\n\
+         # measures the camera against the LiDAR, not against the vehicle.\n\
+         # {camera_name}/camera_link is the camera BODY frame (x forward, y left, z up), NOT the optical\n\
+         # frame (x right, y down, z forward) of camera_info, calib.txt and result.json:\n\
+         # p_optical = [[0,-1,0],[0,0,-1],[1,0,0]] * p_link, i.e. camera_link -> camera_optical_link\n\
+         # is rpy(-pi/2, 0, -pi/2) as in Autoware's sensor kit descriptions.\n\
+         sensor_kit_base_link:\n{}{}",
+        autoware_entry(lidar_name, &Se3::identity()),
+        autoware_entry(&format!("{camera_name}/camera_link"), &camera),
+    )
+}
+
+/// KITTI `calib.txt`: `P0:` = `[K | 0]`, `Tr_velo_to_cam:` = `[R | t]` (LiDAR → optical
+/// camera frame), both row-major.
+pub fn kitti_calib(result: &CalibrationResult) -> String {
+    let mut text = format!("P0: {}\n", numbers(&projection(result)));
+    if let Some(e) = &result.lidar_to_camera {
+        let (r, t) = (&e.rotation, &e.translation);
+        let tr = [
+            r[0][0], r[0][1], r[0][2], t[0], r[1][0], r[1][1], r[1][2], t[1], r[2][0], r[2][1],
+            r[2][2], t[2],
+        ];
+        text += &format!("Tr_velo_to_cam: {}\n", numbers(&tr));
+    }
+    text
+}
+
+/// `[K | 0]`, row-major: the projection of the calibrated (distorted) camera.
+fn projection(result: &CalibrationResult) -> [f64; 12] {
+    let c = &result.camera;
+    [c.fx, 0.0, c.cx, 0.0, 0.0, c.fy, c.cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+}
+
+fn ros_matrix(name: &str, rows: usize, cols: usize, data: &[f64]) -> String {
+    let values: Vec<String> = data.iter().map(|v| number(*v)).collect();
+    format!("{name}:\n  rows: {rows}\n  cols: {cols}\n  data: [{}]\n", values.join(", "))
+}
+
+fn autoware_entry(name: &str, pose: &Se3) -> String {
+    let [roll, pitch, yaw] = rotation_to_rpy(&pose.rotation);
+    let t = &pose.translation;
+    let mut text = format!("  {name}:\n");
+    for (key, value) in
+        [("x", t.x), ("y", t.y), ("z", t.z), ("roll", roll), ("pitch", pitch), ("yaw", yaw)]
+    {
+        text += &format!("    {key}: {}\n", number(value));
+    }
+    text
+}
+
+fn numbers(values: &[f64]) -> String {
+    values.iter().map(|v| number(*v)).collect::<Vec<_>>().join(" ")
+}
+
+/// A float every YAML reader takes as one: shortest round-trip digits, always with a
+/// decimal point (YAML 1.1 readers such as PyYAML read `1` as an integer and `1e-5` as a
+/// string; Rust's `Display` never writes an exponent).
+fn number(v: f64) -> String {
+    if v.is_nan() {
+        return ".nan".into();
+    }
+    if v.is_infinite() {
+        return if v > 0.0 { ".inf".into() } else { "-.inf".into() };
+    }
+    // Adding zero turns −0 into 0 (an identity's pitch reads `0.0`, not `-0.0`).
+    let text = format!("{}", v + 0.0);
+    if text.contains('.') {
+        text
+    } else {
+        text + ".0"
+    }
+}
