@@ -90,6 +90,8 @@ pub enum CloudFileError {
     NoData { path: std::path::PathBuf, model: Model, packets: usize, rejected: u64 },
     #[error("{path}: a capture needs the LiDAR model (the room's `lidar.model` is \"pcd\")")]
     NoModel { path: std::path::PathBuf },
+    #[error("{path}: an Ouster capture needs the sensor's metadata json as its calibration file")]
+    NoOusterMetadata { path: std::path::PathBuf },
 }
 
 /// Every return of every data packet in a pcap/pcapng capture, decoded with the unit's
@@ -103,6 +105,10 @@ pub fn decode_capture(
 ) -> Result<(Vec<Point>, SweepStats, pcap::PcapStats), CloudFileError> {
     let calibration = match calibration_file {
         Some(path) => calibration::load(model, path)?,
+        // Ouster has no nominal geometry: beam angles and packet layout are per unit.
+        None if model == Model::Ouster => {
+            return Err(CloudFileError::NoOusterMetadata { path: capture.to_owned() })
+        }
         None => Calibration::nominal(model),
     };
     let (datagrams, capture_stats) = pcap::read_udp(capture)?;
