@@ -156,10 +156,11 @@ struct DaemonArgs {
 
 #[derive(Args)]
 struct DecodeArgs {
-    /// LiDAR model: pandar64, pandar40p, vlp16, vlp32c, hdl32e.
+    /// LiDAR model: pandar64, pandar40p, pandarxt32, pandarqt64, vlp16, vlp32c, hdl32e, ouster.
     #[arg(long)]
     lidar: String,
-    /// The unit's angle corrections (Hesai CSV or Velodyne YAML); default: nominal table.
+    /// The unit's angle corrections (Hesai CSV or Velodyne YAML; for ouster the sensor's
+    /// metadata json); default: nominal table.
     #[arg(long)]
     calibration: Option<PathBuf>,
     /// The capture.
@@ -395,8 +396,9 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
 fn decode(args: DecodeArgs) -> Result<(), Failure> {
     let model = roomcal::lidar::Model::from_name(&args.lidar).ok_or_else(|| {
         bad_input(anyhow::anyhow!(
-            "--lidar {}: unknown model (pandar64, pandar40p, vlp16, vlp32c, hdl32e)",
-            args.lidar
+            "--lidar {}: unknown model ({})",
+            args.lidar,
+            roomcal::lidar::Model::NAMES
         ))
     })?;
     let (points, stats, capture) =

@@ -99,6 +99,10 @@ pub enum LidarModel {
     Vlp16,
     Vlp32c,
     Hdl32e,
+    Pandarxt32,
+    Pandarqt64,
+    /// Any Ouster unit (its metadata json is the calibration file).
+    Ouster,
     /// Points come as files, not packets.
     Pcd,
 }
@@ -113,6 +117,9 @@ impl LidarModel {
             LidarModel::Vlp16 => Some(Model::Vlp16),
             LidarModel::Vlp32c => Some(Model::Vlp32c),
             LidarModel::Hdl32e => Some(Model::Hdl32e),
+            LidarModel::Pandarxt32 => Some(Model::PandarXt32),
+            LidarModel::Pandarqt64 => Some(Model::PandarQt64),
+            LidarModel::Ouster => Some(Model::Ouster),
             LidarModel::Pcd => None,
         }
     }

@@ -1,4 +1,5 @@
-//! Fuzzes the Hesai packet views, `Repr` and decoder for the Pandar64 and Pandar40P: no panic
+//! Fuzzes the Hesai packet views, `Repr` and decoder for the Pandar64, Pandar40P, PandarXT32
+//! and PandarQT64: no panic
 //! on any bytes, and every packet that parses re-emits to the same bytes (reserved bytes
 //! aside, which `emit` zeroes).
 #![no_main]
@@ -9,7 +10,7 @@ use roomcal::lidar::hesai::{Packet, Repr};
 use roomcal::lidar::{decode_packet, Model};
 
 fuzz_target!(|data: &[u8]| {
-    for model in [Model::Pandar64, Model::Pandar40p] {
+    for model in [Model::Pandar64, Model::Pandar40p, Model::PandarXt32, Model::PandarQt64] {
         let cal = Calibration::nominal(model);
         let _ = decode_packet(&cal, data, &mut |r| {
             assert!(r.point.x.is_finite() && r.point.y.is_finite() && r.point.z.is_finite());

@@ -119,7 +119,8 @@ pub async fn udp(
         let mut buf = vec![Point::default(); SWEEP_CAPACITY];
         let config = SweepConfig { data_port: addr.port(), ..SweepConfig::for_calibration(&cal) };
         let mut feeder = Feeder { asm: SweepAssembler::new(cal, config, &mut buf), tx, sent: 0 };
-        let mut packet = vec![0u8; 2048];
+        // The largest UDP datagram: Ouster packets run to 33 KB (128 beams, dual returns).
+        let mut packet = vec![0u8; 65_536];
         loop {
             match socket.recv_from(&mut packet).await {
                 Ok((n, _)) => feeder.push(addr.port(), &packet[..n]),

@@ -1,12 +1,14 @@
 //! Per-unit angle corrections: fixed-size tables usable without an allocator, built-in
 //! nominal tables per model (from the vendors' user manuals), and (std) parsers for Hesai
-//! angle-correction CSV files and Velodyne calibration YAML files (the `velodyne_pointcloud`
-//! subset: a `lasers:` list of flow or block mappings, `num_lasers`, `distance_resolution`).
+//! angle-correction CSV files, Velodyne calibration YAML files (the `velodyne_pointcloud`
+//! subset: a `lasers:` list of flow or block mappings, `num_lasers`, `distance_resolution`)
+//! and Ouster metadata json (beam angles, beam origin, lidar→sensor transform, data format).
 
 use super::decoder::Model;
+pub use super::ouster::{OusterGeometry, Profile as OusterProfile};
 
-/// The most lasers any supported model has.
-pub const MAX_LASERS: usize = 64;
+/// The most lasers any supported model has (an Ouster OS-128).
+pub const MAX_LASERS: usize = 128;
 
 /// Corrections of one laser, with the trigonometry precomputed.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -14,7 +16,7 @@ pub struct LaserCorrection {
     /// Elevation, radians, up positive.
     pub elevation: f32,
     /// Added to the firing azimuth, radians, clockwise seen from above positive (Hesai's
-    /// "azimuth" column; minus Velodyne's `rot_correction`).
+    /// "azimuth" column; minus Velodyne's `rot_correction`; Ouster's `beam_azimuth_angles`).
     pub azimuth_offset: f32,
     /// Added to every non-zero range, metres (Velodyne `dist_correction`).
     pub dist_correction: f32,
@@ -59,6 +61,9 @@ pub struct Calibration {
     pub distance_resolution: f32,
     /// How Velodyne firing azimuths are interpolated between block azimuths.
     pub interpolation: Interpolation,
+    /// An Ouster unit's packet layout and beam geometry (unused for other models; the
+    /// per-beam altitude and azimuth angles are in `lasers`).
+    pub ouster: OusterGeometry,
 }
 
 /// How a Velodyne decoder places each firing between two block azimuths.
@@ -108,6 +113,11 @@ impl Calibration {
             Model::Hdl32e => (&HDL32E_ELEVATION, &[0.0; 32]),
             Model::Pandar40p => (&PANDAR40P_ELEVATION, &PANDAR40P_AZIMUTH),
             Model::Pandar64 => (&PANDAR64_ELEVATION, &PANDAR64_AZIMUTH),
+            Model::PandarXt32 => (&PANDARXT32_ELEVATION, &[0.0; 32]),
+            Model::PandarQt64 => (&PANDARQT64_ELEVATION, &PANDARQT64_AZIMUTH),
+            // No nominal Ouster table: a unit's comes from its metadata json; this is the
+            // uniform 32-beam fan of the default geometry, so the type stays total.
+            Model::Ouster => (&OUSTER_NOMINAL_ELEVATION, &[0.0; 32]),
         };
         for ((slot, e), a) in lasers.iter_mut().zip(elev).zip(azim) {
             *slot = LaserCorrection::from_degrees(*e, *a);
@@ -115,9 +125,24 @@ impl Calibration {
         let distance_resolution = match model {
             Model::Vlp32c => 0.004,
             Model::Vlp16 | Model::Hdl32e => 0.002,
-            Model::Pandar40p | Model::Pandar64 => 0.004,
+            Model::Pandar40p | Model::Pandar64 | Model::PandarXt32 | Model::PandarQt64 => 0.004,
+            Model::Ouster => 0.001,
         };
-        Calibration { model, lasers, distance_resolution, interpolation: Interpolation::Manual }
+        Calibration {
+            model,
+            lasers,
+            distance_resolution,
+            interpolation: Interpolation::Manual,
+            ouster: OusterGeometry::default(),
+        }
+    }
+
+    /// Lasers of this unit: the model's count, or an Ouster unit's beams.
+    pub fn laser_count(&self) -> usize {
+        match self.model {
+            Model::Ouster => usize::from(self.ouster.pixels_per_column).min(MAX_LASERS),
+            m => m.lasers(),
+        }
     }
 
     /// A table from per-laser elevations and azimuth offsets in degrees (as a Hesai CSV holds
@@ -142,7 +167,7 @@ impl Calibration {
 
     /// Sets laser `index` (0-based), checking it exists and its values are sane.
     pub fn set(&mut self, index: usize, c: LaserCorrection) -> Result<(), CalibrationError> {
-        if index >= self.model.lasers() {
+        if index >= self.laser_count() {
             return Err(CalibrationError::LaserOutOfRange(index));
         }
         let sane = |v: f32, lim: f32| v.is_finite() && v.abs() <= lim;
@@ -161,7 +186,7 @@ impl Calibration {
 
     /// The lasers of the model.
     pub fn active(&self) -> &[LaserCorrection] {
-        &self.lasers[..self.model.lasers()]
+        &self.lasers[..self.laser_count()]
     }
 
     /// Laser numbers sorted by elevation, bottom first: `rings()[laser]` is the ring index
@@ -260,8 +285,56 @@ pub const PANDAR64_AZIMUTH: [f32; 64] = {
     a
 };
 
+/// PandarXT32 nominal elevations by channel, degrees: 1° apart from +15° to −16° (user
+/// manual, channel distribution); nominal azimuth offsets are 0.
+pub const PANDARXT32_ELEVATION: [f32; 32] = {
+    let mut e = [0f32; 32];
+    let mut i = 0;
+    while i < 32 {
+        e[i] = 15.0 - i as f32;
+        i += 1;
+    }
+    e
+};
+
+/// PandarQT64 elevations by channel, degrees: the angle-correction file tier4/nebula ships
+/// as the QT64 default (`nebula_hesai_decoders/calibration/PandarQT64.csv`).
+pub const PANDARQT64_ELEVATION: [f32; 64] = [
+    -52.121, -49.785, -47.577, -45.477, -43.465, -41.528, -39.653, -37.831, -36.055, -34.320,
+    -32.619, -30.950, -29.308, -27.690, -26.094, -24.517, -22.964, -21.420, -19.889, -18.372,
+    -16.865, -15.368, -13.880, -12.399, -10.925, -9.457, -7.994, -6.535, -5.079, -3.626, -2.175,
+    -0.725, 0.725, 2.175, 3.626, 5.079, 6.534, 7.993, 9.456, 10.923, 12.397, 13.877, 15.365,
+    16.861, 18.368, 19.885, 21.415, 22.959, 24.524, 26.101, 27.697, 29.315, 30.957, 32.627, 34.328,
+    36.064, 37.840, 39.662, 41.537, 43.475, 45.487, 47.587, 49.795, 52.133,
+];
+
+/// PandarQT64 azimuth offsets by channel, degrees (the same file).
+pub const PANDARQT64_AZIMUTH: [f32; 64] = [
+    8.736, 8.314, 7.964, 7.669, 7.417, 7.198, 7.007, 6.838, 6.688, 6.554, 6.434, 6.326, 6.228,
+    6.140, 6.059, 5.987, -5.270, -5.216, -5.167, -5.123, -5.083, -5.047, -5.016, -4.988, -4.963,
+    -4.942, -4.924, -4.910, -4.898, -4.889, -4.884, -4.881, 5.493, 5.496, 5.502, 5.512, 5.525,
+    5.541, 5.561, 5.584, 5.611, 5.642, 5.676, 5.716, 5.759, 5.808, 5.862, 5.921, -5.330, -5.396,
+    -5.469, -5.550, -5.640, -5.740, -5.850, -5.974, -6.113, -6.269, -6.447, -6.651, -6.887, -7.163,
+    -7.493, -7.892,
+];
+
+/// Placeholder Ouster fan, degrees: 32 beams 1° apart, +15.5° to −15.5° (top first, as
+/// Ouster numbers beams). Real units always come with their metadata.
+const OUSTER_NOMINAL_ELEVATION: [f32; 32] = {
+    let mut e = [0f32; 32];
+    let mut i = 0;
+    while i < 32 {
+        e[i] = 15.5 - i as f32;
+        i += 1;
+    }
+    e
+};
+
 #[cfg(feature = "std")]
-pub use files::{load, parse_hesai_csv, parse_velodyne_yaml, to_hesai_csv, CalibrationFileError};
+pub use files::{
+    load, parse_hesai_csv, parse_ouster_json, parse_velodyne_yaml, to_hesai_csv,
+    CalibrationFileError,
+};
 
 #[cfg(feature = "std")]
 mod files {
@@ -284,16 +357,18 @@ mod files {
     impl std::error::Error for CalibrationError {}
 
     /// Reads a calibration file for `model`: Hesai CSV for Pandar models, Velodyne YAML for
-    /// Velodyne models.
+    /// Velodyne models, the sensor's metadata json for Ouster.
     pub fn load(model: Model, path: &Path) -> Result<Calibration, CalibrationFileError> {
         let text = std::fs::read_to_string(path)
             .map_err(|source| CalibrationFileError::Read { path: path.to_owned(), source })?;
-        if model.is_velodyne() {
-            parse_velodyne_yaml(model, &text, path)
-        } else {
-            parse_hesai_csv(model, &text, path)
+        match model {
+            Model::Ouster => parse_ouster_json(&text, path),
+            m if m.is_velodyne() => parse_velodyne_yaml(model, &text, path),
+            _ => parse_hesai_csv(model, &text, path),
         }
     }
+
+    pub use crate::lidar::ouster::metadata::parse as parse_ouster_json;
 
     /// Parses a Hesai angle-correction CSV (`Laser id,Elevation,Azimuth`, 1-based ids, degrees;
     /// an optional `EEFF` preamble line and trailing hash lines are skipped).
@@ -438,7 +513,7 @@ mod files {
         [0, -1, 1, -2, 2].into_iter().map(near).find(|c| c.to_radians() == radians).unwrap_or(d)
     }
 
-    fn check_complete(model: Model, seen: &[bool]) -> Result<(), CalibrationError> {
+    pub(crate) fn check_complete(model: Model, seen: &[bool]) -> Result<(), CalibrationError> {
         let found = seen.iter().filter(|s| **s).count();
         if found < model.lasers() {
             return Err(CalibrationError::MissingLasers { found, expected: model.lasers() });
@@ -456,13 +531,17 @@ mod tests {
         for m in Model::ALL {
             let c = Calibration::nominal(m);
             let active = c.active();
-            assert_eq!(active.len(), m.lasers());
+            let lasers = if m == Model::Ouster { 32 } else { m.lasers() };
+            assert_eq!(active.len(), lasers);
             let top = active.iter().map(|l| l.elevation.to_degrees()).fold(f32::MIN, f32::max);
             let bottom = active.iter().map(|l| l.elevation.to_degrees()).fold(f32::MAX, f32::min);
-            assert!(top > 10.0 && top <= 15.001, "{m:?} top {top}");
-            assert!(bottom < -14.0 && bottom > -31.0, "{m:?} bottom {bottom}");
+            // The QT64 is a dome: ±52°.
+            let (top_max, bottom_min) =
+                if m == Model::PandarQt64 { (53.0, -53.0) } else { (15.501, -31.0) };
+            assert!(top > 10.0 && top <= top_max, "{m:?} top {top}");
+            assert!(bottom < -14.0 && bottom > bottom_min, "{m:?} bottom {bottom}");
             // Ring numbering is a permutation.
-            let mut rings: Vec<u16> = c.rings()[..m.lasers()].to_vec();
+            let mut rings: Vec<u16> = c.rings()[..lasers].to_vec();
             rings.sort_unstable();
             assert!(rings.iter().enumerate().all(|(i, r)| usize::from(*r) == i), "{m:?}");
         }

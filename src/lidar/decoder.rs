@@ -5,7 +5,7 @@
 use core::fmt;
 
 use super::calibration::Calibration;
-use super::{hesai, velodyne, Point};
+use super::{hesai, ouster, velodyne, Point};
 
 /// A supported LiDAR model.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -20,15 +20,34 @@ pub enum Model {
     Pandar40p,
     /// Hesai Pandar64.
     Pandar64,
+    /// Hesai PandarXT32.
+    PandarXt32,
+    /// Hesai PandarQT64.
+    PandarQt64,
+    /// Ouster OS0/OS1/OS2 (any beam count and lidar mode; LEGACY and
+    /// RNG19_RFL8_SIG16_NIR16_DUAL packets): the geometry comes from the unit's metadata json.
+    Ouster,
 }
 
 impl Model {
     /// Every supported model.
-    pub const ALL: [Model; 5] =
-        [Model::Vlp16, Model::Vlp32c, Model::Hdl32e, Model::Pandar40p, Model::Pandar64];
+    pub const ALL: [Model; 8] = [
+        Model::Vlp16,
+        Model::Vlp32c,
+        Model::Hdl32e,
+        Model::Pandar40p,
+        Model::Pandar64,
+        Model::PandarXt32,
+        Model::PandarQt64,
+        Model::Ouster,
+    ];
+
+    /// The names [`Model::from_name`] takes, for messages.
+    pub const NAMES: &'static str =
+        "pandar64, pandar40p, pandarxt32, pandarqt64, vlp16, vlp32c, hdl32e, ouster";
 
     /// Parses the names the room and CLI files use (`vlp16`, `vlp32c`, `hdl32e`, `pandar40p`,
-    /// `pandar64`; case-insensitive, `-`/`_` ignored).
+    /// `pandar64`, `pandarxt32`, `pandarqt64`, `ouster`; case-insensitive, `-`/`_` ignored).
     pub fn from_name(name: &str) -> Option<Model> {
         let mut buf = [0u8; 16];
         let mut n = 0;
@@ -42,6 +61,9 @@ impl Model {
             b"hdl32e" | b"hdl32" => Some(Model::Hdl32e),
             b"pandar40p" | b"pandar40" => Some(Model::Pandar40p),
             b"pandar64" => Some(Model::Pandar64),
+            b"pandarxt32" | b"xt32" => Some(Model::PandarXt32),
+            b"pandarqt64" | b"qt64" => Some(Model::PandarQt64),
+            b"ouster" => Some(Model::Ouster),
             _ => None,
         }
     }
@@ -54,17 +76,27 @@ impl Model {
             Model::Hdl32e => "hdl32e",
             Model::Pandar40p => "pandar40p",
             Model::Pandar64 => "pandar64",
+            Model::PandarXt32 => "pandarxt32",
+            Model::PandarQt64 => "pandarqt64",
+            Model::Ouster => "ouster",
         }
     }
 
-    /// Number of lasers (channels).
+    /// Number of lasers (channels); for Ouster the most the family has (a unit's own count,
+    /// 16 to 128, is in its metadata: `Calibration::laser_count`).
     pub fn lasers(self) -> usize {
         match self {
             Model::Vlp16 => 16,
-            Model::Vlp32c | Model::Hdl32e => 32,
+            Model::Vlp32c | Model::Hdl32e | Model::PandarXt32 => 32,
             Model::Pandar40p => 40,
-            Model::Pandar64 => 64,
+            Model::Pandar64 | Model::PandarQt64 => 64,
+            Model::Ouster => 128,
         }
+    }
+
+    /// Whether the model is a Hesai (the `hesai` module decodes it).
+    pub fn is_hesai(self) -> bool {
+        matches!(self, Model::Pandar40p | Model::Pandar64 | Model::PandarXt32 | Model::PandarQt64)
     }
 
     /// Whether the model is a Velodyne (1206 B data packets).
@@ -74,15 +106,19 @@ impl Model {
 
     /// The factory-default UDP port of the data packets.
     pub fn data_port(self) -> u16 {
-        2368
+        match self {
+            Model::Ouster => 7502,
+            _ => 2368,
+        }
     }
 
-    /// The factory-default UDP port of the position / GPS packets (ignored by the decoders).
+    /// The factory-default UDP port of the position / GPS / IMU packets (ignored by the
+    /// decoders).
     pub fn position_port(self) -> u16 {
-        if self.is_velodyne() {
-            8308
-        } else {
-            10110
+        match self {
+            Model::Ouster => 7503,
+            m if m.is_velodyne() => 8308,
+            _ => 10110,
         }
     }
 
@@ -91,7 +127,7 @@ impl Model {
         if let Ok(p) = velodyne::Packet::new_checked(payload) {
             return velodyne::Product::from_id(p.product_id()).map(|p| p.model());
         }
-        [Model::Pandar64, Model::Pandar40p]
+        [Model::Pandar64, Model::Pandar40p, Model::PandarXt32, Model::PandarQt64]
             .into_iter()
             .find(|m| hesai::Packet::new_checked(payload, *m).is_ok())
     }
@@ -214,8 +250,10 @@ pub fn encode_sweep(
         let past_hour = start_time - 3600.0 * libm::floor(start_time / 3600.0);
         let us = libm::round(past_hour * 1e6) as u32;
         velodyne::encode_sweep(calibration, returns, us, out)
-    } else {
+    } else if calibration.model.is_hesai() {
         hesai::encode_sweep(calibration, returns, start_time, out)
+    } else {
+        Err(DecodeError::WrongCalibration)
     }
 }
 
@@ -255,19 +293,20 @@ pub fn beam_direction(calibration: &Calibration, laser: usize, firing_azimuth: u
 /// the calibration's resolution for Velodyne units, the 4 mm unit the Hesai encoder sets.
 /// A range `n × resolution` (computed in f32) survives encoding exactly.
 pub fn range_resolution(calibration: &Calibration) -> f32 {
-    if calibration.model.is_velodyne() {
-        calibration.distance_resolution
-    } else {
-        f32::from(hesai::ENCODE_DIS_UNIT_MM) * 1e-3
+    match calibration.model {
+        Model::Ouster => 1e-3,
+        m if m.is_velodyne() => calibration.distance_resolution,
+        _ => f32::from(hesai::ENCODE_DIS_UNIT_MM) * 1e-3,
     }
 }
 
 /// Nominal time between data packets of `model` in single-return mode, seconds.
+/// (Ouster: the 1024×10 mode's; a unit's own is `ouster::packet_period`.)
 pub fn packet_period(model: Model) -> f64 {
-    if model.is_velodyne() {
-        velodyne::packet_period(model)
-    } else {
-        hesai::packet_period(model)
+    match model {
+        Model::Ouster => ouster::packet_period(&super::calibration::OusterGeometry::default()),
+        m if m.is_velodyne() => velodyne::packet_period(model),
+        _ => hesai::packet_period(model),
     }
 }
 
@@ -279,10 +318,10 @@ pub fn decode_packet<F: FnMut(Return) + ?Sized>(
     payload: &[u8],
     sink: &mut F,
 ) -> Result<PacketSummary, DecodeError> {
-    if calibration.model.is_velodyne() {
-        velodyne::decode(calibration, payload, sink)
-    } else {
-        hesai::decode(calibration, payload, sink)
+    match calibration.model {
+        Model::Ouster => ouster::decode(calibration, payload, sink),
+        m if m.is_velodyne() => velodyne::decode(calibration, payload, sink),
+        _ => hesai::decode(calibration, payload, sink),
     }
 }
 
@@ -364,6 +403,11 @@ mod tests {
         }
         assert_eq!(Model::from_name("VLP-32C"), Some(Model::Vlp32c));
         assert_eq!(Model::from_name("Pandar_64"), Some(Model::Pandar64));
+        assert_eq!(Model::from_name("PandarXT-32"), Some(Model::PandarXt32));
+        assert_eq!(Model::from_name("OUSTER"), Some(Model::Ouster));
+        for m in Model::ALL {
+            assert!(Model::NAMES.contains(m.name()), "{m:?}");
+        }
         assert_eq!(Model::from_name("hdl64e"), None);
         assert_eq!(Model::from_name("a-very-long-name-indeed"), None);
     }

@@ -1,5 +1,6 @@
-//! Hesai Pandar64 and Pandar40P data packets as a zero-copy view and a `Repr`, their decoder
-//! to points and an encoder for the simulator.
+//! Hesai Pandar64, Pandar40P, PandarXT32 and PandarQT64 data packets as a zero-copy view and
+//! a `Repr`, their decoder to points and an encoder for the simulator. One [`Layout`] per model
+//! says where everything sits; the view, `Repr` and decoder are shared.
 //!
 //! Pandar64 (1194 B, 1198 B with the UDP sequence): an 8-byte header (`EE FF`, laser count 64,
 //! block count 6, reserved, distance unit in mm, 2 reserved), 6 blocks of an azimuth and 64
@@ -7,6 +8,14 @@
 //! `FF EE`, azimuth and 40 units (4 mm unit), the same tail. Tail: 5 reserved, high-temperature
 //! flag, 2 reserved, motor speed (rpm), microseconds (LE u32), return mode, factory byte, UTC
 //! date/time (year, month, day, hour, minute, second), optional UDP sequence (LE u32).
+//!
+//! PandarXT32 (1080 B) and PandarQT64 (1072 B): a 12-byte header (`EE FF`, protocol version
+//! 6.1 / 3.1, 2 reserved, laser count, block count, first-block return, distance unit in mm,
+//! return count, flags), 8 blocks × (azimuth + 32 four-byte units) / 4 blocks × (azimuth + 64
+//! units; unit = distance, reflectivity, reserved), and a 28-byte tail: 10 reserved, then XT32:
+//! return mode, motor speed, date/time, microseconds, factory byte; QT64: motor speed,
+//! microseconds, return mode, factory byte, date/time; both end with the UDP sequence. Their
+//! years count from 1900.
 //!
 //! Frame: Hesai's manual counts azimuth clockwise from the y axis (forward) with x right;
 //! points leave here with x forward, y left, z up. Time: `Point::time` is Unix seconds (the
@@ -35,7 +44,52 @@ pub struct Layout {
     pub azimuth_at: usize,
     /// Whether blocks start with `FF EE`.
     pub block_magic: bool,
+    /// Bytes per unit: distance (LE u16), reflectivity, then reserved bytes.
+    pub unit_len: usize,
+    /// Where the header's fields sit (no header: Pandar40P).
+    pub header: Option<HeaderLayout>,
+    /// Where the tail's fields sit.
+    pub tail: TailLayout,
 }
+
+/// Header field offsets of the models that have a header.
+#[derive(Debug, PartialEq, Eq)]
+pub struct HeaderLayout {
+    /// Protocol version bytes (major, minor) after `EE FF`, when the header has them.
+    pub version: Option<[u8; 2]>,
+    pub laser_num: usize,
+    pub block_num: usize,
+    pub dis_unit: usize,
+    /// Echoes per firing (12-byte headers only).
+    pub return_num: Option<usize>,
+}
+
+/// Tail field offsets, relative to the start of the tail.
+#[derive(Debug, PartialEq, Eq)]
+pub struct TailLayout {
+    pub high_temperature: Option<usize>,
+    pub motor_speed: usize,
+    pub timestamp: usize,
+    pub return_mode: usize,
+    pub factory: usize,
+    pub date_time: usize,
+    /// Bytes before the optional UDP sequence.
+    pub len: usize,
+    /// Year the date/time field counts from.
+    pub year_base: i64,
+}
+
+/// Pandar64 and Pandar40P tail.
+const TAIL_P64: TailLayout = TailLayout {
+    high_temperature: Some(5),
+    motor_speed: 8,
+    timestamp: 10,
+    return_mode: 14,
+    factory: 15,
+    date_time: 16,
+    len: 22,
+    year_base: 1900,
+};
 
 /// Pandar64: header, 6 blocks × (azimuth + 64 units).
 pub const PANDAR64: Layout = Layout {
@@ -46,6 +100,15 @@ pub const PANDAR64: Layout = Layout {
     block_header_len: 2,
     azimuth_at: 0,
     block_magic: false,
+    unit_len: 3,
+    header: Some(HeaderLayout {
+        version: None,
+        laser_num: 2,
+        block_num: 3,
+        dis_unit: 5,
+        return_num: None,
+    }),
+    tail: TAIL_P64,
 };
 
 /// Pandar40P: 10 blocks × (`FF EE` + azimuth + 40 units).
@@ -57,29 +120,79 @@ pub const PANDAR40P: Layout = Layout {
     block_header_len: 4,
     azimuth_at: 2,
     block_magic: true,
+    unit_len: 3,
+    header: None,
+    tail: TailLayout { year_base: 2000, ..TAIL_P64 },
 };
 
-/// Field positions shared by both layouts.
+/// The 12-byte header of the XT32 and QT64 with its protocol version.
+const fn header12(version: [u8; 2]) -> Option<HeaderLayout> {
+    Some(HeaderLayout {
+        version: Some(version),
+        laser_num: 6,
+        block_num: 7,
+        dis_unit: 9,
+        return_num: Some(10),
+    })
+}
+
+/// PandarXT32: 12-byte header, 8 blocks × (azimuth + 32 four-byte units), 28-byte tail.
+pub const PANDARXT32: Layout = Layout {
+    model: Model::PandarXt32,
+    header_len: 12,
+    blocks: 8,
+    lasers: 32,
+    block_header_len: 2,
+    azimuth_at: 0,
+    block_magic: false,
+    unit_len: 4,
+    header: header12([6, 1]),
+    tail: TailLayout {
+        high_temperature: None,
+        return_mode: 10,
+        motor_speed: 11,
+        date_time: 13,
+        timestamp: 19,
+        factory: 23,
+        len: 24,
+        year_base: 1900,
+    },
+};
+
+/// PandarQT64: 12-byte header, 4 blocks × (azimuth + 64 four-byte units), 28-byte tail.
+pub const PANDARQT64: Layout = Layout {
+    model: Model::PandarQt64,
+    header_len: 12,
+    blocks: 4,
+    lasers: 64,
+    block_header_len: 2,
+    azimuth_at: 0,
+    block_magic: false,
+    unit_len: 4,
+    header: header12([3, 1]),
+    tail: TailLayout {
+        high_temperature: None,
+        motor_speed: 10,
+        timestamp: 12,
+        return_mode: 16,
+        factory: 17,
+        date_time: 18,
+        len: 24,
+        year_base: 1900,
+    },
+};
+
+/// Field positions every layout shares (the rest are in [`Layout`]).
 pub mod field {
     use core::ops::Range;
-    /// Header (Pandar64 only).
+    /// Start of packet (models with a header).
     pub const SOP: Range<usize> = 0..2;
     pub const SOP_BYTES: [u8; 2] = [0xEE, 0xFF];
-    pub const LASER_NUM: usize = 2;
-    pub const BLOCK_NUM: usize = 3;
-    pub const DIS_UNIT: usize = 5;
+    /// Protocol version (12-byte headers).
+    pub const VERSION: Range<usize> = 2..4;
     /// Block start (Pandar40P only).
     pub const SOB_BYTES: [u8; 2] = [0xFF, 0xEE];
-    pub const UNIT_LEN: usize = 3;
-    /// Relative to the start of the tail.
-    pub const HIGH_TEMPERATURE: usize = 5;
-    pub const MOTOR_SPEED: Range<usize> = 8..10;
-    pub const TIMESTAMP: Range<usize> = 10..14;
-    pub const RETURN_MODE: usize = 14;
-    pub const FACTORY: usize = 15;
-    pub const DATE_TIME: Range<usize> = 16..22;
-    pub const SEQUENCE: Range<usize> = 22..26;
-    pub const TAIL_LEN: usize = 22;
+    /// The UDP sequence after the tail.
     pub const SEQUENCE_LEN: usize = 4;
 }
 
@@ -100,12 +213,14 @@ impl Layout {
         match model {
             Model::Pandar64 => Some(&PANDAR64),
             Model::Pandar40p => Some(&PANDAR40P),
+            Model::PandarXt32 => Some(&PANDARXT32),
+            Model::PandarQt64 => Some(&PANDARQT64),
             _ => None,
         }
     }
 
     pub const fn block_len(&self) -> usize {
-        self.block_header_len + self.lasers * field::UNIT_LEN
+        self.block_header_len + self.lasers * self.unit_len
     }
 
     /// Where the tail starts.
@@ -115,15 +230,7 @@ impl Layout {
 
     /// Length without the optional UDP sequence.
     pub const fn packet_len(&self) -> usize {
-        self.tail_at() + field::TAIL_LEN
-    }
-
-    /// Year the date/time field counts from.
-    const fn year_base(&self) -> i64 {
-        match self.model {
-            Model::Pandar64 => 1900,
-            _ => 2000,
-        }
+        self.tail_at() + self.tail.len
     }
 }
 
@@ -163,13 +270,15 @@ impl<T: AsRef<[u8]>> Packet<T> {
                 DecodeError::Oversized { len, expected: expected + field::SEQUENCE_LEN }
             });
         }
-        if l.header_len > 0 {
+        if let Some(h) = &l.header {
             if data[field::SOP] != field::SOP_BYTES {
                 return Err(DecodeError::BadMagic);
             }
-            if usize::from(data[field::LASER_NUM]) != l.lasers
-                || usize::from(data[field::BLOCK_NUM]) != l.blocks
-                || data[field::DIS_UNIT] == 0
+            let version_ok = h.version.is_none_or(|v| data[field::VERSION] == v);
+            if !version_ok
+                || usize::from(data[h.laser_num]) != l.lasers
+                || usize::from(data[h.block_num]) != l.blocks
+                || data[h.dis_unit] == 0
             {
                 return Err(DecodeError::BadHeader);
             }
@@ -215,7 +324,7 @@ impl<T: AsRef<[u8]>> Packet<T> {
     }
 
     fn unit_at(&self, b: usize, c: usize) -> usize {
-        self.block_at(b) + self.layout.block_header_len + c * field::UNIT_LEN
+        self.block_at(b) + self.layout.block_header_len + c * self.layout.unit_len
     }
 
     /// Raw distance of channel `c` in block `b` (0 = no return).
@@ -232,38 +341,37 @@ impl<T: AsRef<[u8]>> Packet<T> {
 
     /// Metres per distance count.
     pub fn distance_unit(&self) -> f32 {
-        if self.layout.header_len > 0 {
-            f32::from(self.buffer.as_ref()[field::DIS_UNIT]) * 1e-3
-        } else {
-            0.004
-        }
+        f32::from(self.dis_unit_mm()) * 1e-3
     }
 
+    /// Millimetres per distance count (the header's, or the Pandar40P's fixed 4 mm).
     pub fn dis_unit_mm(&self) -> u8 {
-        if self.layout.header_len > 0 {
-            self.buffer.as_ref()[field::DIS_UNIT]
-        } else {
-            4
+        match &self.layout.header {
+            Some(h) => self.buffer.as_ref()[h.dis_unit],
+            None => 4,
         }
     }
 
+    /// The high-temperature flag (false where the tail has none).
     pub fn high_temperature(&self) -> bool {
-        self.tail()[field::HIGH_TEMPERATURE] != 0
+        self.layout.tail.high_temperature.is_some_and(|at| self.tail()[at] != 0)
     }
 
     pub fn motor_rpm(&self) -> u16 {
-        let d = &self.tail()[field::MOTOR_SPEED];
-        u16::from_le_bytes([d[0], d[1]])
+        let at = self.layout.tail.motor_speed;
+        let d = self.tail();
+        u16::from_le_bytes([d[at], d[at + 1]])
     }
 
     /// Microseconds within the second of `date_time`.
     pub fn timestamp_us(&self) -> u32 {
-        let d = &self.tail()[field::TIMESTAMP];
-        u32::from_le_bytes([d[0], d[1], d[2], d[3]])
+        let at = self.layout.tail.timestamp;
+        let d = self.tail();
+        u32::from_le_bytes([d[at], d[at + 1], d[at + 2], d[at + 3]])
     }
 
     pub fn return_mode_byte(&self) -> u8 {
-        self.tail()[field::RETURN_MODE]
+        self.tail()[self.layout.tail.return_mode]
     }
 
     pub fn return_mode(&self) -> ReturnMode {
@@ -271,12 +379,13 @@ impl<T: AsRef<[u8]>> Packet<T> {
     }
 
     pub fn factory(&self) -> u8 {
-        self.tail()[field::FACTORY]
+        self.tail()[self.layout.tail.factory]
     }
 
     /// Year (from the model's base), month, day, hour, minute, second as sent.
     pub fn date_time(&self) -> [u8; 6] {
-        let d = &self.tail()[field::DATE_TIME];
+        let at = self.layout.tail.date_time;
+        let d = &self.tail()[at..at + 6];
         [d[0], d[1], d[2], d[3], d[4], d[5]]
     }
 
@@ -284,7 +393,7 @@ impl<T: AsRef<[u8]>> Packet<T> {
     pub fn time(&self) -> f64 {
         let [y, mo, d, h, mi, s] = self.date_time();
         let secs = unix_seconds(
-            self.layout.year_base() + i64::from(y),
+            self.layout.tail.year_base + i64::from(y),
             u32::from(mo.clamp(1, 12)),
             u32::from(d),
             u32::from(h),
@@ -296,7 +405,8 @@ impl<T: AsRef<[u8]>> Packet<T> {
 
     /// The UDP sequence number, when the packet carries one.
     pub fn sequence(&self) -> Option<u32> {
-        let d = self.tail().get(field::SEQUENCE)?;
+        let at = self.layout.tail.len;
+        let d = self.tail().get(at..at + field::SEQUENCE_LEN)?;
         Some(u32::from_le_bytes([d[0], d[1], d[2], d[3]]))
     }
 }
@@ -348,7 +458,7 @@ impl Default for BlockRepr {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Repr {
     pub model: Model,
-    /// Pandar64 only (the Pandar40P's unit is fixed at 4 mm).
+    /// Models with a header (the Pandar40P's unit is fixed at 4 mm).
     pub dis_unit_mm: u8,
     pub blocks: [BlockRepr; 10],
     pub high_temperature: bool,
@@ -412,11 +522,17 @@ impl Repr {
         let mut p = Packet::new_unchecked(buffer, l);
         let d = p.bytes_mut();
         d.fill(0);
-        if l.header_len > 0 {
+        if let Some(h) = &l.header {
             d[field::SOP].copy_from_slice(&field::SOP_BYTES);
-            d[field::LASER_NUM] = l.lasers as u8;
-            d[field::BLOCK_NUM] = l.blocks as u8;
-            d[field::DIS_UNIT] = self.dis_unit_mm;
+            if let Some(v) = h.version {
+                d[field::VERSION].copy_from_slice(&v);
+            }
+            d[h.laser_num] = l.lasers as u8;
+            d[h.block_num] = l.blocks as u8;
+            d[h.dis_unit] = self.dis_unit_mm;
+            if let Some(at) = h.return_num {
+                d[at] = mode_of(self.return_mode).map_or(1, |m| m.returns() as u8);
+            }
         }
         for (b, block) in self.blocks.iter().take(l.blocks).enumerate() {
             if l.block_magic {
@@ -428,15 +544,18 @@ impl Repr {
                 p.set_unit(b, c, u.distance, u.reflectivity);
             }
         }
+        let tl = &l.tail;
         let t = p.tail_mut();
-        t[field::HIGH_TEMPERATURE] = u8::from(self.high_temperature);
-        t[field::MOTOR_SPEED].copy_from_slice(&self.motor_rpm.to_le_bytes());
-        t[field::TIMESTAMP].copy_from_slice(&self.timestamp_us.to_le_bytes());
-        t[field::RETURN_MODE] = self.return_mode;
-        t[field::FACTORY] = self.factory;
-        t[field::DATE_TIME].copy_from_slice(&self.date_time);
+        if let Some(at) = tl.high_temperature {
+            t[at] = u8::from(self.high_temperature);
+        }
+        t[tl.motor_speed..tl.motor_speed + 2].copy_from_slice(&self.motor_rpm.to_le_bytes());
+        t[tl.timestamp..tl.timestamp + 4].copy_from_slice(&self.timestamp_us.to_le_bytes());
+        t[tl.return_mode] = self.return_mode;
+        t[tl.factory] = self.factory;
+        t[tl.date_time..tl.date_time + 6].copy_from_slice(&self.date_time);
         if let Some(seq) = self.sequence {
-            t[field::SEQUENCE].copy_from_slice(&seq.to_le_bytes());
+            t[tl.len..tl.len + field::SEQUENCE_LEN].copy_from_slice(&seq.to_le_bytes());
         }
         Ok(p)
     }
@@ -444,8 +563,13 @@ impl Repr {
 
 /// Nominal packet period in single-return mode, seconds.
 pub fn packet_period(model: Model) -> f64 {
-    let blocks = Layout::of(model).map_or(6, |l| l.blocks);
-    (blocks as i64 * SEQUENCE_NS) as f64 * 1e-9
+    let blocks = Layout::of(model).map_or(6, |l| l.blocks) as i64;
+    let sequence_ns = match model {
+        Model::PandarXt32 => 50_000,
+        Model::PandarQt64 => 500_000 / 3,
+        _ => SEQUENCE_NS,
+    };
+    (blocks * sequence_ns) as f64 * 1e-9
 }
 
 /// Decodes a data packet of `cal.model`. In dual-return mode an echo identical to a later
@@ -564,7 +688,7 @@ pub fn encode_sweep(
             let t = start_time + packets as f64 * packet_period(l.model);
             let whole = libm::floor(t);
             let (y, mo, d, h, mi, s) = civil_from_unix(whole as i64);
-            let year = (y - l.year_base()).clamp(0, 255) as u8;
+            let year = (y - l.tail.year_base).clamp(0, 255) as u8;
             repr.date_time = [year, mo as u8, d as u8, h as u8, mi as u8, s as u8];
             repr.timestamp_us = (libm::round((t - whole) * 1e6) as u32).min(999_999);
             repr.sequence = Some(packets as u32);
@@ -611,14 +735,40 @@ const PANDAR40P_FIRING_NS: [i32; 40] = [
 /// Firing sequence period (one block in single-return mode), ns.
 const SEQUENCE_NS: i64 = 55_560;
 
-/// Time of channel `c` in block `b` relative to the packet timestamp, seconds.
+/// PandarQT64 channel firing offsets from the start of their block, ns (the manual's firing
+/// table as tier4/nebula carries it; its entry 55 reads 12960, which breaks the ~2.05 µs
+/// progression between 127540 and 132050: 129600 here).
+const PANDARQT64_FIRING_NS: [i32; 64] = [
+    12310, 14370, 16430, 18490, 20540, 22600, 24660, 26710, 29160, 31220, 33280, 35340, 37390,
+    39450, 41500, 43560, 46610, 48670, 50730, 52780, 54840, 56900, 58950, 61010, 63450, 65520,
+    67580, 69630, 71690, 73740, 75800, 77860, 80900, 82970, 85020, 87080, 89140, 91190, 93250,
+    95300, 97750, 99820, 101870, 103930, 105980, 108040, 110100, 112150, 115200, 117260, 119320,
+    121380, 123430, 125490, 127540, 129600, 132050, 134110, 136170, 138220, 140280, 142340, 144390,
+    146450,
+];
+
+/// Time of channel `c` in block `b` relative to the packet timestamp, seconds. The Pandar64,
+/// 40P and XT32 stamp the end of the packet (negative offsets), the QT64 its start.
 fn firing_offset(l: &Layout, b: usize, c: usize, returns: usize) -> f64 {
-    let (block_base, table): (i64, &[i32]) = match l.model {
-        Model::Pandar40p => (-28_580, &PANDAR40P_FIRING_NS),
-        _ => (-42_580, &PANDAR64_FIRING_NS),
+    let ns = match l.model {
+        // XT32 manual: sequences 50 µs apart, channels 1.512 µs apart after 0.368 µs.
+        Model::PandarXt32 => {
+            let sequences_after = ((l.blocks - b - 1) / returns) as i64;
+            5_632 - 50_000 * sequences_after + 368 + 1_512 * c as i64
+        }
+        // QT64: sequences 166.67 µs apart (600 per turn at 600 rpm).
+        Model::PandarQt64 => {
+            25_710 + 500_000 * (b / returns) as i64 / 3 + i64::from(PANDARQT64_FIRING_NS[c])
+        }
+        _ => {
+            let (block_base, table): (i64, &[i32]) = match l.model {
+                Model::Pandar40p => (-28_580, &PANDAR40P_FIRING_NS),
+                _ => (-42_580, &PANDAR64_FIRING_NS),
+            };
+            let sequences_after = ((l.blocks - b - 1) / returns) as i64;
+            block_base - SEQUENCE_NS * sequences_after + i64::from(table[c])
+        }
     };
-    let sequences_after = ((l.blocks - b - 1) / returns) as i64;
-    let ns = block_base - SEQUENCE_NS * sequences_after + i64::from(table[c]);
     ns as f64 * 1e-9
 }
 
@@ -729,5 +879,98 @@ mod tests {
         })
         .unwrap();
         assert_eq!((packets, seen), (1, 3));
+    }
+
+    /// A PandarXT32 (version 6.1) or QT64 (3.1) packet with the UDP sequence, by hand.
+    fn sample12(l: &Layout) -> ([u8; 1080], usize) {
+        let mut d = [0u8; 1080];
+        let dual = l.model == Model::PandarQt64;
+        d[..12].copy_from_slice(&[
+            0xEE,
+            0xFF,
+            0,
+            0,
+            0,
+            0,
+            l.lasers as u8,
+            l.blocks as u8,
+            0,
+            4,
+            1,
+            0,
+        ]);
+        d[2..4].copy_from_slice(&l.header.as_ref().unwrap().version.unwrap());
+        d[10] = if dual { 2 } else { 1 };
+        for b in 0..l.blocks {
+            let o = 12 + b * l.block_len();
+            d[o..o + 2].copy_from_slice(&(35990 + b as u16).to_le_bytes());
+            for c in 0..l.lasers {
+                let q = o + 2 + 4 * c;
+                d[q..q + 2].copy_from_slice(&(1000 + 10 * c as u16 + b as u16).to_le_bytes());
+                d[q + 2] = (c + 3 * b) as u8;
+            }
+        }
+        let t = l.tail_at();
+        let tl = &l.tail;
+        d[t + tl.return_mode] =
+            if dual { return_mode::DUAL_FIRST_LAST } else { return_mode::STRONGEST };
+        d[t + tl.motor_speed..t + tl.motor_speed + 2].copy_from_slice(&600u16.to_le_bytes());
+        d[t + tl.date_time..t + tl.date_time + 6].copy_from_slice(&[123, 1, 11, 1, 31, 17]);
+        d[t + tl.timestamp..t + tl.timestamp + 4].copy_from_slice(&500_000u32.to_le_bytes());
+        d[t + tl.factory] = 0x42;
+        d[t + tl.len..t + tl.len + 4].copy_from_slice(&99u32.to_le_bytes());
+        (d, l.packet_len() + 4)
+    }
+
+    #[test]
+    fn xt32_and_qt64_bytes_to_repr_to_bytes() {
+        assert_eq!((PANDARXT32.packet_len() + 4, PANDARQT64.packet_len() + 4), (1080, 1072));
+        for l in [&PANDARXT32, &PANDARQT64] {
+            let (bytes, len) = sample12(l);
+            let bytes = &bytes[..len];
+            let p = Packet::new_checked(bytes, l.model).unwrap();
+            assert_eq!(
+                (p.motor_rpm(), p.sequence(), p.dis_unit_mm(), p.factory()),
+                (600, Some(99), 4, 0x42)
+            );
+            // 2023-01-11 01:31:17.5 UTC.
+            assert!((p.time() - 1_673_400_677.5).abs() < 1e-6, "{:?} {}", l.model, p.time());
+            let repr = Repr::parse(&p).unwrap();
+            assert_eq!(repr.blocks[3].azimuth, 35993);
+            assert_eq!(repr.blocks[3].units[5], UnitRepr { distance: 1053, reflectivity: 14 });
+            let mut out = [0u8; 1080];
+            repr.emit(&mut out[..len]).unwrap();
+            assert_eq!(&out[..len], bytes, "{:?}", l.model);
+            // Another model's version or counts are refused.
+            let mut bad = [0u8; 1080];
+            bad[..len].copy_from_slice(bytes);
+            bad[2] = 9;
+            assert_eq!(
+                Packet::new_checked(&bad[..len], l.model).unwrap_err(),
+                DecodeError::BadHeader
+            );
+            assert!(matches!(
+                Packet::new_checked(&bytes[..len - 5], l.model).unwrap_err(),
+                DecodeError::Truncated { .. }
+            ));
+        }
+    }
+
+    #[test]
+    fn xt32_and_qt64_decode_every_unit_once() {
+        for l in [&PANDARXT32, &PANDARQT64] {
+            let (bytes, len) = sample12(l);
+            let cal = Calibration::nominal(l.model);
+            let mut n = 0;
+            let s = decode(&cal, &bytes[..len], &mut |r| {
+                n += 1;
+                let want = f32::from(1000 + 10 * r.point.ring + u16::from(r.block)) * 0.004;
+                assert!((r.distance - want).abs() < 1e-6);
+                assert!(r.point.time < 1_673_400_677.5 + 0.001 && r.point.time > 1_673_400_677.499);
+            })
+            .unwrap();
+            assert_eq!((n, s.returns), (l.blocks * l.lasers, l.blocks * l.lasers), "{:?}", l.model);
+            assert_eq!(Model::detect(&bytes[..len]), Some(l.model));
+        }
     }
 }

@@ -2,10 +2,10 @@
 //! pcap/pcapng and PCD readers and writers.
 //!
 //! Decoding: [`Calibration::nominal`] (or `calibration::load` for a unit's Hesai CSV /
-//! Velodyne YAML) and [`decode_packet`] per UDP payload, or [`SweepAssembler`] for whole
+//! Velodyne YAML / Ouster metadata json) and [`decode_packet`] per UDP payload, or [`SweepAssembler`] for whole
 //! turns, or (std) [`decode_payloads`] for a capture. Units of `Point::time`: seconds past
 //! the top of the hour on the sensor clock for Velodyne, Unix seconds for Hesai, each plus
-//! the firing offset within the packet. `Point::ring` is the vendor's laser number;
+//! the firing offset within the packet; the column timestamp for Ouster. `Point::ring` is the vendor's laser number;
 //! `Calibration::rings` maps it to the bottom-up ring index.
 //!
 //! Simulation: [`firing_azimuth`] and [`beam_direction`] say where the decoder puts each
@@ -32,6 +32,7 @@ pub mod calibration;
 pub mod decoder;
 pub mod hesai;
 pub mod lzf;
+pub mod ouster;
 #[cfg(feature = "std")]
 pub mod pcap;
 #[cfg(feature = "std")]
@@ -94,10 +95,13 @@ pub enum CloudFileError {
         "{path}: the cloud has no usable point ({declared} points, none finite and off the origin)"
     )]
     NoUsablePoint { path: std::path::PathBuf, declared: usize },
+    #[error("{path}: an Ouster capture needs the sensor's metadata json as its calibration file")]
+    NoOusterMetadata { path: std::path::PathBuf },
 }
 
 /// Every return of every data packet in a pcap/pcapng capture, decoded with the unit's
-/// calibration file if given (Hesai CSV / Velodyne YAML), else the model's nominal table.
+/// calibration file if given (Hesai CSV / Velodyne YAML / Ouster metadata json), else the
+/// model's nominal table (Ouster has none worth the name: give its metadata).
 #[cfg(feature = "std")]
 pub fn decode_capture(
     model: Model,
@@ -106,6 +110,10 @@ pub fn decode_capture(
 ) -> Result<(Vec<Point>, SweepStats, pcap::PcapStats), CloudFileError> {
     let calibration = match calibration_file {
         Some(path) => calibration::load(model, path)?,
+        // Ouster has no nominal geometry: beam angles and packet layout are per unit.
+        None if model == Model::Ouster => {
+            return Err(CloudFileError::NoOusterMetadata { path: capture.to_owned() })
+        }
         None => Calibration::nominal(model),
     };
     let (datagrams, capture_stats) = pcap::read_udp(capture)?;

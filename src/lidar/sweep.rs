@@ -6,8 +6,9 @@
 //! payloads are counted and dropped.
 
 use super::calibration::Calibration;
+use super::decoder::Model;
 use super::decoder::{decode_packet, DecodeError, Return};
-use super::{hesai, velodyne, Point};
+use super::{hesai, ouster, velodyne, Point};
 
 /// Packet and point counters of an assembler (or of `decode_payloads`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -212,7 +213,11 @@ impl<'b> SweepAssembler<'b> {
     /// whether it is older (reordered); counts lost packets from a forward gap.
     fn check(&mut self, payload: &[u8]) -> Result<(f64, bool), DecodeError> {
         let model = self.cal.model;
-        let (time, returns, period) = if model.is_velodyne() {
+        let (time, returns, period) = if model == Model::Ouster {
+            let p = ouster::Packet::new_checked(payload, &self.cal.ouster)?;
+            // Both returns travel in one packet: the period is the packet period.
+            (p.timestamp(0) as f64 * 1e-9, 1, ouster::packet_period(&self.cal.ouster))
+        } else if model.is_velodyne() {
             let p = velodyne::Packet::new_checked(payload)?;
             let product = velodyne::Product::from_id(p.product_id());
             if product.map(|p| p.model()) != Some(model) {
