@@ -254,6 +254,12 @@ struct SimulateArgs {
     /// unit's angle corrections (angles.csv, for `decode --calibration`).
     #[arg(long)]
     capture: bool,
+    /// A surveyed room instead of one scene: this many vehicles (each its own camera and
+    /// LiDAR mounting, each parked ±0.3 m / ±5° off) visit one fixed room; writes
+    /// room-truth.json, room.toml and visit-01/, visit-02/, … (for `roomcal survey`).
+    #[arg(long, conflicts_with_all = ["capture", "rig_seed", "frames"],
+          value_parser = clap::value_parser!(u16).range(1..=99))]
+    visits: Option<u16>,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -361,6 +367,9 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
             ..sim::ImageNoise::default()
         },
     };
+    if let Some(visits) = args.visits {
+        return simulate_visits(&room, &options, usize::from(visits), (&args.room, &args.out));
+    }
     let scene = sim::simulate(&room, &options)
         .with_context(|| format!("simulating {}", args.room.display()))
         .map_err(bad_input)?;
@@ -390,6 +399,27 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
             files.calibration.map_or(String::new(), |c| format!(" (angles: {})", c.display()))
         );
     }
+    Ok(())
+}
+
+/// `simulate --visits N`: one room, N visiting vehicles.
+fn simulate_visits(
+    room: &roomcal::target::Room,
+    options: &SimOptions,
+    count: usize,
+    (room_path, out): (&std::path::Path, &std::path::Path),
+) -> Result<(), Failure> {
+    let visits = sim::visits::simulate_visits(room, options, count)
+        .with_context(|| format!("simulating {}", room_path.display()))
+        .map_err(bad_input)?;
+    sim::visits::write_visits(&visits, out).map_err(bad_input)?;
+    println!(
+        "simulated a room of {} boards and {} planes, {} visits -> {}",
+        visits.truth.boards.len(),
+        visits.truth.planes.len(),
+        visits.visits.len(),
+        out.display()
+    );
     Ok(())
 }
 

@@ -19,6 +19,13 @@ pub const MAX_HOLES: usize = 8;
 pub const MAX_BOARDS: usize = 16;
 /// How far `lidar.rotation` may be from orthonormal (max |RᵀR − I| and |det R − 1|).
 pub const ROTATION_TOLERANCE: f64 = 1e-6;
+/// Most big planes (floor, walls, ceiling, …) a survey records.
+pub const MAX_SURVEY_PLANES: usize = 16;
+/// Longest `survey.frame` text and plane name (bytes).
+pub const MAX_SURVEY_TEXT: usize = 256;
+pub const MAX_PLANE_NAME: usize = 32;
+/// How far a surveyed plane's normal may be from unit length.
+pub const NORMAL_TOLERANCE: f64 = 1e-6;
 
 // Physical ranges of the room file's numbers (README "Limits"). Every number outside its
 // range is refused by [`Room::validate`] with its key, before anything is sized from it.
@@ -196,6 +203,51 @@ pub struct Room {
     pub lidar: Option<LidarSpec>,
     #[serde(default)]
     pub quality: QualitySpec,
+    /// The room as one rigid target, solved by `roomcal survey` (absent until surveyed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub survey: Option<SurveySpec>,
+}
+
+/// A surveyed room (`[survey]`): every board's pose and the big planes in one room frame.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SurveySpec {
+    /// Visits the survey was solved from.
+    pub visits: u32,
+    /// How the room frame is defined (free text).
+    pub frame: heapless::String<MAX_SURVEY_TEXT>,
+    /// One per board (`board.count` of them), any order.
+    pub boards: heapless::Vec<SurveyedBoard, MAX_BOARDS>,
+    /// The room's big planes, any number up to [`MAX_SURVEY_PLANES`].
+    #[serde(default)]
+    pub planes: heapless::Vec<SurveyedPlane, MAX_SURVEY_PLANES>,
+}
+
+/// One board of a survey: board → room, `p_room = rotation · p_board + translation`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SurveyedBoard {
+    pub rotation: [[f64; 3]; 3],
+    /// m.
+    pub translation: [f64; 3],
+    /// 1σ of the position, largest axis (m).
+    pub sigma_m: f64,
+    /// 1σ of the orientation, largest axis (deg).
+    pub sigma_deg: f64,
+}
+
+/// One big plane of a survey: `normal · p_room = offset`, the normal a unit vector.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SurveyedPlane {
+    pub name: heapless::String<MAX_PLANE_NAME>,
+    pub normal: [f64; 3],
+    /// m.
+    pub offset: f64,
+    /// 1σ of the offset (m).
+    pub sigma_m: f64,
+    /// 1σ of the normal's direction (deg).
+    pub sigma_deg: f64,
 }
 
 /// What is wrong with a room; every variant names the key it is about.
@@ -225,6 +277,18 @@ pub enum RoomError {
     LidarWithoutHoles,
     /// A nominal distortion with the wrong number of coefficients.
     DistortionLength { expected: usize, got: usize },
+    /// `survey.boards` does not hold one entry per board.
+    SurveyBoardCount { expected: u32, got: usize },
+    /// A survey from fewer than two visits.
+    SurveyVisits { visits: u32 },
+    /// A surveyed number is NaN or infinite (`key` names the field, `index` the entry).
+    SurveyNotFinite { key: &'static str, index: usize },
+    /// A surveyed board's rotation is not a rotation.
+    SurveyRotation { index: usize, deviation: f64 },
+    /// A surveyed plane's normal is not a unit vector.
+    SurveyNormal { index: usize, length: f64 },
+    /// A surveyed σ is negative.
+    SurveyNegativeSigma { key: &'static str, index: usize },
 }
 
 /// Which entry of a list- or matrix-valued key a number is.
@@ -368,6 +432,27 @@ impl fmt::Display for RoomError {
                 f,
                 "`camera.distortion` needs {expected} coefficients for this model, got {got}"
             ),
+            RoomError::SurveyBoardCount { expected, got } => write!(
+                f,
+                "`survey.boards` has {got} entries, the room has {expected} boards (`board.count`)"
+            ),
+            RoomError::SurveyVisits { visits } => {
+                write!(f, "`survey.visits` is {visits}: a survey is solved from at least 2 visits")
+            }
+            RoomError::SurveyNotFinite { key, index } => {
+                write!(f, "`{key}` of entry {index} is not a finite number")
+            }
+            RoomError::SurveyRotation { index, deviation } => write!(
+                f,
+                "`survey.boards[{index}].rotation` is not orthonormal with determinant +1 (off by {deviation:.3e}, tolerance {ROTATION_TOLERANCE:e})"
+            ),
+            RoomError::SurveyNormal { index, length } => write!(
+                f,
+                "`survey.planes[{index}].normal` must be a unit vector, its length is {length}"
+            ),
+            RoomError::SurveyNegativeSigma { key, index } => {
+                write!(f, "`{key}` of entry {index} must not be negative")
+            }
         }
     }
 }
@@ -535,12 +620,7 @@ pub fn validate_mounting(
             entry.check(rotation_key, Index::Two(i as u8, j as u8), v)?;
         }
     }
-    let r = rotation;
-    let r =
-        Mat3::new(r[0][0], r[0][1], r[0][2], r[1][0], r[1][1], r[1][2], r[2][0], r[2][1], r[2][2]);
-    let orth = (r.transpose() * r - Mat3::identity()).abs().max();
-    let det = (r.determinant() - 1.0).abs();
-    let deviation = orth.max(det);
+    let deviation = rotation_deviation(&matrix_of(rotation));
     if deviation.is_nan() || deviation > ROTATION_TOLERANCE {
         return Err(RoomError::RotationNotOrthonormal { key: rotation_key, deviation });
     }
@@ -588,8 +668,7 @@ impl QualitySpec {
 impl LidarSpec {
     /// The nominal rotation as a matrix.
     pub fn rotation_matrix(&self) -> Mat3 {
-        let r = &self.rotation;
-        Mat3::new(r[0][0], r[0][1], r[0][2], r[1][0], r[1][1], r[1][2], r[2][0], r[2][1], r[2][2])
+        matrix_of(&self.rotation)
     }
 
     /// The nominal translation.
@@ -603,6 +682,84 @@ impl LidarSpec {
     }
 }
 
+/// A row-major 3×3 array as a matrix.
+pub fn matrix_of(r: &[[f64; 3]; 3]) -> Mat3 {
+    Mat3::new(r[0][0], r[0][1], r[0][2], r[1][0], r[1][1], r[1][2], r[2][0], r[2][1], r[2][2])
+}
+
+/// How far `r` is from a rotation: max |RᵀR − I| and |det R − 1| (NaN for NaN entries).
+pub fn rotation_deviation(r: &Mat3) -> f64 {
+    let orth = (r.transpose() * r - Mat3::identity()).abs().max();
+    orth.max((r.determinant() - 1.0).abs())
+}
+
+impl SurveyedBoard {
+    /// Board → room as a rigid motion.
+    pub fn pose(&self) -> crate::geometry::Se3 {
+        crate::geometry::Se3 {
+            rotation: matrix_of(&self.rotation),
+            translation: Vec3::from(self.translation),
+        }
+    }
+}
+
+impl SurveySpec {
+    /// Checks the visit count, that every number is finite, every rotation a rotation,
+    /// every normal a unit vector and every σ non-negative; `boards` is the room's
+    /// `board.count`.
+    pub fn validate(&self, boards: u32) -> Result<(), RoomError> {
+        if self.visits < 2 {
+            return Err(RoomError::SurveyVisits { visits: self.visits });
+        }
+        if self.boards.len() != boards as usize {
+            return Err(RoomError::SurveyBoardCount { expected: boards, got: self.boards.len() });
+        }
+        for (index, b) in self.boards.iter().enumerate() {
+            finite("survey.boards.rotation", index, b.rotation.iter().flatten())?;
+            finite("survey.boards.translation", index, b.translation.iter())?;
+            sigma("survey.boards.sigma_m", index, b.sigma_m)?;
+            sigma("survey.boards.sigma_deg", index, b.sigma_deg)?;
+            let deviation = rotation_deviation(&matrix_of(&b.rotation));
+            if deviation > ROTATION_TOLERANCE {
+                return Err(RoomError::SurveyRotation { index, deviation });
+            }
+        }
+        for (index, p) in self.planes.iter().enumerate() {
+            finite("survey.planes.normal", index, p.normal.iter())?;
+            finite("survey.planes.offset", index, [p.offset].iter())?;
+            sigma("survey.planes.sigma_m", index, p.sigma_m)?;
+            sigma("survey.planes.sigma_deg", index, p.sigma_deg)?;
+            let length = Vec3::from(p.normal).norm();
+            if (length - 1.0).abs() > NORMAL_TOLERANCE {
+                return Err(RoomError::SurveyNormal { index, length });
+            }
+        }
+        Ok(())
+    }
+}
+
+fn finite<'a>(
+    key: &'static str,
+    index: usize,
+    mut values: impl Iterator<Item = &'a f64>,
+) -> Result<(), RoomError> {
+    if values.all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err(RoomError::SurveyNotFinite { key, index })
+    }
+}
+
+fn sigma(key: &'static str, index: usize, value: f64) -> Result<(), RoomError> {
+    if !value.is_finite() {
+        return Err(RoomError::SurveyNotFinite { key, index });
+    }
+    if value < 0.0 {
+        return Err(RoomError::SurveyNegativeSigma { key, index });
+    }
+    Ok(())
+}
+
 impl Room {
     /// Checks every table; the first problem found is returned.
     pub fn validate(&self) -> Result<(), RoomError> {
@@ -614,7 +771,11 @@ impl Room {
             }
             lidar.validate()?;
         }
-        self.quality.validate()
+        self.quality.validate()?;
+        if let Some(survey) = &self.survey {
+            survey.validate(self.board.count)?;
+        }
+        Ok(())
     }
 
     /// Whether this room calibrates the camera only (no `[lidar]`).

@@ -14,6 +14,7 @@ pub mod random_room;
 pub mod raycast;
 pub mod render;
 pub mod rng;
+pub mod visits;
 pub mod world;
 
 use std::path::{Path, PathBuf};
@@ -105,6 +106,8 @@ pub enum SimError {
     NoSweep,
     #[error("the band layout aims boards at the LiDAR's dense band, but the room has no [lidar]")]
     BandWithoutLidar,
+    #[error("--visits {0}: a surveyed room is simulated with 1 to {max} visits", max = visits::MAX_VISITS)]
+    Visits(usize),
 }
 
 /// The ground truth of one scene (`truth.json`).

@@ -47,6 +47,11 @@ pub struct World {
     pub board: BoardSpec,
     /// Board → LiDAR frame for every board.
     pub boards: Vec<Se3>,
+    /// LiDAR frame → the frame the floor, walls, ceiling, clutter and poles stand in
+    /// (identity for a single scene; a parked vehicle's pose for [`super::visits`]).
+    shell: Se3,
+    /// Board → shell frame, where the poles stand.
+    boards_in_shell: Vec<Se3>,
     texture_seed: u64,
     crates: Vec<Crate>,
     floor_z: f64,
@@ -73,7 +78,9 @@ impl World {
         }
         World {
             board: board.clone(),
+            boards_in_shell: boards.clone(),
             boards,
+            shell: Se3::identity(),
             texture_seed,
             crates,
             floor_z: -LIDAR_HEIGHT,
@@ -96,6 +103,26 @@ impl World {
     /// Adds an axis-aligned box (a person, a stand, a cabinet) between `min` and `max`.
     pub fn add_box(&mut self, min: Vec3, max: Vec3) {
         self.crates.push(Crate { min, max });
+    /// The same room seen from a sensor whose frame sits at `lidar_to_shell` in the
+    /// frame the room (floor, walls, ceiling, clutter) was made in; `boards` stay board →
+    /// LiDAR frame.
+    pub fn placed(mut self, lidar_to_shell: Se3) -> Self {
+        self.boards_in_shell = self.boards.iter().map(|b| lidar_to_shell.compose(b)).collect();
+        self.shell = lidar_to_shell;
+        self
+    }
+
+    /// Floor, ceiling and the four walls in the shell's frame: name, unit normal pointing
+    /// out of the room, and offset (`normal · p = offset`, the distance from the origin).
+    pub fn shell_planes(&self) -> [(&'static str, Vec3, f64); 6] {
+        [
+            ("floor", -Vec3::z(), -self.floor_z),
+            ("ceiling", Vec3::z(), self.ceiling_z),
+            ("front wall", Vec3::x(), self.front_x),
+            ("back wall", -Vec3::x(), -self.back_x),
+            ("left wall", Vec3::y(), self.side_y),
+            ("right wall", -Vec3::y(), self.side_y),
+        ]
     }
 
     /// The first surface along the unit ray `origin + s·dir`, s > 0.
@@ -108,14 +135,16 @@ impl World {
                 }
             }
         };
-        for (index, pose) in self.boards.iter().enumerate() {
+        // The shell's frame is a rigid motion away: distances along the ray are the same.
+        let (shell_origin, shell_dir) = (self.shell.act(origin), self.shell.rotation * dir);
+        for (index, (pose, in_shell)) in self.boards.iter().zip(&self.boards_in_shell).enumerate() {
             consider(self.cast_board(index, pose, origin, dir));
-            consider(self.cast_pole(pose, origin, dir));
+            consider(self.cast_pole(in_shell, &shell_origin, &shell_dir));
         }
         for c in &self.crates {
-            consider(self.cast_crate(c, origin, dir));
+            consider(self.cast_crate(c, &shell_origin, &shell_dir));
         }
-        consider(self.cast_shell(origin, dir));
+        consider(self.cast_shell(&shell_origin, &shell_dir));
         best
     }
 
