@@ -103,6 +103,8 @@ impl World {
     /// Adds an axis-aligned box (a person, a stand, a cabinet) between `min` and `max`.
     pub fn add_box(&mut self, min: Vec3, max: Vec3) {
         self.crates.push(Crate { min, max });
+    }
+
     /// The same room seen from a sensor whose frame sits at `lidar_to_shell` in the
     /// frame the room (floor, walls, ceiling, clutter) was made in; `boards` stay board →
     /// LiDAR frame.
