@@ -414,16 +414,15 @@ fn load_image_sized(
     (width, height): (u32, u32),
     whose: &str,
 ) -> Result<roomcal::detect::GreyImage, Failure> {
-    let image = roomcal::detect::load_grey(path).map_err(bad_input)?;
-    if (image.width, image.height) != (width, height) {
+    // The header's size first: a frame of the wrong size is refused before it is decoded.
+    let (got_width, got_height) = roomcal::detect::image_size(path).map_err(bad_input)?;
+    if (got_width, got_height) != (width, height) {
         return Err(bad_input(anyhow::anyhow!(
-            "image {}: {}x{} pixels, {whose} is {width}x{height}",
+            "image {}: {got_width}x{got_height} pixels, {whose} is {width}x{height}",
             path.display(),
-            image.width,
-            image.height,
         )));
     }
-    Ok(image)
+    roomcal::detect::load_grey(path).map_err(bad_input)
 }
 
 /// A cloud read from disk: PCD, or a capture decoded as the room's LiDAR model with the
@@ -454,13 +453,7 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
         )));
     }
     let current = match &args.current {
-        Some(path) => Some(
-            std::fs::read_to_string(path)
-                .map_err(anyhow::Error::from)
-                .and_then(|text| Ok(serde_json::from_str(&text)?))
-                .with_context(|| format!("current calibration {}", path.display()))
-                .map_err(bad_input)?,
-        ),
+        Some(path) => Some(roomcal::result::load(path).map_err(bad_input)?),
         None => None,
     };
     let mut images =
@@ -629,12 +622,7 @@ fn print_summary(
 }
 
 fn overlay(args: OverlayArgs) -> Result<(), Failure> {
-    let text = std::fs::read_to_string(&args.calibration)
-        .with_context(|| format!("reading {}", args.calibration.display()))
-        .map_err(bad_input)?;
-    let result: roomcal::result::CalibrationResult = serde_json::from_str(&text)
-        .with_context(|| format!("{}: not a calibration result", args.calibration.display()))
-        .map_err(bad_input)?;
+    let result = roomcal::result::load(&args.calibration).map_err(bad_input)?;
     let Some(extrinsic) = &result.lidar_to_camera else {
         return Err(bad_input(anyhow::anyhow!(
             "{}: the calibration has no LiDAR→camera extrinsic",

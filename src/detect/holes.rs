@@ -1084,6 +1084,10 @@ struct Mask {
 }
 
 const MASK_MARGIN: f64 = 0.15;
+/// Most cells along a mask side: the fine mask of the largest board the room file accepts
+/// (`MAX_BOARD_SIDE_M` + margins at 2 mm) needs 2650, so this bounds the allocation
+/// (2 × 4096² bytes per mask) even for a board that bypassed validation.
+pub const MAX_MASK_SIDE: usize = 4096;
 const HOLE_PENALTY: i8 = -3;
 const OUTSIDE_PENALTY: i8 = -1;
 const GAP_ON_SOLID: i8 = -3;
@@ -1091,8 +1095,9 @@ const GAP_ON_SOLID: i8 = -3;
 impl Mask {
     fn new(spec: &BoardSpec, step: f64) -> Self {
         let origin = [-spec.width / 2.0 - MASK_MARGIN, -spec.height / 2.0 - MASK_MARGIN];
-        let cols = ((spec.width + 2.0 * MASK_MARGIN) / step).ceil() as usize;
-        let rows = ((spec.height + 2.0 * MASK_MARGIN) / step).ceil() as usize;
+        // `as` saturates (NaN → 0); the cap keeps a hostile size from sizing the buffers.
+        let cols = (((spec.width + 2.0 * MASK_MARGIN) / step).ceil() as usize).min(MAX_MASK_SIDE);
+        let rows = (((spec.height + 2.0 * MASK_MARGIN) / step).ceil() as usize).min(MAX_MASK_SIDE);
         let mut cells = vec![OUTSIDE_PENALTY; cols * rows];
         let mut gap_cells = vec![OUTSIDE_PENALTY; cols * rows];
         let r2 = spec.hole_radius * spec.hole_radius;

@@ -43,6 +43,17 @@ const MAX_OFFSET: usize = 8192;
 /// log2 of the compressor's hash table size (16 KiB of `u32` on the stack).
 const HASH_LOG: u32 = 12;
 
+/// Most output bytes one input byte can yield: a long back reference (control byte,
+/// length byte, offset byte) yields at most 264 bytes from 3; a short one 8 from 2; a
+/// literal run less than it takes.
+pub const MAX_EXPANSION: usize = MAX_MATCH / 3;
+
+/// Upper bound of [`decompress`]'s output for `n` input bytes: what a header claiming an
+/// uncompressed size is checked against before a buffer of that size is allocated.
+pub const fn max_decompressed_len(n: usize) -> usize {
+    n.saturating_mul(MAX_EXPANSION)
+}
+
 /// Upper bound of [`compress`]'s output for `n` input bytes (all literals: one control
 /// byte per 32 bytes).
 pub const fn max_compressed_len(n: usize) -> usize {
@@ -256,6 +267,23 @@ mod tests {
         let mut c = [0u8; 4096];
         let n = compress(&zeros, &mut c).unwrap();
         assert!(n < 40, "{n}");
+    }
+
+    #[test]
+    fn expansion_bound_holds_for_the_most_expanding_stream() {
+        // One literal byte, then back references of the longest kind (264 bytes from 3).
+        let mut stream = [0u8; 2 + 3 * 20];
+        stream[..2].copy_from_slice(&[0, b'x']);
+        for r in stream[2..].chunks_mut(3) {
+            r.copy_from_slice(&[7 << 5, 255, 0]);
+        }
+        let mut out = [0u8; 1 + 264 * 20];
+        let n = decompress(&stream, &mut out).unwrap();
+        assert_eq!(n, out.len());
+        assert!(n <= max_decompressed_len(stream.len()), "{n} > bound");
+        // The bound is tight: this stream (97 % of it) nears it as the stream grows.
+        assert!(n as f64 > 0.96 * max_decompressed_len(stream.len()) as f64, "{n}");
+        assert!(out.iter().all(|&b| b == b'x'));
     }
 
     #[test]

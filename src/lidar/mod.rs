@@ -89,6 +89,11 @@ pub enum CloudFileError {
     NoData { path: std::path::PathBuf, model: Model, packets: usize, rejected: u64 },
     #[error("{path}: a capture needs the LiDAR model (the room's `lidar.model` is \"pcd\")")]
     NoModel { path: std::path::PathBuf },
+    /// Every point was NaN, infinite or at the origin (or there were none).
+    #[error(
+        "{path}: the cloud has no usable point ({declared} points, none finite and off the origin)"
+    )]
+    NoUsablePoint { path: std::path::PathBuf, declared: usize },
 }
 
 /// Every return of every data packet in a pcap/pcapng capture, decoded with the unit's
@@ -118,23 +123,43 @@ pub fn decode_capture(
 }
 
 /// The points of a cloud file: PCD as it is, or a pcap/pcapng capture decoded as `model`
-/// (told apart by their first bytes, not their names).
+/// (told apart by their first bytes, not their names; a file named `.pcap`/`.pcapng`
+/// without a capture's magic is reported as not a capture). A cloud without one usable
+/// point is an error naming the file.
 #[cfg(feature = "std")]
 pub fn read_cloud(
     path: &std::path::Path,
     model: Option<Model>,
     calibration_file: Option<&std::path::Path>,
 ) -> Result<Vec<Point>, CloudFileError> {
-    let is_capture = std::fs::File::open(path)
-        .and_then(|mut f| {
-            let mut magic = [0u8; 4];
-            std::io::Read::read_exact(&mut f, &mut magic)?;
-            Ok(pcap::is_capture_magic(&magic))
-        })
-        .unwrap_or(false);
-    if !is_capture {
-        return Ok(pcd::read(path)?);
+    let mut first = [0u8; 4];
+    let magic = std::fs::File::open(path)
+        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut first))
+        .ok()
+        .map(|()| first);
+    let is_capture = magic.is_some_and(|m| pcap::is_capture_magic(&m));
+    let named_capture = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("pcap") || e.eq_ignore_ascii_case("pcapng"));
+    let (points, declared) = if is_capture {
+        let model = model.ok_or_else(|| CloudFileError::NoModel { path: path.to_owned() })?;
+        let (points, stats, _) = decode_capture(model, calibration_file, path)?;
+        (points, stats.points as usize)
+    } else if named_capture && path.is_file() {
+        let file = path.display().to_string();
+        return Err(match magic {
+            Some(m) => pcap::PcapError::NotACapture { file, magic: u32::from_le_bytes(m) },
+            None => pcap::PcapError::Truncated { file, offset: 0, what: "file header" },
+        }
+        .into());
+    } else {
+        let mut points = Vec::new();
+        let info = pcd::read_into(path, &mut points)?;
+        (points, info.declared_points)
+    };
+    if points.is_empty() {
+        return Err(CloudFileError::NoUsablePoint { path: path.to_owned(), declared });
     }
-    let model = model.ok_or_else(|| CloudFileError::NoModel { path: path.to_owned() })?;
-    Ok(decode_capture(model, calibration_file, path)?.0)
+    Ok(points)
 }

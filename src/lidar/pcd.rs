@@ -22,6 +22,11 @@ use super::{lzf, Point};
 
 /// Most fields a PCD header may declare (the header is parsed without allocating).
 pub const MAX_FIELDS: usize = 64;
+/// Most points a PCD file may declare (16 Mi): a 128-beam sweep holds about 0.3 M, ten
+/// accumulated sweeps 3 M. Bounds the point buffer (32 B a point) whatever the header says;
+/// the data present must hold them too (binary: `POINTS × record` bytes; compressed: the
+/// LZF stream can expand to them; ascii: one line each).
+pub const MAX_POINTS: usize = 1 << 24;
 
 /// Data section encoding of a PCD file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -484,10 +489,16 @@ impl RawHeader<'_> {
         }
         let width = self.width.ok_or("no WIDTH line")?;
         let height = self.height.unwrap_or(1);
-        let points = match self.points {
-            Some(p) => p,
-            None => width.checked_mul(height).ok_or("WIDTH × HEIGHT overflows")?,
-        };
+        let cells = width.checked_mul(height).ok_or("WIDTH × HEIGHT overflows")?;
+        let points = self.points.unwrap_or(cells);
+        if points != cells {
+            return Err(format!("POINTS {points} is not WIDTH × HEIGHT = {width} × {height}"));
+        }
+        if points > MAX_POINTS {
+            return Err(format!(
+                "POINTS {points} is more than the {MAX_POINTS} points roomcal reads"
+            ));
+        }
         Ok(Header { fields, stride, width, height, points, format, data_start })
     }
 }
@@ -714,9 +725,6 @@ fn sized<'d>(
     Ok(&data[..needed as usize])
 }
 
-/// Largest expansion LZF can achieve: a 2-byte back reference yields up to 264 bytes.
-const LZF_MAX_RATIO: u64 = 132;
-
 /// Decompresses a `binary_compressed` data section into `scratch`.
 fn decompress<'s>(
     data: &[u8],
@@ -730,14 +738,18 @@ fn decompress<'s>(
     let compressed = sized(&data[8..], 1, compressed_len, "compressed data", name)?;
     let needed = (header.points as u64).saturating_mul(header.stride as u64);
     let err = |problem: String| PcdError::Compressed { file: name.to_string(), problem };
-    if raw_len < needed {
+    if raw_len != needed {
         return Err(err(format!(
-            "uncompressed size {raw_len} is less than POINTS × record size = {needed}"
+            "uncompressed size {raw_len} is not POINTS × record size = {needed}"
         )));
     }
-    if raw_len > (compressed_len as u64 + 1) * LZF_MAX_RATIO {
+    // The compressed bytes are present (checked above), so this bounds the allocation
+    // below by the file's size.
+    if raw_len > lzf::max_decompressed_len(compressed_len) as u64 {
         return Err(err(format!(
-            "uncompressed size {raw_len} is impossible for {compressed_len} compressed bytes"
+            "uncompressed size {raw_len} is impossible for {compressed_len} compressed bytes \
+             (LZF expands at most {}×)",
+            lzf::MAX_EXPANSION
         )));
     }
     scratch.clear();
