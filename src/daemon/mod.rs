@@ -214,6 +214,10 @@ fn lidar_calibration(config: &Config) -> Result<Calibration, DaemonError> {
     match &config.lidar_calibration {
         Some(path) => crate::lidar::calibration::load(model, path)
             .map_err(|e| DaemonError::LidarCalibration(e.to_string())),
+        // Ouster geometry is per unit: there is no nominal table to fall back on.
+        None if model == Model::Ouster => Err(DaemonError::LidarCalibration(
+            "an Ouster LiDAR needs `[lidar] calibration` = the sensor's metadata json".into(),
+        )),
         None => Ok(Calibration::nominal(model)),
     }
 }

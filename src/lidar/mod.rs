@@ -67,13 +67,23 @@ where
                 stats.packets += 1;
                 stats.points += s.returns as u64;
             }
-            Err(_) if velodyne::PositionPacket::new_checked(payload).is_ok() => {
+            Err(_) if is_position_packet(calibration.model, payload) => {
                 stats.position += 1;
             }
             Err(e) => stats.count_error(e),
         }
     }
     (points, stats)
+}
+
+/// Whether a payload that is not a data packet is the model's position / IMU packet
+/// (Velodyne 512-byte position packets, Ouster 48-byte IMU packets).
+#[cfg(feature = "std")]
+fn is_position_packet(model: Model, payload: &[u8]) -> bool {
+    match model {
+        Model::Ouster => payload.len() == ouster::field::IMU_PACKET_LEN,
+        _ => velodyne::PositionPacket::new_checked(payload).is_ok(),
+    }
 }
 
 /// Why a capture or cloud file could not be turned into points.

@@ -95,6 +95,8 @@ pub mod field {
     pub const DUAL_STATUS: usize = 10;
     pub const DUAL_COLUMN_HEADER_LEN: usize = 12;
     pub const DUAL_PIXEL_LEN: usize = 16;
+    /// An IMU packet (sent on its own port; not decoded).
+    pub const IMU_PACKET_LEN: usize = 48;
     /// The most beams and columns per packet a unit has.
     pub const MAX_BEAMS: usize = 128;
     pub const MAX_COLUMNS_PER_PACKET: usize = 16;
