@@ -7,6 +7,7 @@
 
 pub mod chessboard;
 pub mod holes;
+pub mod planes;
 
 use std::path::{Path, PathBuf};
 
