@@ -8,26 +8,40 @@
 //! STORE/extrinsic.yaml          OpenCV FileStorage: lidar_to_camera rotation/translation (4×4)
 //! STORE/history/gen-000042.json every accepted generation (the newest `keep` kept)
 //! STORE/rejected/run-….json     rejected runs (the newest `keep` kept); never in force
+//! STORE/security.json           the UDS SecurityAccess lockout (wrong keys, locked until)
+//! STORE/current.json.invalid    an invalid current.json set aside (its generation stays used)
 //! ```
 //!
-//! Every file is written atomically and durably: a temporary file in the same directory,
-//! written, fsync'ed, renamed over the target, then the directory fsync'ed. A generation is
-//! written to `history/` before `current.json`, so a valid `current.json` always has its
-//! copy in history. `crc32` is the CRC-32 (IEEE) of the record's canonical JSON — the
-//! file's bytes before the `"crc32"` member with the closing brace appended, which is
-//! exactly `serde_json`'s pretty form of the record without it — written as 8 hex digits.
-//! A `current.json` that does not parse or fails its checksum is replaced by the newest
-//! valid generation in history (with a warning). Rollback writes the previous generation's
-//! calibration again as a *new* generation (generations only grow, so consumers can
-//! detect every change); its `"restored_from"` names the generation copied, and a second
-//! rollback goes one further back.
+//! Every file is written atomically and durably: a temporary file `.NAME.tmp-PID-N` in the
+//! same directory, written, fsync'ed, renamed over the target, then the directory fsync'ed.
+//! A failed write removes its temporary file; opening the store removes those of processes
+//! that are gone (killed mid-write). A generation is written to `history/` before
+//! `current.json`, so a valid `current.json` always has its copy in history, and a history
+//! generation newer than `current.json` is an update interrupted between the two writes:
+//! it is completed (put in force) rather than skipped, so kills leave no gaps.
+//! `crc32` is the CRC-32 (IEEE) of the record's canonical JSON — the file's bytes before
+//! the `"crc32"` member with the closing brace appended, which is exactly `serde_json`'s
+//! pretty form of the record without it — written as 8 hex digits.
+//!
+//! A record is in force only if its checksum holds and it is a valid calibration
+//! ([`is_valid_calibration`]); otherwise the newest valid generation in history is (with a
+//! warning), and `current.json` is rewritten from it. Generation numbers are never reused:
+//! the next one is one more than the highest number found anywhere in the store (records,
+//! corrupt ones as far as they parse, history and rejected-run file names), and the store
+//! refuses to go past `u32::MAX`. Rollback writes the previous generation's calibration
+//! again as a *new* generation (generations only grow, so consumers can detect every
+//! change); its `"restored_from"` names the generation copied, and a second rollback goes
+//! one further back.
 
 use std::fs::{self, File};
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
 
 use serde::{Deserialize, Serialize};
 
+use crate::geometry::CameraModel;
 use crate::result::{CalibrationResult, Status};
 
 /// Generations and rejected runs kept by default.
@@ -47,6 +61,17 @@ pub struct Record {
     pub restored_from: Option<u32>,
 }
 
+/// The UDS SecurityAccess lockout, kept in `STORE/security.json` so that wrong keys
+/// followed by a restart (or a power cycle) still lock (ISO 14229-1 applies the delay
+/// timer after power-up too).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Lockout {
+    /// Wrong keys in a row since the last correct key or lock.
+    pub failed_attempts: u8,
+    /// Unix seconds until which seeds are refused (0: not locked).
+    pub locked_until: u64,
+}
+
 /// Errors of the store; each names the file.
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
@@ -58,6 +83,53 @@ pub enum StoreError {
     NotAccepted,
     #[error("store {dir}: no earlier generation to roll back to")]
     NoPrevious { dir: PathBuf },
+    #[error(
+        "store {dir}: generation {} (seen in {seen_in}) is the last a u32 holds; refusing to \
+         write another (move the store aside to start a new sequence)",
+        u32::MAX
+    )]
+    GenerationsExhausted { dir: PathBuf, seen_in: PathBuf },
+}
+
+/// Why a record cannot be in force: the first thing wrong with its calibration.
+///
+/// Checks what the consumers rely on: an accepted status, a positive image size, finite
+/// positive focal lengths, a principal point on the image, finite distortion of the
+/// model's length at most, and a proper rotation with a finite translation.
+// The input-validation work may add a result-file validator in `result.rs`; this one should
+// then become a call to it (one concept, one place).
+pub fn is_valid_calibration(result: &CalibrationResult) -> Result<(), String> {
+    if result.status != Status::Accepted {
+        return Err("status is not \"accepted\"".into());
+    }
+    let c = &result.camera;
+    if c.width == 0 || c.height == 0 {
+        return Err(format!("camera size {}×{} is empty", c.width, c.height));
+    }
+    for (name, f) in [("fx", c.fx), ("fy", c.fy)] {
+        if !(f.is_finite() && f > 0.0) {
+            return Err(format!("{name} = {f} is not a positive finite focal length"));
+        }
+    }
+    for (name, v, size) in [("cx", c.cx, c.width), ("cy", c.cy, c.height)] {
+        if !(v.is_finite() && (0.0..=f64::from(size)).contains(&v)) {
+            return Err(format!("{name} = {v} is not on the {size}-pixel image"));
+        }
+    }
+    let max_coefficients = match c.model {
+        CameraModel::PinholeRadtan => 5,
+        CameraModel::Fisheye => 4,
+    };
+    if c.distortion.len() > max_coefficients || c.distortion.iter().any(|d| !d.is_finite()) {
+        return Err(format!("distortion {:?} is not finite or too long", c.distortion));
+    }
+    if let Some(e) = &result.lidar_to_camera {
+        check_rotation(&e.rotation)?;
+        if e.translation.iter().any(|t| !t.is_finite()) {
+            return Err(format!("translation {:?} is not finite", e.translation));
+        }
+    }
+    Ok(())
 }
 
 /// The store directory.
@@ -65,15 +137,27 @@ pub enum StoreError {
 pub struct Store {
     dir: PathBuf,
     keep: usize,
+    /// Serialises this process's writes (clones share it): a repair of `current.json` from
+    /// the service must not interleave with a commit.
+    writes: Arc<Mutex<()>>,
 }
 
 impl Store {
     /// Opens (creating if needed) the store at `dir`, keeping `keep` generations and
-    /// `keep` rejected runs (at least 2).
+    /// `keep` rejected runs (at least 2). Temporary files left by interrupted writes of
+    /// processes that no longer run are removed.
     pub fn open(dir: impl Into<PathBuf>, keep: usize) -> Result<Store, StoreError> {
-        let store = Store { dir: dir.into(), keep: keep.max(2) };
+        let store = Store { dir: dir.into(), keep: keep.max(2), writes: Arc::default() };
+        store.create_dirs()?;
+        let mut removed = 0;
         for d in [store.dir.clone(), store.history_dir(), store.rejected_dir()] {
-            fs::create_dir_all(&d).map_err(|source| StoreError::Io { path: d.clone(), source })?;
+            removed += remove_stale_temp_files(&d)?;
+        }
+        if removed > 0 {
+            tracing::info!(
+                "store {}: removed {removed} temporary file(s) left by interrupted writes",
+                store.dir.display()
+            );
         }
         Ok(store)
     }
@@ -88,34 +172,67 @@ impl Store {
         self.dir.join("current.json")
     }
 
-    /// The calibration in force; `None` before the first accepted run. A corrupt or
-    /// missing `current.json` is repaired from the newest valid generation in history.
+    /// The calibration in force: the newest valid record (checksum and
+    /// [`is_valid_calibration`]) of `current.json` and the history; `None` before the first
+    /// accepted run. When that record is not what `current.json` holds (missing, corrupt,
+    /// invalid, or older: an update interrupted between its history and current writes),
+    /// `current.json` is rewritten from it, and that is logged once it succeeded.
     pub fn current(&self) -> Result<Option<Record>, StoreError> {
-        let path = self.current_path();
-        match read_record(&path) {
-            Ok(Some(r)) => return Ok(Some(r)),
-            Ok(None) => {}
-            Err(e) => tracing::warn!("{e}; falling back to the newest valid generation"),
-        }
-        let Some(newest) = self.history()?.into_iter().next_back() else {
-            return Ok(None);
+        let _writing = self.lock();
+        self.current_locked()
+    }
+
+    /// Checks `current.json` against `held`, the record this process knows is in force, and
+    /// restores it from `held` when it was emptied, corrupted or replaced by something
+    /// invalid or older. Returns the record in force (a newer valid one found in the file
+    /// wins). Cheap when nothing changed: one small read and compare. With `held = None`,
+    /// the same as [`Store::current`].
+    pub fn verify_current(&self, held: Option<&Record>) -> Result<Option<Record>, StoreError> {
+        let _writing = self.lock();
+        let Some(held) = held else {
+            return self.current_locked();
         };
-        // Missing with a history: a crash between the history write and the first install.
+        let path = self.current_path();
+        let expected = encode(held);
+        let problem = match fs::read(&path) {
+            Ok(bytes) if bytes == expected => return Ok(Some(held.clone())),
+            Ok(bytes) => match decode(&bytes, &path) {
+                Ok(r) => match is_valid_calibration(&r.result) {
+                    Ok(()) if r.generation > held.generation => return Ok(Some(r)),
+                    Ok(()) => {
+                        format!("held generation {} instead of {}", r.generation, held.generation)
+                    }
+                    Err(why) => {
+                        format!("generation {} is not a valid calibration: {why}", r.generation)
+                    }
+                },
+                Err(e) => e.to_string(),
+            },
+            Err(e) if e.kind() == io::ErrorKind::NotFound => "missing".to_string(),
+            Err(source) => return Err(StoreError::Io { path, source }),
+        };
+        self.set_aside_higher_current(held.generation)?;
+        self.put_in_force(held)?;
         tracing::warn!(
-            "{}: restored generation {} from history",
+            "{}: {problem}; restored generation {} (the daemon's record)",
             path.display(),
-            newest.generation
+            held.generation
         );
-        write_atomic(&path, &encode(&newest))?;
-        Ok(Some(newest))
+        Ok(Some(held.clone()))
     }
 
     /// Valid generations in history, oldest first (invalid files are skipped with a warning).
     pub fn history(&self) -> Result<Vec<Record>, StoreError> {
         let mut out = Vec::new();
-        for path in list_json(&self.history_dir())? {
+        for (_, path) in self.history_files()? {
             match read_record(&path) {
-                Ok(Some(r)) => out.push(r),
+                Ok(Some(r)) => match is_valid_calibration(&r.result) {
+                    Ok(()) => out.push(r),
+                    Err(why) => tracing::warn!(
+                        "{}: not a valid calibration ({why}); skipped",
+                        path.display()
+                    ),
+                },
                 Ok(None) => {}
                 Err(e) => tracing::warn!("{e}; skipped"),
             }
@@ -141,9 +258,10 @@ impl Store {
         if result.status != Status::Accepted {
             return Err(StoreError::NotAccepted);
         }
+        let _writing = self.lock();
         let record = Record {
             result: result.clone(),
-            generation: self.next_generation()?,
+            generation: self.next_generation_locked()?,
             time: now,
             restored_from: None,
         };
@@ -151,31 +269,37 @@ impl Store {
         Ok(record)
     }
 
-    /// Keeps a rejected run beside the history (never in force); returns its path.
+    /// Keeps a rejected run beside the history (never in force); returns its path. The
+    /// name carries the generation in force, so the sequence survives a lost history.
     pub fn record_rejected(
         &self,
         result: &CalibrationResult,
         now: u64,
     ) -> Result<PathBuf, StoreError> {
-        let generation = self.current()?.map_or(0, |r| r.generation);
+        let _writing = self.lock();
+        let generation = self.current_locked()?.map_or(0, |r| r.generation);
         let record = Record { result: result.clone(), generation, time: now, restored_from: None };
-        let seq = list_json(&self.rejected_dir())?.len();
-        let mut path = self.rejected_dir().join(format!("run-{now:012}-{seq:04}.json"));
-        let mut n = seq;
-        while path.exists() {
-            n += 1;
-            path = self.rejected_dir().join(format!("run-{now:012}-{n:04}.json"));
-        }
+        self.create_dirs()?;
+        let mut seq = list_json(&self.rejected_dir())?.len();
+        let path = loop {
+            let name = format!("run-{now:012}-{seq:04}-gen-{generation:06}.json");
+            let path = self.rejected_dir().join(name);
+            if !path.exists() {
+                break path;
+            }
+            seq += 1;
+        };
         write_atomic(&path, &encode(&record))?;
-        prune(&self.rejected_dir(), self.keep)?;
+        prune(&list_json(&self.rejected_dir())?, &self.rejected_dir(), self.keep)?;
         Ok(path)
     }
 
     /// Puts the generation before the one in force back in force, as a new generation
     /// written at `now`; returns it.
     pub fn rollback(&self, now: u64) -> Result<Record, StoreError> {
+        let _writing = self.lock();
         let no_previous = || StoreError::NoPrevious { dir: self.dir.clone() };
-        let current = self.current()?.ok_or_else(no_previous)?;
+        let current = self.current_locked()?.ok_or_else(no_previous)?;
         // Undo chains: rolling back a restored copy goes before the generation it copied.
         let below = current.restored_from.unwrap_or(current.generation);
         let history = self.history()?;
@@ -186,12 +310,53 @@ impl Store {
             .ok_or_else(no_previous)?;
         let record = Record {
             result: previous.result.clone(),
-            generation: self.next_generation()?,
+            generation: self.next_generation_locked()?,
             time: now,
             restored_from: Some(previous.generation),
         };
         self.install(&record)?;
         Ok(record)
+    }
+
+    /// The generation the next commit or rollback will write: one more than the highest
+    /// the store has any trace of — the record in force, every record in `current.json`,
+    /// history and rejected runs (even invalid or corrupt ones, as far as they parse), and
+    /// the numbers in history and rejected-run file names — so no generation is ever
+    /// written twice. Refuses past `u32::MAX`.
+    pub fn next_generation(&self) -> Result<u32, StoreError> {
+        let _writing = self.lock();
+        self.next_generation_locked()
+    }
+
+    /// The SecurityAccess lockout as last written; the default when there is none. An
+    /// unreadable or corrupt file counts as a lock from `now` for `lockout_s` seconds
+    /// (fail closed: a wrong key must not be forgotten by damaging the file).
+    pub fn lockout(&self, now: u64, lockout_s: u64) -> Lockout {
+        let path = self.lockout_path();
+        let text = match fs::read(&path) {
+            Ok(t) => t,
+            Err(e) if e.kind() == io::ErrorKind::NotFound => return Lockout::default(),
+            Err(e) => {
+                tracing::warn!("{}: {e}; SecurityAccess locked for {lockout_s} s", path.display());
+                return Lockout { failed_attempts: 0, locked_until: now + lockout_s };
+            }
+        };
+        serde_json::from_slice(&text).unwrap_or_else(|e| {
+            tracing::warn!("{}: {e}; SecurityAccess locked for {lockout_s} s", path.display());
+            Lockout { failed_attempts: 0, locked_until: now + lockout_s }
+        })
+    }
+
+    /// Writes the SecurityAccess lockout (atomically and durably).
+    pub fn set_lockout(&self, lockout: &Lockout) -> Result<(), StoreError> {
+        let _writing = self.lock();
+        // Serialising two integers cannot fail.
+        let text = serde_json::to_string(lockout).unwrap_or_default();
+        write_atomic(&self.lockout_path(), format!("{text}\n").as_bytes())
+    }
+
+    fn lockout_path(&self) -> PathBuf {
+        self.dir.join("security.json")
     }
 
     fn history_dir(&self) -> PathBuf {
@@ -202,27 +367,225 @@ impl Store {
         self.dir.join("rejected")
     }
 
-    /// The generation the next commit or rollback will write: one more than any in force
-    /// or in history, so file names never clash.
-    pub fn next_generation(&self) -> Result<u32, StoreError> {
-        let cur = self.current()?.map_or(0, |r| r.generation);
-        let hist = self.history()?.last().map_or(0, |r| r.generation);
-        Ok(cur.max(hist).saturating_add(1))
+    fn lock(&self) -> MutexGuard<'_, ()> {
+        // The guarded data is `()`: a panic elsewhere cannot leave it inconsistent.
+        self.writes.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// The store's directories, recreated when someone deleted them.
+    fn create_dirs(&self) -> Result<(), StoreError> {
+        for d in [self.dir.clone(), self.history_dir(), self.rejected_dir()] {
+            fs::create_dir_all(&d).map_err(|source| StoreError::Io { path: d.clone(), source })?;
+        }
+        Ok(())
+    }
+
+    /// `gen-N.json` files of the history with their N, by generation.
+    fn history_files(&self) -> Result<Vec<(u32, PathBuf)>, StoreError> {
+        let mut out: Vec<(u32, PathBuf)> = list_json(&self.history_dir())?
+            .into_iter()
+            .filter_map(|p| Some((number_after(&p, "gen-")?, p)))
+            .collect();
+        out.sort();
+        Ok(out)
+    }
+
+    fn current_locked(&self) -> Result<Option<Record>, StoreError> {
+        let path = self.current_path();
+        let in_file = match read_record(&path) {
+            Ok(Some(r)) => match is_valid_calibration(&r.result) {
+                Ok(()) => Some(r),
+                Err(why) => {
+                    tracing::warn!(
+                        "{}: generation {} is not a valid calibration ({why}); not in force",
+                        path.display(),
+                        r.generation
+                    );
+                    None
+                }
+            },
+            Ok(None) => None,
+            Err(e) => {
+                tracing::warn!("{e}; falling back to the newest valid generation");
+                None
+            }
+        };
+        let newest = self.history()?.pop();
+        let restore = match (&in_file, newest) {
+            (Some(cur), Some(h)) if h.generation > cur.generation => h,
+            (Some(cur), _) => return Ok(Some(cur.clone())),
+            (None, Some(h)) => h,
+            (None, None) => return Ok(None),
+        };
+        self.set_aside_higher_current(restore.generation)?;
+        self.put_in_force(&restore)?;
+        match in_file {
+            Some(cur) => tracing::warn!(
+                "{}: history holds generation {}, newer than its {} (an update interrupted \
+                 before current.json was replaced); generation {} completed and in force",
+                path.display(),
+                restore.generation,
+                cur.generation,
+                restore.generation
+            ),
+            None => tracing::warn!(
+                "{}: restored generation {} from history",
+                path.display(),
+                restore.generation
+            ),
+        }
+        Ok(Some(restore))
+    }
+
+    /// Before `current.json` is replaced by an older generation, a file that states a
+    /// higher one (invalid, or failing its checksum) is renamed to `current.json.invalid`,
+    /// so its number stays seen and is not given out again.
+    fn set_aside_higher_current(&self, generation: u32) -> Result<(), StoreError> {
+        let path = self.current_path();
+        if generation_in_file(&path).is_some_and(|g| g > generation) {
+            let aside = self.set_aside_path();
+            fs::rename(&path, &aside).map_err(|source| StoreError::Io { path, source })?;
+        }
+        Ok(())
+    }
+
+    fn set_aside_path(&self) -> PathBuf {
+        self.dir.join("current.json.invalid")
+    }
+
+    fn next_generation_locked(&self) -> Result<u32, StoreError> {
+        let mut highest = (0u32, self.current_path());
+        let mut see = |generation: u32, path: &Path| {
+            if generation > highest.0 {
+                highest = (generation, path.to_path_buf());
+            }
+        };
+        if let Some(r) = self.current_locked()? {
+            see(r.generation, &self.current_path());
+        }
+        for path in [self.current_path(), self.set_aside_path()] {
+            if let Some(g) = generation_in_file(&path) {
+                see(g, &path);
+            }
+        }
+        for (g, path) in self.history_files()? {
+            see(g, &path);
+            if let Some(g) = generation_in_file(&path) {
+                see(g, &path);
+            }
+        }
+        for path in list_json(&self.rejected_dir())? {
+            if let Some(g) = number_after(&path, "-gen-") {
+                see(g, &path);
+            }
+            if let Some(g) = generation_in_file(&path) {
+                see(g, &path);
+            }
+        }
+        let (generation, seen_in) = highest;
+        generation
+            .checked_add(1)
+            .ok_or(StoreError::GenerationsExhausted { dir: self.dir.clone(), seen_in })
     }
 
     /// History first, then current, then the YAML views, then pruning.
     fn install(&self, record: &Record) -> Result<(), StoreError> {
-        let bytes = encode(record);
+        self.create_dirs()?;
         let hist = self.history_dir().join(format!("gen-{:06}.json", record.generation));
-        write_atomic(&hist, &bytes)?;
-        write_atomic(&self.current_path(), &bytes)?;
+        write_atomic(&hist, &encode(record))?;
+        self.put_in_force(record)?;
+        let files: Vec<PathBuf> = self.history_files()?.into_iter().map(|(_, p)| p).collect();
+        prune(&files, &self.history_dir(), self.keep)
+    }
+
+    /// `current.json` and its YAML views.
+    fn put_in_force(&self, record: &Record) -> Result<(), StoreError> {
+        write_atomic(&self.current_path(), &encode(record))?;
         write_atomic(&self.dir.join("camera.yaml"), camera_yaml(&record.result).as_bytes())?;
         if let Some(yaml) = extrinsic_yaml(&record.result) {
             write_atomic(&self.dir.join("extrinsic.yaml"), yaml.as_bytes())?;
         }
         crate::export::write_each(&self.dir, &record.result, write_atomic)?;
-        prune(&self.history_dir(), self.keep)
+        Ok(())
     }
+}
+
+/// A rotation matrix must be finite, orthonormal and right-handed.
+fn check_rotation(r: &[[f64; 3]; 3]) -> Result<(), String> {
+    let bad = || Err(format!("rotation {r:?} is not a proper rotation matrix"));
+    if r.iter().flatten().any(|v| !v.is_finite()) {
+        return bad();
+    }
+    for i in 0..3 {
+        for j in 0..3 {
+            let dot: f64 = (0..3).map(|k| r[k][i] * r[k][j]).sum();
+            let want = if i == j { 1.0 } else { 0.0 };
+            if (dot - want).abs() > 1e-6 {
+                return bad();
+            }
+        }
+    }
+    let det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1])
+        - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
+        + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
+    if det <= 0.0 {
+        return bad();
+    }
+    Ok(())
+}
+
+/// The number right after `marker` in a file name (`gen-000042.json` → 42), saturating at
+/// `u32::MAX` so an absurd name refuses further generations instead of being ignored.
+fn number_after(path: &Path, marker: &str) -> Option<u32> {
+    let name = path.file_name()?.to_str()?;
+    let digits: &str = name.split_once(marker)?.1;
+    let end = digits.find(|c: char| !c.is_ascii_digit()).unwrap_or(digits.len());
+    let digits = &digits[..end];
+    if digits.is_empty() {
+        return None;
+    }
+    Some(digits.parse::<u32>().unwrap_or(u32::MAX))
+}
+
+/// The `"generation"` a record file states, checksum or not (a corrupt record still tells
+/// which numbers were used).
+fn generation_in_file(path: &Path) -> Option<u32> {
+    let bytes = fs::read(path).ok()?;
+    let v: serde_json::Value = serde_json::from_slice(&bytes).ok()?;
+    let g = v.get("generation")?.as_u64()?;
+    Some(u32::try_from(g).unwrap_or(u32::MAX))
+}
+
+/// Removes `.NAME.tmp-PID…` files of `dir` whose process is gone (a write interrupted by
+/// a kill or power loss); files of this process and of live ones are left alone.
+fn remove_stale_temp_files(dir: &Path) -> Result<usize, StoreError> {
+    let io_err = |source| StoreError::Io { path: dir.to_path_buf(), source };
+    let mut removed = 0;
+    for entry in fs::read_dir(dir).map_err(io_err)? {
+        let path = entry.map_err(io_err)?.path();
+        let Some(name) = path.file_name().and_then(|n| n.to_str()) else { continue };
+        if !name.starts_with('.') {
+            continue;
+        }
+        let Some(pid) = number_after(&path, ".tmp-") else { continue };
+        if pid == std::process::id() || process_alive(pid) {
+            continue;
+        }
+        match fs::remove_file(&path) {
+            Ok(()) => removed += 1,
+            Err(e) if e.kind() == io::ErrorKind::NotFound => {}
+            Err(source) => return Err(StoreError::Io { path, source }),
+        }
+    }
+    if removed > 0 {
+        sync_dir(dir).map_err(io_err)?;
+    }
+    Ok(removed)
+}
+
+/// Whether process `pid` runs (Linux `/proc`; without it every other process counts as gone).
+fn process_alive(pid: u32) -> bool {
+    Path::new("/proc/self").exists() && Path::new("/proc").join(pid.to_string()).exists()
 }
 
 /// CRC-32 (IEEE 802.3, reflected, polynomial 0xEDB88320), as zlib's `crc32`.
@@ -271,17 +634,27 @@ pub fn decode(bytes: &[u8], name: &Path) -> Result<Record, StoreError> {
 }
 
 /// Writes `bytes` to `path` atomically and durably (temp file, fsync, rename, dir fsync).
+/// A failed write removes its temporary file, so a full disk does not stay full.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), StoreError> {
+    // Unique per write: two threads of one process never share a temporary file.
+    static WRITES: AtomicU64 = AtomicU64::new(0);
     let io_err = |source| StoreError::Io { path: path.to_path_buf(), source };
     let dir = path.parent().unwrap_or(Path::new("."));
     let name = path.file_name().map_or("file".into(), |n| n.to_string_lossy().into_owned());
-    let tmp = dir.join(format!(".{name}.tmp-{}", std::process::id()));
-    let mut f = File::create(&tmp).map_err(io_err)?;
-    f.write_all(bytes).map_err(io_err)?;
-    f.sync_all().map_err(io_err)?;
-    drop(f);
-    fs::rename(&tmp, path).map_err(io_err)?;
+    let seq = WRITES.fetch_add(1, Ordering::Relaxed);
+    let tmp = dir.join(format!(".{name}.tmp-{}-{seq}", std::process::id()));
+    let written = write_synced(&tmp, bytes).and_then(|()| fs::rename(&tmp, path));
+    if let Err(e) = written {
+        let _ = fs::remove_file(&tmp);
+        return Err(io_err(e));
+    }
     sync_dir(dir).map_err(io_err)
+}
+
+fn write_synced(path: &Path, bytes: &[u8]) -> io::Result<()> {
+    let mut f = File::create(path)?;
+    f.write_all(bytes)?;
+    f.sync_all()
 }
 
 fn sync_dir(dir: &Path) -> io::Result<()> {
@@ -297,11 +670,17 @@ fn read_record(path: &Path) -> Result<Option<Record>, StoreError> {
     }
 }
 
-/// `*.json` files of a directory (temporary files excluded), sorted by name.
+/// `*.json` files of a directory (temporary files excluded), sorted by name; none when
+/// the directory was deleted.
 fn list_json(dir: &Path) -> Result<Vec<PathBuf>, StoreError> {
     let io_err = |source| StoreError::Io { path: dir.to_path_buf(), source };
+    let entries = match fs::read_dir(dir) {
+        Ok(entries) => entries,
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) => return Err(io_err(e)),
+    };
     let mut out = Vec::new();
-    for entry in fs::read_dir(dir).map_err(io_err)? {
+    for entry in entries {
         let path = entry.map_err(io_err)?.path();
         let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         if !name.starts_with('.') && name.ends_with(".json") {
@@ -312,9 +691,8 @@ fn list_json(dir: &Path) -> Result<Vec<PathBuf>, StoreError> {
     Ok(out)
 }
 
-/// Removes all but the newest `keep` files (names sort by age).
-fn prune(dir: &Path, keep: usize) -> Result<(), StoreError> {
-    let files = list_json(dir)?;
+/// Removes all but the newest `keep` of `files` (given oldest first) from `dir`.
+fn prune(files: &[PathBuf], dir: &Path, keep: usize) -> Result<(), StoreError> {
     let excess = files.len().saturating_sub(keep);
     for path in &files[..excess] {
         fs::remove_file(path).map_err(|source| StoreError::Io { path: path.clone(), source })?;
@@ -329,8 +707,8 @@ fn prune(dir: &Path, keep: usize) -> Result<(), StoreError> {
 pub fn camera_yaml(result: &CalibrationResult) -> String {
     let c = &result.camera;
     let model = match c.model {
-        crate::geometry::CameraModel::PinholeRadtan => "pinhole-radtan",
-        crate::geometry::CameraModel::Fisheye => "fisheye",
+        CameraModel::PinholeRadtan => "pinhole-radtan",
+        CameraModel::Fisheye => "fisheye",
     };
     let k = [c.fx, 0.0, c.cx, 0.0, c.fy, c.cy, 0.0, 0.0, 1.0];
     format!(

@@ -383,3 +383,52 @@ fn idle_cpu_of_a_replay_run() {
     assert!(counts.load(Ordering::SeqCst) >= 8);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `--once`: a run whose result cannot be written is an error (the binary exits 1), not
+/// a success with nothing in the store.
+#[tokio::test(start_paused = true)]
+async fn once_fails_when_the_store_cannot_be_written() {
+    let (dir, cfg) = scene("unwritable", "");
+    let (cal, _, _) = fake(6, Status::Accepted);
+    let task =
+        tokio::spawn(daemon::run(cfg, cal, RunOptions { once: true }, std::future::pending()));
+    // The daemon opened its store; now its history becomes a plain file.
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    std::fs::remove_dir_all(dir.join("store/history")).unwrap();
+    std::fs::write(dir.join("store/history"), b"not a directory").unwrap();
+    let err = task.await.unwrap().unwrap_err().to_string();
+    assert!(err.contains("store/history"), "the error names the store path: {err}");
+    assert!(current_bytes(&dir).is_none());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `current.json` emptied while the daemon runs is put back from the record in force
+/// (within the second-by-second check), and before any UDS read of the backend.
+#[tokio::test(start_paused = true)]
+async fn current_json_emptied_while_running_is_restored() {
+    let (dir, cfg) = scene("emptied", "");
+    let (cal, _, _) = fake(6, Status::Accepted);
+    let (d, handle) = Daemon::new(cfg, cal, RunOptions::default());
+    let task = tokio::spawn(d.run(tokio::time::sleep(Duration::from_secs(30))));
+    tokio::time::sleep(Duration::from_secs(15)).await;
+    assert_eq!(handle.shared().current.unwrap().generation, 1, "a run was accepted");
+    let good = current_bytes(&dir).unwrap();
+    for damage in [&b""[..], b"{\"status\": \"acc"] {
+        std::fs::write(dir.join("store/current.json"), damage).unwrap();
+        tokio::time::sleep(Duration::from_millis(1500)).await;
+        assert_eq!(current_bytes(&dir).unwrap(), good, "restored while running");
+    }
+    task.await.unwrap().unwrap();
+
+    // The UDS backend checks before it answers.
+    let store = Store::open(dir.join("store"), 4).unwrap();
+    let rec = store.current().unwrap();
+    let shared =
+        Arc::new(std::sync::Mutex::new(daemon::Shared { current: rec, ..Default::default() }));
+    let (tx, _rx) = tokio::sync::mpsc::channel(1);
+    let b = daemon::DaemonBackend::new(shared, tx, store);
+    std::fs::write(dir.join("store/current.json"), b"").unwrap();
+    assert_eq!(b.state().generation, 1);
+    assert_eq!(current_bytes(&dir).unwrap(), good, "restored before the read was answered");
+    let _ = std::fs::remove_dir_all(&dir);
+}

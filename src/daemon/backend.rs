@@ -52,17 +52,24 @@ impl DaemonBackend {
     fn snapshot(&self) -> Shared {
         self.shared.lock().map(|s| s.clone()).unwrap_or_default()
     }
+
+    /// The shared state after checking `current.json` (restored when damaged): every DID
+    /// read goes through here, so a tool never reads a record the store no longer holds.
+    fn fresh(&self) -> Shared {
+        super::verify_store(&self.store, &self.shared);
+        self.snapshot()
+    }
 }
 
 impl Backend for DaemonBackend {
     fn state(&self) -> StateRecord {
-        let s = self.snapshot();
+        let s = self.fresh();
         let (generation, time) = s.current.as_ref().map_or((0, 0), |r| (r.generation, r.time));
         StateRecord { state: s.state, generation, time: time.min(u64::from(u32::MAX)) as u32 }
     }
 
     fn intrinsics(&self) -> Option<IntrinsicsRecord> {
-        let s = self.snapshot();
+        let s = self.fresh();
         let c = &s.current.as_ref()?.result.camera;
         let mut distortion = heapless::Vec::new();
         for d in &c.distortion {
@@ -82,7 +89,7 @@ impl Backend for DaemonBackend {
     }
 
     fn extrinsic(&self) -> Option<ExtrinsicRecord> {
-        let s = self.snapshot();
+        let s = self.fresh();
         let e = s.current.as_ref()?.result.lidar_to_camera.as_ref()?.to_se3();
         let q = rotation_to_quaternion(&e.rotation);
         Some(ExtrinsicRecord {
@@ -92,7 +99,7 @@ impl Backend for DaemonBackend {
     }
 
     fn quality(&self) -> Option<QualityRecord> {
-        let s = self.snapshot();
+        let s = self.fresh();
         let q = &s.current.as_ref()?.result.quality;
         Some(QualityRecord {
             corner_rms_px: q.corner_rms_px as f32,

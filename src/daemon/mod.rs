@@ -9,6 +9,9 @@
 //! count about once a second and the sweep-to-sweep motion drive the [`trigger`]; a run
 //! averages `frames` frames, accumulates `sweeps` sweeps, calibrates on a blocking thread
 //! and commits to the [`Store`] (accepted) or keeps the result among the rejected runs.
+//! Every second (and before every UDS read) `current.json` is checked against the record
+//! in force and put back if it was emptied or damaged. With `once`, a run that left nothing
+//! in the store (it failed, or the store could not be written) ends the daemon with an error.
 //! systemd: READY=1 once the sources are open, STATUS= on every state change, WATCHDOG=1
 //! at half the watchdog interval (all no-ops without `NOTIFY_SOCKET`).
 
@@ -95,6 +98,9 @@ pub enum DaemonError {
     Service(String),
     #[error("LiDAR angle corrections: {0}")]
     LidarCalibration(String),
+    /// `--once`: the run ended without a result in the store.
+    #[error("the calibration run failed: {0}")]
+    RunFailed(String),
 }
 
 /// Asks a running daemon for things (the library side of `roomcal query start`).
@@ -383,6 +389,9 @@ async fn run_daemon<C: Calibrator>(
         3_600_000_000
     });
     let mut watchdog = tokio::time::interval(wd_period);
+    // current.json emptied or damaged behind the daemon's back is put back within a second.
+    let mut store_check = tokio::time::interval(Duration::from_secs(1));
+    store_check.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let (mut image_prev, mut image_next) = (RangeImage::new(360, 128), RangeImage::new(360, 128));
     let mut have_prev = false;
     let mut scratch = Vec::new();
@@ -390,6 +399,7 @@ async fn run_daemon<C: Calibrator>(
     let mut solving: Option<tokio::task::JoinHandle<CalibrationOutcome>> = None;
     let mut summary = RunSummary::default();
     let mut last_state = DaemonState::Idle;
+    let mut fatal: Option<DaemonError> = None;
     tokio::pin!(shutdown);
 
     loop {
@@ -399,6 +409,7 @@ async fn run_daemon<C: Calibrator>(
         tokio::select! {
             _ = &mut shutdown => break,
             _ = watchdog.tick(), if watchdog_on => notify(&[sd_notify::NotifyState::Watchdog]),
+            _ = store_check.tick() => verify_store(&store, &shared),
             _ = detect.tick(), if !capturing && solving.is_none() => {
                 let frame = frames.borrow().clone();
                 if let Some(frame) = frame {
@@ -472,10 +483,12 @@ async fn run_daemon<C: Calibrator>(
             solving = Some(start_solve(&calibrator, &shared, std::mem::take(&mut run)));
         }
         if let Some(outcome) = outcome {
-            let verdict = finish_run(&store, &shared, outcome, &mut summary).await;
+            let (verdict, failure) = finish_run(&store, &shared, outcome, &mut summary).await;
             trigger.on_outcome(verdict);
             if options.once {
                 publish_state(&shared, trigger.state(), &mut last_state);
+                // `--once` reports a run that left nothing in the store as an error.
+                fatal = failure;
                 break;
             }
         }
@@ -495,7 +508,22 @@ async fn run_daemon<C: Calibrator>(
     tasks.shutdown().await;
     summary.generation =
         shared.lock().ok().and_then(|s| s.current.as_ref().map(|r| r.generation)).unwrap_or(0);
-    Ok(summary)
+    match fatal {
+        Some(e) => Err(e),
+        None => Ok(summary),
+    }
+}
+
+/// Puts `current.json` back from the record in force when it was emptied, damaged or
+/// replaced (see [`Store::verify_current`]); takes a newer valid one written by another
+/// process.
+pub(crate) fn verify_store(store: &Store, shared: &Arc<Mutex<Shared>>) {
+    let held = shared.lock().ok().and_then(|s| s.current.clone());
+    match store.verify_current(held.as_ref()) {
+        Ok(now) if now != held => set_shared(shared, |s| s.current = now),
+        Ok(_) => {}
+        Err(e) => tracing::error!("{e}"),
+    }
 }
 
 async fn sleep_until_opt(at: Option<tokio::time::Instant>) {
@@ -540,42 +568,44 @@ fn start_solve<C: Calibrator>(
     })
 }
 
-/// Stores the outcome (accepted → new generation; rejected → kept aside) and reports it.
+/// Stores the outcome (accepted → new generation; rejected → kept aside) and reports it;
+/// with the verdict, the error when nothing reached the store (a failed run or write).
 async fn finish_run(
     store: &Store,
     shared: &Arc<Mutex<Shared>>,
     outcome: CalibrationOutcome,
     summary: &mut RunSummary,
-) -> Verdict {
+) -> (Verdict, Option<DaemonError>) {
     summary.runs += 1;
     let now = unix_now();
     let store = store.clone();
     let stored = tokio::task::spawn_blocking(move || match outcome {
         CalibrationOutcome::Done(r) if r.status == Status::Accepted => {
-            store.commit(&r, now).map(|rec| (Verdict::Accepted, Some(rec)))
+            store.commit(&r, now).map(|rec| (Verdict::Accepted, Ok(Some(rec))))
         }
         CalibrationOutcome::Done(r) => {
             tracing::warn!(
                 "calibration rejected: {}",
                 r.reason.as_deref().unwrap_or("no reason given")
             );
-            store.record_rejected(&r, now).map(|_| (Verdict::Rejected, None))
+            store.record_rejected(&r, now).map(|_| (Verdict::Rejected, Ok(None)))
         }
         CalibrationOutcome::Failed(why) => {
             tracing::error!("calibration failed: {why}");
-            Ok((Verdict::Error, None))
+            Ok((Verdict::Error, Err(why)))
         }
     })
     .await;
-    let (verdict, record) = match stored {
-        Ok(Ok(v)) => v,
+    let (verdict, record, failure) = match stored {
+        Ok(Ok((v, Ok(record)))) => (v, record, None),
+        Ok(Ok((v, Err(why)))) => (v, None, Some(DaemonError::RunFailed(why))),
         Ok(Err(e)) => {
-            tracing::error!("store: {e}");
-            (Verdict::Error, None)
+            tracing::error!("{e}; the run's result was not stored");
+            (Verdict::Error, None, Some(DaemonError::Store(e)))
         }
         Err(e) => {
             tracing::error!("store task: {e}");
-            (Verdict::Error, None)
+            (Verdict::Error, None, Some(DaemonError::RunFailed(format!("store task: {e}"))))
         }
     };
     match verdict {
@@ -597,5 +627,5 @@ async fn finish_run(
         s.last =
             Some(Outcome { state, generation: s.current.as_ref().map_or(0, |r| r.generation) });
     });
-    verdict
+    (verdict, failure)
 }
