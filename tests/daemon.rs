@@ -432,3 +432,76 @@ async fn current_json_emptied_while_running_is_restored() {
     assert_eq!(current_bytes(&dir).unwrap(), good, "restored before the read was answered");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Three wrong keys, then the daemon restarts: the 10 s lockout still holds (it is kept in
+/// STORE/security.json, written before the third refusal is sent, so a SIGKILL right after
+/// it keeps it as well as this graceful stop).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn security_lockout_survives_a_restart() {
+    use roomcal::service::client::{ClientError, UdsClient};
+    use roomcal::service::socketcand::SocketcandClient;
+    use roomcal::service::uds::Session;
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let service = format!(
+        "mode = \"manual\"\n[service]\ntransport = \"socketcand:127.0.0.1:{port}\"\n\
+         secret_file = \"secret\"\n"
+    );
+    let (dir, cfg) = scene("lockout", &service);
+    std::fs::write(dir.join("secret"), b"bench secret\n").unwrap();
+    async fn connect(port: u16) -> UdsClient<SocketcandClient> {
+        for _ in 0..50 {
+            if let Ok(t) = SocketcandClient::connect(&format!("127.0.0.1:{port}"), "can0").await {
+                return UdsClient::with_defaults(t);
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        panic!("the daemon listens on 127.0.0.1:{port}");
+    }
+    let start = |cfg: config::Config| {
+        let (cal, _, _) = fake(6, Status::Accepted);
+        let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+        let task = tokio::spawn(daemon::run(cfg, cal, RunOptions::default(), async {
+            let _ = stopped.await;
+        }));
+        (stop, task)
+    };
+    let (stop, task) = start(cfg.clone());
+    let mut c = connect(port).await;
+    c.session(Session::Extended).await.unwrap();
+    let mut nrcs = Vec::new();
+    for _ in 0..3 {
+        match c.unlock(b"wrong").await {
+            Err(ClientError::Negative { service: 0x27, nrc }) => nrcs.push(nrc),
+            other => panic!("expected a negative response, got {other:?}"),
+        }
+    }
+    assert_eq!(nrcs, [0x35, 0x35, 0x36]);
+    drop(c);
+    stop.send(()).unwrap();
+    task.await.unwrap().unwrap();
+    assert!(dir.join("store/security.json").exists());
+
+    let (stop, task) = start(cfg);
+    let mut c = connect(port).await;
+    c.session(Session::Extended).await.unwrap();
+    match c.request(&[0x27, 0x01]).await {
+        Err(ClientError::Negative { service: 0x27, nrc: 0x37 }) => {}
+        other => panic!("expected requiredTimeDelayNotExpired after the restart, got {other:?}"),
+    }
+    drop(c);
+    stop.send(()).unwrap();
+    task.await.unwrap().unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn the_unit_raises_the_file_descriptor_limit() {
+    let unit =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/systemd/roomcal.service"))
+            .unwrap();
+    let limit =
+        unit.lines().find_map(|l| l.strip_prefix("LimitNOFILE=")).expect("LimitNOFILE in the unit");
+    let limit: u64 = limit.trim().parse().unwrap();
+    let clients = roomcal::service::socketcand::Limits::default().max_clients as u64;
+    assert!(limit >= 1024 && limit > 8 * clients, "LimitNOFILE={limit}");
+}

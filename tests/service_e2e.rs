@@ -313,3 +313,50 @@ async fn request_flood_without_flow_control_is_bounded() {
     stop.send(()).unwrap();
     task.await.unwrap();
 }
+
+/// Half-open connections (no handshake), silent clients and connections beyond the limit
+/// are closed, so idle sockets cannot exhaust the daemon's file descriptors.
+#[tokio::test]
+async fn socketcand_closes_half_open_idle_and_excess_clients() {
+    use roomcal::service::socketcand::Limits;
+    let limits = Limits {
+        max_clients: 4,
+        handshake_timeout: Duration::from_millis(300),
+        idle_timeout: Duration::from_millis(600),
+    };
+    let server = SocketcandServer::bind_with_limits("127.0.0.1:0", "can0", limits).await.unwrap();
+    let addr = server.local_addr();
+    // Reads until EOF (or 3 s): what the server sent before closing.
+    async fn until_closed(tcp: &mut tokio::net::TcpStream) -> Option<String> {
+        let mut all = Vec::new();
+        let mut buf = [0u8; 256];
+        loop {
+            match tokio::time::timeout(Duration::from_secs(3), tcp.read(&mut buf)).await {
+                Ok(Ok(0)) | Ok(Err(_)) => return Some(String::from_utf8_lossy(&all).into()),
+                Ok(Ok(n)) => all.extend_from_slice(&buf[..n]),
+                Err(_) => return None,
+            }
+        }
+    }
+    let mut idle = Vec::new();
+    for _ in 0..4 {
+        idle.push(tokio::net::TcpStream::connect(addr).await.unwrap());
+    }
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    let mut excess = tokio::net::TcpStream::connect(addr).await.unwrap();
+    let said = until_closed(&mut excess).await.expect("the fifth connection is closed");
+    assert!(said.contains("too many connections"), "{said}");
+    let t0 = std::time::Instant::now();
+    for tcp in &mut idle {
+        assert_eq!(until_closed(tcp).await.as_deref(), Some("< hi >"), "closed after the greeting");
+    }
+    let took = t0.elapsed();
+    println!("half-open connections closed after {took:?}");
+    // Room again: a client completes the handshake, then stays silent and is closed.
+    let mut client = SocketcandClient::connect(&addr.to_string(), "can0").await.unwrap();
+    let got = tokio::time::timeout(Duration::from_secs(3), client.recv()).await;
+    assert!(
+        matches!(got, Ok(Err(TransportError::Closed { .. }))),
+        "a silent client is closed: {got:?}"
+    );
+}

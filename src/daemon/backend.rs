@@ -14,7 +14,8 @@ use crate::service::uds::{
     Refusal, StateRecord,
 };
 use crate::service::{driver, isotp, socketcand::SocketcandServer, uds};
-use crate::store::{Record, Store};
+use crate::store::{Lockout, Record, Store};
+use std::time::Duration;
 
 use super::config::{ServiceConfig, SocketcandRole};
 
@@ -128,6 +129,16 @@ impl Backend for DaemonBackend {
         None
     }
 
+    fn security_changed(&mut self, failed_attempts: u8, locked_for: Option<Duration>) {
+        let now = super::unix_now();
+        // Whole seconds, rounded up: the lock never ends early after a restart.
+        let locked_until =
+            locked_for.map_or(0, |d| now + d.as_secs() + u64::from(d.subsec_nanos() > 0));
+        if let Err(e) = self.store.set_lockout(&Lockout { failed_attempts, locked_until }) {
+            tracing::error!("SecurityAccess lockout not kept: {e}");
+        }
+    }
+
     fn rollback(&mut self) -> Result<u32, Refusal> {
         if matches!(self.snapshot().state, DaemonState::Capturing | DaemonState::Solving) {
             return Err(Refusal::Busy);
@@ -181,7 +192,23 @@ pub(crate) async fn service_task(
         tracing::error!("service disabled: /dev/urandom cannot be opened");
         return;
     };
-    let mut server = uds::Server::new(backend, seeds, &secret, uds::ServerConfig::default());
+    let server_cfg = uds::ServerConfig::default();
+    let kept = backend.store.lockout(super::unix_now(), server_cfg.lockout.as_secs());
+    let mut server = uds::Server::new(backend, seeds, &secret, server_cfg);
+    let locked_for = kept.locked_until.saturating_sub(super::unix_now());
+    // The driver's clock starts at zero when it serves.
+    let locked_for = (locked_for > 0).then(|| Duration::from_secs(locked_for));
+    server.restore_security(
+        kept.failed_attempts,
+        locked_for,
+        crate::service::Instant::from_micros(0),
+    );
+    if let Some(d) = locked_for {
+        tracing::warn!(
+            "SecurityAccess locked for {} s more (wrong keys before the restart)",
+            d.as_secs()
+        );
+    }
     let tp = isotp::Config::new(cfg.response_id, cfg.request_id);
     let mut backoff = crate::capture::Backoff::default();
     while !*stop.borrow() {

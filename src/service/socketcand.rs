@@ -8,9 +8,12 @@
 //! one hex string) and the client sends `< send ID LEN B0 B1 ... >` (LEN and bytes in
 //! hex, any case, with or without leading zeros). Replies are written one per TCP
 //! write, with no separators, because python-can compares each greeting exactly.
+//!
+//! The server bounds what clients can hold ([`Limits`]): at most 16 connections, 5 s to
+//! reach rawmode, 60 s of silence in rawmode; its warnings are throttled to one a second.
 
 use std::net::SocketAddr;
-use std::time::{SystemTime, UNIX_EPOCH};
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
@@ -22,6 +25,61 @@ use super::CanFrame;
 
 /// Longest protocol message accepted; anything longer is junk and dropped.
 pub const MAX_MESSAGE_LEN: usize = 256;
+
+/// What a server tolerates from its clients. Idle and half-open connections hold file
+/// descriptors; without limits 1100 of them exhausted the daemon's 1024.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Limits {
+    /// Connections served at once; more are answered `< error too many connections >`
+    /// and closed.
+    pub max_clients: usize,
+    /// A client that has not reached rawmode by then is closed.
+    pub handshake_timeout: Duration,
+    /// A client in rawmode that sends nothing for this long is closed (a service tool sends
+    /// TesterPresent every few seconds).
+    pub idle_timeout: Duration,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            max_clients: 16,
+            handshake_timeout: Duration::from_secs(5),
+            idle_timeout: Duration::from_secs(60),
+        }
+    }
+}
+
+/// At most one warning a second; the ones held back are counted into the next.
+#[derive(Debug, Default)]
+pub struct WarnThrottle {
+    last: Option<tokio::time::Instant>,
+    suppressed: u64,
+}
+
+impl WarnThrottle {
+    /// `Some(n)` when a warning may be logged at `now` (`n` were suppressed since the last
+    /// one), `None` when this one is suppressed.
+    pub fn allow(&mut self, now: tokio::time::Instant) -> Option<u64> {
+        if self.last.is_some_and(|t| now < t + Duration::from_secs(1)) {
+            self.suppressed += 1;
+            return None;
+        }
+        self.last = Some(now);
+        Some(std::mem::take(&mut self.suppressed))
+    }
+}
+
+/// Logs `message` through `throttle`, with the count of warnings it held back.
+fn warn_throttled(throttle: &mut WarnThrottle, message: std::fmt::Arguments<'_>) {
+    if let Some(suppressed) = throttle.allow(tokio::time::Instant::now()) {
+        if suppressed > 0 {
+            tracing::warn!("socketcand: {message} ({suppressed} similar warnings suppressed)");
+        } else {
+            tracing::warn!("socketcand: {message}");
+        }
+    }
+}
 
 /// One socketcand protocol message.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -257,13 +315,27 @@ pub struct SocketcandServer {
 impl SocketcandServer {
     /// Listens on `addr` (e.g. `127.0.0.1:29536`, port 0 for any) serving the bus `channel`.
     pub async fn bind(addr: &str, channel: &str) -> Result<Self, TransportError> {
+        Self::bind_with_limits(addr, channel, Limits::default()).await
+    }
+
+    /// [`SocketcandServer::bind`] with other [`Limits`].
+    pub async fn bind_with_limits(
+        addr: &str,
+        channel: &str,
+        limits: Limits,
+    ) -> Result<Self, TransportError> {
         let bind_err = |source| TransportError::Bind { addr: addr.to_string(), source };
         let listener = TcpListener::bind(addr).await.map_err(bind_err)?;
         let local_addr = listener.local_addr().map_err(bind_err)?;
         let (in_tx, from_clients) = mpsc::channel(1024);
         let (to_clients, _) = broadcast::channel(1024);
-        let accept =
-            tokio::spawn(accept_loop(listener, channel.to_string(), in_tx, to_clients.clone()));
+        let accept = tokio::spawn(accept_loop(
+            listener,
+            channel.to_string(),
+            in_tx,
+            to_clients.clone(),
+            limits,
+        ));
         Ok(SocketcandServer { local_addr, from_clients, to_clients, accept })
     }
 
@@ -297,23 +369,39 @@ async fn accept_loop(
     channel: String,
     to_bus: mpsc::Sender<CanFrame>,
     from_bus: broadcast::Sender<CanFrame>,
+    limits: Limits,
 ) {
     let mut clients = tokio::task::JoinSet::new();
+    let mut throttle = WarnThrottle::default();
     loop {
         let (stream, peer) = match listener.accept().await {
             Ok(accepted) => accepted,
             Err(e) => {
                 // Out of file descriptors and the like: accept fails at once until a
                 // connection closes, so pause instead of spinning on the error.
-                tracing::warn!("socketcand: accept: {e}");
-                tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+                warn_throttled(&mut throttle, format_args!("accept: {e}"));
+                tokio::time::sleep(Duration::from_millis(100)).await;
                 continue;
             }
         };
-        let conn = Conn::new(stream, peer.to_string());
-        clients.spawn(serve_client(conn, channel.clone(), to_bus.clone(), from_bus.clone()));
         // Reap finished connections so the set does not grow.
         while clients.try_join_next().is_some() {}
+        let mut conn = Conn::new(stream, peer.to_string());
+        if clients.len() >= limits.max_clients {
+            warn_throttled(
+                &mut throttle,
+                format_args!("{peer} refused: {} connections already", clients.len()),
+            );
+            // Best effort, bounded: the refused peer must not hold the accept loop.
+            let _ = tokio::time::timeout(
+                Duration::from_millis(100),
+                conn.write("< error too many connections >"),
+            )
+            .await;
+            continue;
+        }
+        let client = serve_client(conn, channel.clone(), to_bus.clone(), from_bus.clone(), limits);
+        clients.spawn(client);
     }
 }
 
@@ -323,10 +411,55 @@ async fn serve_client(
     channel: String,
     to_bus: mpsc::Sender<CanFrame>,
     from_bus: broadcast::Sender<CanFrame>,
+    limits: Limits,
 ) -> Result<(), TransportError> {
+    let handshake = handshake(&mut conn, &channel, &from_bus);
+    let mut bus = match tokio::time::timeout(limits.handshake_timeout, handshake).await {
+        Ok(bus) => bus?,
+        Err(_) => {
+            tracing::debug!("socketcand: {} closed: no handshake", conn.peer);
+            return Ok(());
+        }
+    };
+    let idle = tokio::time::sleep(limits.idle_timeout);
+    tokio::pin!(idle);
+    loop {
+        tokio::select! {
+            () = &mut idle => {
+                tracing::debug!("socketcand: {} closed: idle", conn.peer);
+                return Ok(());
+            }
+            msg = conn.read_message() => {
+                idle.as_mut().reset(tokio::time::Instant::now() + limits.idle_timeout);
+                match msg? {
+                    Message::Send(frame) => {
+                        if to_bus.send(frame).await.is_err() {
+                            return Ok(());
+                        }
+                    }
+                    Message::Echo => conn.write("< echo >").await?,
+                    _ => conn.write("< error unsupported command >").await?,
+                }
+            }
+            frame = bus.recv() => match frame {
+                Ok(frame) => conn.write(&format_frame(&frame, unix_micros())).await?,
+                // A slow client missed frames: as on a real bus, they are gone.
+                Err(broadcast::error::RecvError::Lagged(_)) => {}
+                Err(broadcast::error::RecvError::Closed) => return Ok(()),
+            },
+        }
+    }
+}
+
+/// Greeting, `open CHANNEL`, `rawmode`: returns the bus subscription once in rawmode.
+async fn handshake(
+    conn: &mut Conn,
+    channel: &str,
+    from_bus: &broadcast::Sender<CanFrame>,
+) -> Result<broadcast::Receiver<CanFrame>, TransportError> {
     conn.write("< hi >").await?;
     let mut opened = false;
-    let mut bus = loop {
+    loop {
         match conn.read_message().await? {
             Message::Open(c) if c == channel => {
                 opened = true;
@@ -337,29 +470,10 @@ async fn serve_client(
                 // Subscribe before acknowledging so no frame after `< ok >` is missed.
                 let bus = from_bus.subscribe();
                 conn.write("< ok >").await?;
-                break bus;
+                return Ok(bus);
             }
             Message::Echo => conn.write("< echo >").await?,
             _ => conn.write("< error unsupported command >").await?,
-        }
-    };
-    loop {
-        tokio::select! {
-            msg = conn.read_message() => match msg? {
-                Message::Send(frame) => {
-                    if to_bus.send(frame).await.is_err() {
-                        return Ok(());
-                    }
-                }
-                Message::Echo => conn.write("< echo >").await?,
-                _ => conn.write("< error unsupported command >").await?,
-            },
-            frame = bus.recv() => match frame {
-                Ok(frame) => conn.write(&format_frame(&frame, unix_micros())).await?,
-                // A slow client missed frames: as on a real bus, they are gone.
-                Err(broadcast::error::RecvError::Lagged(_)) => {}
-                Err(broadcast::error::RecvError::Closed) => return Ok(()),
-            },
         }
     }
 }
@@ -389,6 +503,16 @@ mod tests {
         assert_eq!(Message::parse(&text), Message::Frame(f));
         let empty = CanFrame::new_extended(0x18DA00F1, &[]).unwrap();
         assert_eq!(Message::parse(&format_frame(&empty, 0)), Message::Frame(empty));
+    }
+
+    #[test]
+    fn warnings_are_throttled_to_one_a_second_with_a_count() {
+        let t0 = tokio::time::Instant::now();
+        let mut w = WarnThrottle::default();
+        assert_eq!(w.allow(t0), Some(0));
+        let held = (1..10).filter(|i| w.allow(t0 + Duration::from_millis(i * 100)).is_none());
+        assert_eq!(held.count(), 9, "ten a second: one logged");
+        assert_eq!(w.allow(t0 + Duration::from_millis(1000)), Some(9));
     }
 
     #[test]

@@ -587,6 +587,10 @@ pub trait Backend {
     /// Puts the previous calibration back in force (routine 0xC101); returns the
     /// generation now in force.
     fn rollback(&mut self) -> Result<u32, Refusal>;
+    /// SecurityAccess changed: `failed_attempts` wrong keys in a row, and locked for
+    /// `locked_for` from now (`None`: not locked). A backend persists it so that a restart
+    /// keeps the lock (see [`Server::restore_security`]); by default it is not kept.
+    fn security_changed(&mut self, _failed_attempts: u8, _locked_for: Option<Duration>) {}
 }
 
 /// Source of SecurityAccess seeds; must be unpredictable (an OS or hardware RNG).
@@ -694,6 +698,20 @@ impl<B: Backend, R: SeedSource> Server<B, R> {
             pending: None,
             last_outcome: None,
         }
+    }
+
+    /// Restores SecurityAccess state kept across a restart: `failed_attempts` wrong keys so
+    /// far, and locked for `locked_for` from `now` (ISO 14229-1: the delay timer applies
+    /// after power-up too). Values beyond the configuration are clamped to it.
+    pub fn restore_security(
+        &mut self,
+        failed_attempts: u8,
+        locked_for: Option<Duration>,
+        now: Instant,
+    ) {
+        self.failed_attempts = failed_attempts.min(self.cfg.max_attempts.saturating_sub(1));
+        self.locked_until =
+            locked_for.filter(|d| !d.is_zero()).map(|d| now + d.min(self.cfg.lockout));
     }
 
     /// The backend.
@@ -862,9 +880,15 @@ impl<B: Backend, R: SeedSource> Server<B, R> {
                     if self.failed_attempts >= self.cfg.max_attempts {
                         self.failed_attempts = 0;
                         self.locked_until = Some(now + self.cfg.lockout);
+                        // Kept before the answer: a restart right after it still locks.
+                        self.backend.security_changed(0, Some(self.cfg.lockout));
                         return Err(Nrc::ExceededNumberOfAttempts);
                     }
+                    self.backend.security_changed(self.failed_attempts, None);
                     return Err(Nrc::InvalidKey);
+                }
+                if self.failed_attempts > 0 {
+                    self.backend.security_changed(0, None);
                 }
                 self.failed_attempts = 0;
                 self.unlocked = true;
