@@ -163,11 +163,21 @@ struct DecodeArgs {
     /// metadata json); default: nominal table.
     #[arg(long)]
     calibration: Option<PathBuf>,
+    /// How Velodyne firing azimuths are interpolated: `manual` (the user manuals' firing
+    /// timing, the default) or `nebula` (tier4/nebula's, to reproduce its clouds).
+    #[arg(long, value_enum, default_value = "manual")]
+    velodyne_interpolation: InterpolationArg,
     /// The capture.
     capture: PathBuf,
     /// Output PCD (binary).
     #[arg(long)]
     out: PathBuf,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum InterpolationArg {
+    Manual,
+    Nebula,
 }
 
 #[derive(Args)]
@@ -431,9 +441,15 @@ fn decode(args: DecodeArgs) -> Result<(), Failure> {
             roomcal::lidar::Model::NAMES
         ))
     })?;
-    let (points, stats, capture) =
-        roomcal::lidar::decode_capture(model, args.calibration.as_deref(), &args.capture)
+    let mut calibration =
+        roomcal::lidar::capture_calibration(model, args.calibration.as_deref(), &args.capture)
             .map_err(bad_input)?;
+    calibration.interpolation = match args.velodyne_interpolation {
+        InterpolationArg::Manual => roomcal::lidar::calibration::Interpolation::Manual,
+        InterpolationArg::Nebula => roomcal::lidar::calibration::Interpolation::Nebula,
+    };
+    let (points, stats, capture) =
+        roomcal::lidar::decode_capture_with(&calibration, &args.capture).map_err(bad_input)?;
     roomcal::lidar::pcd::write(&args.out, &points, roomcal::lidar::pcd::PcdFormat::Binary)
         .map_err(bad_input)?;
     println!(

@@ -109,30 +109,50 @@ pub enum CloudFileError {
     NoOusterMetadata { path: std::path::PathBuf },
 }
 
-/// Every return of every data packet in a pcap/pcapng capture, decoded with the unit's
-/// calibration file if given (Hesai CSV / Velodyne YAML / Ouster metadata json), else the
-/// model's nominal table (Ouster has none worth the name: give its metadata).
+/// The calibration a capture of `model` is decoded with: the unit's file if given (Hesai CSV /
+/// Velodyne YAML / Ouster metadata json), else the model's nominal table (Ouster has none
+/// worth the name: its metadata is required). `capture` names the input in the error.
+#[cfg(feature = "std")]
+pub fn capture_calibration(
+    model: Model,
+    calibration_file: Option<&std::path::Path>,
+    capture: &std::path::Path,
+) -> Result<Calibration, CloudFileError> {
+    match calibration_file {
+        Some(path) => Ok(calibration::load(model, path)?),
+        // Ouster has no nominal geometry: beam angles and packet layout are per unit.
+        None if model == Model::Ouster => {
+            Err(CloudFileError::NoOusterMetadata { path: capture.to_owned() })
+        }
+        None => Ok(Calibration::nominal(model)),
+    }
+}
+
+/// Every return of every data packet in a pcap/pcapng capture, decoded with
+/// [`capture_calibration`].
 #[cfg(feature = "std")]
 pub fn decode_capture(
     model: Model,
     calibration_file: Option<&std::path::Path>,
     capture: &std::path::Path,
 ) -> Result<(Vec<Point>, SweepStats, pcap::PcapStats), CloudFileError> {
-    let calibration = match calibration_file {
-        Some(path) => calibration::load(model, path)?,
-        // Ouster has no nominal geometry: beam angles and packet layout are per unit.
-        None if model == Model::Ouster => {
-            return Err(CloudFileError::NoOusterMetadata { path: capture.to_owned() })
-        }
-        None => Calibration::nominal(model),
-    };
+    let calibration = capture_calibration(model, calibration_file, capture)?;
+    decode_capture_with(&calibration, capture)
+}
+
+/// Every return of every data packet in a pcap/pcapng capture, decoded with `calibration`.
+#[cfg(feature = "std")]
+pub fn decode_capture_with(
+    calibration: &Calibration,
+    capture: &std::path::Path,
+) -> Result<(Vec<Point>, SweepStats, pcap::PcapStats), CloudFileError> {
     let (datagrams, capture_stats) = pcap::read_udp(capture)?;
     let (points, stats) =
-        decode_payloads(&calibration, datagrams.iter().map(|d| d.payload.as_slice()));
+        decode_payloads(calibration, datagrams.iter().map(|d| d.payload.as_slice()));
     if stats.packets == 0 {
         return Err(CloudFileError::NoData {
             path: capture.to_owned(),
-            model,
+            model: calibration.model,
             packets: datagrams.len(),
             rejected: stats.unknown + stats.truncated + stats.oversized + stats.corrupted,
         });
