@@ -93,43 +93,15 @@ pub enum StoreError {
 
 /// Why a record cannot be in force: the first thing wrong with its calibration.
 ///
-/// Checks what the consumers rely on: an accepted status, a positive image size, finite
-/// positive focal lengths, a principal point on the image, finite distortion of the
-/// model's length at most, and a proper rotation with a finite translation.
-// The input-validation work may add a result-file validator in `result.rs`; this one should
-// then become a call to it (one concept, one place).
+/// A record in force must be accepted and pass the result file's own validation
+/// ([`CalibrationResult::validate`]: image size, focal lengths within the image's scale,
+/// principal point on the image, finite bounded distortion of the model's length, a
+/// proper rotation with a translation within the vehicle's size).
 pub fn is_valid_calibration(result: &CalibrationResult) -> Result<(), String> {
     if result.status != Status::Accepted {
         return Err("status is not \"accepted\"".into());
     }
-    let c = &result.camera;
-    if c.width == 0 || c.height == 0 {
-        return Err(format!("camera size {}×{} is empty", c.width, c.height));
-    }
-    for (name, f) in [("fx", c.fx), ("fy", c.fy)] {
-        if !(f.is_finite() && f > 0.0) {
-            return Err(format!("{name} = {f} is not a positive finite focal length"));
-        }
-    }
-    for (name, v, size) in [("cx", c.cx, c.width), ("cy", c.cy, c.height)] {
-        if !(v.is_finite() && (0.0..=f64::from(size)).contains(&v)) {
-            return Err(format!("{name} = {v} is not on the {size}-pixel image"));
-        }
-    }
-    let max_coefficients = match c.model {
-        CameraModel::PinholeRadtan => 5,
-        CameraModel::Fisheye => 4,
-    };
-    if c.distortion.len() > max_coefficients || c.distortion.iter().any(|d| !d.is_finite()) {
-        return Err(format!("distortion {:?} is not finite or too long", c.distortion));
-    }
-    if let Some(e) = &result.lidar_to_camera {
-        check_rotation(&e.rotation)?;
-        if e.translation.iter().any(|t| !t.is_finite()) {
-            return Err(format!("translation {:?} is not finite", e.translation));
-        }
-    }
-    Ok(())
+    result.validate().map_err(|e| e.to_string())
 }
 
 /// The store directory.
@@ -508,30 +480,6 @@ impl Store {
         crate::export::write_each(&self.dir, &record.result, write_atomic)?;
         Ok(())
     }
-}
-
-/// A rotation matrix must be finite, orthonormal and right-handed.
-fn check_rotation(r: &[[f64; 3]; 3]) -> Result<(), String> {
-    let bad = || Err(format!("rotation {r:?} is not a proper rotation matrix"));
-    if r.iter().flatten().any(|v| !v.is_finite()) {
-        return bad();
-    }
-    for i in 0..3 {
-        for j in 0..3 {
-            let dot: f64 = (0..3).map(|k| r[k][i] * r[k][j]).sum();
-            let want = if i == j { 1.0 } else { 0.0 };
-            if (dot - want).abs() > 1e-6 {
-                return bad();
-            }
-        }
-    }
-    let det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1])
-        - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
-        + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
-    if det <= 0.0 {
-        return bad();
-    }
-    Ok(())
 }
 
 /// The number right after `marker` in a file name (`gen-000042.json` → 42), saturating at
