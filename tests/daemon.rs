@@ -22,12 +22,14 @@ fn result(fx: f64, status: Status) -> CalibrationResult {
         reason: (status == Status::Rejected).then(|| "hole RMS 4.2 px > 2 px".into()),
         camera: CameraResult {
             model: CameraModel::PinholeRadtan,
-            width: 64,
-            height: 48,
+            // A real camera's size: the store only puts a valid calibration in force, and
+            // the fake's focal length (500 px + the sweep's point count) must fit its scale.
+            width: 1920,
+            height: 1200,
             fx,
             fy: fx,
-            cx: 32.0,
-            cy: 24.0,
+            cx: 960.0,
+            cy: 600.0,
             distortion: vec![0.1, -0.01, 0.0, 0.0, 0.0],
         },
         lidar_to_camera: Some(Extrinsic {
@@ -244,7 +246,7 @@ fn backend_answers_from_the_store_and_rolls_back() {
     let st = b.state();
     assert_eq!((st.state, st.generation, st.time), (DaemonState::Idle, 2, 1_700_000_100));
     let k = b.intrinsics().unwrap();
-    assert_eq!((k.fx, k.cx, k.distortion.len()), (810.0, 32.0, 5));
+    assert_eq!((k.fx, k.cx, k.distortion.len()), (810.0, 960.0, 5));
     let e = b.extrinsic().unwrap();
     // The quaternion turns back into the stored rotation matrix.
     let q = e.rotation.map(f64::from);
