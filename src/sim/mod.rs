@@ -173,8 +173,8 @@ pub struct StandingFrame {
     pub cloud: Option<Vec<Point>>,
 }
 
-/// Simulates one scene of `room`.
-pub fn simulate(room: &Room, options: &SimOptions) -> Result<Scene, SimError> {
+/// `room` with the sensor models `options` override (`--camera-model`, `--lidar`).
+pub(crate) fn with_options_models(room: &Room, options: &SimOptions) -> Room {
     let mut room = room.clone();
     if let Some(model) = options.camera_model {
         room.camera.model = model;
@@ -182,6 +182,12 @@ pub fn simulate(room: &Room, options: &SimOptions) -> Result<Scene, SimError> {
     if let (Some(model), Some(lidar)) = (options.lidar, room.lidar.as_mut()) {
         lidar.model = model;
     }
+    room
+}
+
+/// Simulates one scene of `room`.
+pub fn simulate(room: &Room, options: &SimOptions) -> Result<Scene, SimError> {
+    let mut room = with_options_models(room, options);
     let mut rng = Rng::new(options.seed);
     let camera = true_camera(&room, options)?;
     // The rig (the LiDAR's true mounting) follows `rig_seed` when given, so several

@@ -94,13 +94,7 @@ pub fn simulate_visits(
     if count == 0 || count > MAX_VISITS {
         return Err(SimError::Visits(count));
     }
-    let mut room = room.clone();
-    if let Some(model) = options.camera_model {
-        room.camera.model = model;
-    }
-    if let (Some(model), Some(lidar)) = (options.lidar, room.lidar.as_mut()) {
-        lidar.model = model;
-    }
+    let mut room = super::with_options_models(room, options);
     let mut rng = Rng::new(options.seed);
     let nominal_camera = true_camera(&room, options)?;
     // The nominal vehicle: no mounting error (the room file's nominal mounting).
