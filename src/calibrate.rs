@@ -29,6 +29,8 @@ use crate::solve::{
 };
 use crate::target::{BoardSpec, Room};
 
+pub mod survey;
+
 /// Most board observations (boards × frames) in one run.
 pub const MAX_OBSERVATIONS: usize = 32;
 

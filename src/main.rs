@@ -46,6 +46,12 @@ enum Command {
     /// Renders a synthetic calibration room with ground truth (image, cloud, truth.json).
     #[command(after_help = "Example: roomcal simulate --room room.toml --out scene --seed 7")]
     Simulate(SimulateArgs),
+    /// Surveys the room: every board's pose and the big planes in one room frame, solved
+    /// from several visits; writes the room file again with a [survey] table.
+    #[command(after_help = "Example: roomcal survey --room room.toml --visit visit-01/image.png \
+                            visit-01/cloud.pcd --visit visit-02/image.png visit-02/cloud.pcd \
+                            --out surveyed.toml")]
+    Survey(SurveyArgs),
     /// Runs the vehicle daemon: notices the room, calibrates, writes the store, serves UDS.
     #[cfg(feature = "daemon")]
     #[command(after_help = "Example: roomcal daemon --config config/replay.toml --once")]
@@ -105,6 +111,24 @@ struct CalibrateArgs {
     /// Print only the status line.
     #[arg(long)]
     quiet: bool,
+}
+
+#[derive(Args)]
+struct SurveyArgs {
+    /// The room file.
+    #[arg(long)]
+    room: PathBuf,
+    /// One visit: its camera frame and its LiDAR cloud (PCD or pcap/pcapng); repeat for
+    /// every visit (each its own vehicle, at least 2).
+    #[arg(long, num_args = 2, value_names = ["IMAGE", "CLOUD"], required = true,
+          action = clap::ArgAction::Append)]
+    visit: Vec<PathBuf>,
+    /// The LiDAR unit's angle corrections for clouds given as packet captures.
+    #[arg(long)]
+    lidar_calibration: Option<PathBuf>,
+    /// The surveyed room file to write (the room file with a [survey] table).
+    #[arg(long)]
+    out: PathBuf,
 }
 
 #[derive(Args)]
@@ -314,6 +338,7 @@ fn main() -> ExitCode {
         Command::Detect(args) => detect(args),
         Command::Overlay(args) => overlay(args),
         Command::Simulate(args) => simulate(args),
+        Command::Survey(args) => survey(args),
         #[cfg(feature = "daemon")]
         Command::Daemon(args) => daemon(args),
         Command::Decode(args) => decode(args),
@@ -616,6 +641,79 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
         // The status line (or the JSON's status and reason) has said why.
         roomcal::result::Status::Rejected => Err(Failure { code: 3, error: None }),
     }
+}
+
+fn survey(args: SurveyArgs) -> Result<(), Failure> {
+    use roomcal::calibrate::survey::{prepare_visit, survey};
+    let room = roomcal::room::load(&args.room).map_err(bad_input)?;
+    if room.lidar.is_none() {
+        return Err(bad_input(anyhow::anyhow!(
+            "{}: a survey needs the room's LiDAR, the room file has no [lidar] table",
+            args.room.display()
+        )));
+    }
+    let pairs: Vec<(&std::path::Path, &std::path::Path)> =
+        args.visit.chunks(2).map(|p| (p[0].as_path(), p[1].as_path())).collect();
+    let angles = args.lidar_calibration.as_deref();
+    let count = pairs.len();
+    // Visits are independent until the bundle: load, detect and calibrate them in parallel.
+    let prepared = parallel_map(&pairs, |index, (image, cloud)| {
+        let image_data = load_image(&room, image)?;
+        let points = load_cloud(&room, cloud, angles)?;
+        let mut detectors = roomcal::calibrate::Detectors::new(&room).map_err(bad_input)?;
+        let frame = roomcal::calibrate::FrameDetections {
+            camera: detectors.detect_image(&image_data).map_err(bad_input)?,
+            lidar: detectors.detect_cloud(&points),
+        };
+        let visit = prepare_visit(&room, index, &frame, &points)
+            .with_context(|| format!("{} and {}", image.display(), cloud.display()))
+            .map_err(bad_input)?;
+        cli::survey::progress(&format!(
+            "visit {}/{count}: {} boards, {} room planes ({})",
+            index + 1,
+            visit.boards.len(),
+            visit.planes.len(),
+            image.display()
+        ));
+        Ok(visit)
+    })?;
+    let solved = survey(&room, &prepared).map_err(bad_input)?;
+    solved.spec.validate(room.board.count).map_err(bad_input)?;
+    let mut surveyed = room;
+    surveyed.survey = Some(solved.spec.clone());
+    std::fs::write(&args.out, roomcal::room::to_toml(&surveyed))
+        .with_context(|| format!("writing {}", args.out.display()))
+        .map_err(|e| Failure::new(1, e))?;
+    for line in cli::survey::lines(&solved, &args.out.display().to_string()) {
+        println!("{line}");
+    }
+    Ok(())
+}
+
+/// `f(index, item)` over `items` on every core; the results in order, or the first
+/// failure in the items' order.
+fn parallel_map<T: Sync, R: Send>(
+    items: &[T],
+    f: impl Fn(usize, &T) -> Result<R, Failure> + Sync,
+) -> Result<Vec<R>, Failure> {
+    let workers = std::thread::available_parallelism().map_or(1, |n| n.get()).min(items.len());
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let mut results: Vec<Option<Result<R, Failure>>> = (0..items.len()).map(|_| None).collect();
+    let slots = std::sync::Mutex::new(&mut results);
+    std::thread::scope(|scope| {
+        for _ in 0..workers.max(1) {
+            scope.spawn(|| loop {
+                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let Some(item) = items.get(i) else { break };
+                let outcome = f(i, item);
+                slots.lock().unwrap_or_else(|e| e.into_inner())[i] = Some(outcome);
+            });
+        }
+    });
+    results
+        .into_iter()
+        .map(|r| r.unwrap_or_else(|| Err(Failure::new(1, anyhow::anyhow!("a worker stopped")))))
+        .collect()
 }
 
 /// One frame of a standing vehicle: its images averaged (every image was loaded at the

@@ -153,7 +153,8 @@ fn every_help_says_what_it_is_for_with_an_example() {
     let (code, top, _) = roomcal(&["--help"]);
     assert_eq!(code, 0);
     assert!(top.contains("Example: roomcal calibrate "), "{top}");
-    for sub in ["calibrate", "detect", "overlay", "simulate", "daemon", "decode", "query"] {
+    for sub in ["calibrate", "detect", "overlay", "simulate", "survey", "daemon", "decode", "query"]
+    {
         let (code, help, stderr) = roomcal(&[sub, "--help"]);
         assert_eq!(code, 0, "{sub}: {stderr}");
         let purpose = help.lines().next().unwrap_or_default();

@@ -1,0 +1,189 @@
+#!/usr/bin/env python3
+"""Survey accuracy and speed (issue 13): `roomcal survey` on 4, 8, 16 and 32 simulated
+visits of the design's room (six boards, 1920×1200 camera, Pandar64; every visit its own
+vehicle parked ±0.3 m / ±5° off; images rendered with --supersample 1). The first N visits
+of one simulation of the largest N are surveyed, so every row sees the same room. Each
+surveyed board and plane is compared with the simulator's room-truth.json expressed in the
+survey's gauge (board 0's frame): board position error (norm, mm) and orientation error
+(angle, deg), RMS over boards 1..; plane offset error (mm) and normal error (deg), RMS over
+the surveyed planes; beside them the mean reported σ and the share of errors within 3σ
+(each axis against the largest-axis σ). Wall time is that of the whole `roomcal survey`
+command (load, detect, free-board calibration and plane search per visit on every core,
+chaining, the bundle), measured here around the process, with its CPU time (user + system)
+beside it: on a shared machine the wall time says more about the other jobs than about us.
+
+    cargo build --release && scripts/survey_study.py [--visits 4 8 16 32] [--seeds 1] [--work DIR]
+"""
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+import resource
+import tomllib
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOMCAL = os.path.join(ROOT, "target", "release", "roomcal")
+ROOM = os.path.join(ROOT, "config", "room.toml")
+
+
+def matmul(a, b):
+    return [[sum(a[i][k] * b[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
+
+
+def transpose(a):
+    return [[a[j][i] for j in range(3)] for i in range(3)]
+
+
+def apply(r, v):
+    return [sum(r[i][k] * v[k] for k in range(3)) for i in range(3)]
+
+
+def sub(a, b):
+    return [x - y for x, y in zip(a, b)]
+
+
+def norm(v):
+    return math.sqrt(sum(x * x for x in v))
+
+
+def compose(a, b):
+    """(R, t) ∘ (R', t') = (R R', R t' + t)."""
+    return (matmul(a[0], b[0]), [x + y for x, y in zip(apply(a[0], b[1]), a[1])])
+
+
+def inverse(a):
+    rt = transpose(a[0])
+    return (rt, [-x for x in apply(rt, a[1])])
+
+
+HALF_TURN = ([[-1, 0, 0], [0, -1, 0], [0, 0, 1]], [0, 0, 0])
+
+
+def angle_deg(r):
+    c = max(-1.0, min(1.0, (r[0][0] + r[1][1] + r[2][2] - 1) / 2))
+    return math.degrees(math.acos(c))
+
+
+def rms(values):
+    return math.sqrt(sum(v * v for v in values) / len(values)) if values else float("nan")
+
+
+def gauge_truth(truth_boards, ours):
+    """The truth boards in the survey's gauge, matched to ours: which truth board (and
+    which of its two readings) is board 0, chosen by how well the centres agree."""
+    best = None
+    for k0, t0 in enumerate(truth_boards):
+        for turn in (([[1, 0, 0], [0, 1, 0], [0, 0, 1]], [0, 0, 0]), HALF_TURN):
+            g = inverse(compose(t0, turn))
+            placed = [compose(g, t) for t in truth_boards]
+            matched, cost = [], 0.0
+            for b in ours:
+                d, k = min((norm(sub(p[1], b[1])), k) for k, p in enumerate(placed))
+                matched.append(placed[k])
+                cost += d
+            if best is None or cost < best[0]:
+                best = (cost, matched, inverse(g))
+    _, matched, gauge_to_truth = best
+    out = []
+    for b, t in zip(ours, matched):
+        # The symmetric board may be read half-turned relative to the truth's frame.
+        if angle_deg(matmul(transpose(t[0]), b[0])) > 90:
+            t = compose(t, HALF_TURN)
+        out.append(t)
+    return out, gauge_to_truth
+
+
+def study(sim_dir, count, work):
+    out = os.path.join(work, f"surveyed-{count}.toml")
+    args = [ROOMCAL, "survey", "--room", os.path.join(sim_dir, "room.toml"), "--out", out]
+    for v in range(1, count + 1):
+        folder = os.path.join(sim_dir, f"visit-{v:02}")
+        args += ["--visit", os.path.join(folder, "image.png"), os.path.join(folder, "cloud.pcd")]
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.monotonic()
+    run = subprocess.run(args, capture_output=True, text=True)
+    wall = time.monotonic() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    if run.returncode != 0:
+        sys.exit(f"survey of {count} visits failed: {run.stderr}")
+    with open(out, "rb") as f:
+        survey = tomllib.load(f)["survey"]
+    with open(os.path.join(sim_dir, "room-truth.json")) as f:
+        truth = json.load(f)
+    ours = [(b["rotation"], b["translation"]) for b in survey["boards"]]
+    truth_boards = [(b["rotation"], b["translation"]) for b in truth["boards"]]
+    matched, gauge_to_truth = gauge_truth(truth_boards, ours)
+    pos, rot, within, total = [], [], 0, 0
+    for b, t, spec in list(zip(ours, matched, survey["boards"]))[1:]:
+        d = sub(b[1], t[1])
+        a = angle_deg(matmul(b[0], transpose(t[0])))
+        pos.append(norm(d))
+        rot.append(a)
+        within += max(abs(x) for x in d) <= 3 * spec["sigma_m"]
+        within += a <= 3 * spec["sigma_deg"] * math.sqrt(3)  # the angle is a norm over 3 axes
+        total += 2
+    off, turn = [], []
+    r0, t0 = gauge_to_truth
+    for plane in survey.get("planes", []):
+        best = None
+        for tp in truth["planes"]:
+            n = apply(transpose(r0), tp["normal"])
+            d = tp["offset"] - sum(x * y for x, y in zip(tp["normal"], t0))
+            ang = math.degrees(math.acos(max(-1, min(1, sum(x * y for x, y in zip(n, plane["normal"]))))))
+            if best is None or ang < best[0]:
+                best = (ang, abs(d - plane["offset"]))
+        turn.append(best[0])
+        off.append(best[1])
+        within += best[1] <= 3 * plane["sigma_m"]
+        within += best[0] <= 3 * plane["sigma_deg"]
+        total += 2
+    boards = survey["boards"][1:]
+    planes = survey.get("planes", [])
+    mean = lambda xs: sum(xs) / len(xs) if xs else float("nan")
+    return {
+        "visits": count,
+        "wall_s": wall,
+        "cpu_s": cpu,
+        "pos_mm": rms(pos) * 1e3,
+        "pos_sigma_mm": mean([b["sigma_m"] for b in boards]) * 1e3,
+        "rot_deg": rms(rot),
+        "rot_sigma_deg": mean([b["sigma_deg"] for b in boards]),
+        "planes": len(planes),
+        "plane_mm": rms(off) * 1e3,
+        "plane_sigma_mm": mean([p["sigma_m"] for p in planes]) * 1e3,
+        "plane_deg": rms(turn),
+        "plane_sigma_deg": mean([p["sigma_deg"] for p in planes]),
+        "within_3_sigma": f"{within}/{total}",
+    }
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--visits", type=int, nargs="+", default=[4, 8, 16, 32])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[1])
+    parser.add_argument("--work", default=None)
+    args = parser.parse_args()
+    work = args.work or tempfile.mkdtemp(prefix="survey-study-")
+    print("| seed | visits | wall s | CPU s | board pos RMS mm (σ) | board rot RMS ° (σ) | planes | plane offset RMS mm (σ) | plane normal RMS ° (σ) | within 3σ |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for seed in args.seeds:
+        sim_dir = os.path.join(work, f"room-seed{seed}-{max(args.visits)}")
+        if not os.path.exists(os.path.join(sim_dir, "room-truth.json")):
+            subprocess.run([ROOMCAL, "simulate", "--room", ROOM, "--out", sim_dir, "--visits",
+                            str(max(args.visits)), "--supersample", "1", "--seed", str(seed)],
+                           check=True, capture_output=True)
+        for count in args.visits:
+            r = study(sim_dir, count, work)
+            print(f"| {seed} | {r['visits']} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | {r['pos_mm']:.2f} ({r['pos_sigma_mm']:.2f}) "
+                  f"| {r['rot_deg']:.4f} ({r['rot_sigma_deg']:.4f}) | {r['planes']} "
+                  f"| {r['plane_mm']:.2f} ({r['plane_sigma_mm']:.2f}) | {r['plane_deg']:.4f} ({r['plane_sigma_deg']:.4f}) "
+                  f"| {r['within_3_sigma']} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
