@@ -5,7 +5,8 @@
 //! ends with the daemon's first run or after `LIMIT`.
 //!
 //! The capture is one turn; the sender loops it, moving each pass's timestamps on by one
-//! turn, at the sensor's own pace (3000 packets/s).
+//! turn, at the sensor's own pace (3000 packets/s). `ROOMCAL_UDP_BIN` runs another build of
+//! the binary (how the before/after table was made).
 
 use std::io::Read;
 use std::net::UdpSocket;
@@ -38,6 +39,8 @@ struct Impairments {
     header_garbage: f64,
     /// Garbage of any kind (see `impair::mixed_garbage`).
     mixed_garbage: f64,
+    /// Send the garbage only, never the capture's packets.
+    garbage_only: bool,
 }
 
 /// `packet` with its time moved on by `shift_us` microseconds (carried into seconds, minutes
@@ -97,7 +100,7 @@ fn send(to: std::net::SocketAddr, imp: Impairments, seed: u64, stop: Arc<AtomicB
             if rng.chance(imp.mixed_garbage) {
                 out.push(mixed_garbage(&mut rng, &p));
             }
-            if !rng.chance(imp.loss) {
+            if !imp.garbage_only && !rng.chance(imp.loss) {
                 if held.is_none() && rng.chance(imp.reorder) {
                     // Sent after the next one.
                     held = Some(p.clone());
@@ -128,7 +131,7 @@ struct Outcome {
     log: String,
 }
 
-fn run_case(name: &str, imp: Impairments, seed: u64) -> Outcome {
+fn run_case(name: &str, imp: Impairments, seed: u64, limit: Duration) -> Outcome {
     let dir =
         std::env::temp_dir().join(format!("roomcal-daemon-udp-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
@@ -144,7 +147,8 @@ fn run_case(name: &str, imp: Impairments, seed: u64) -> Outcome {
     );
     let config = dir.join("roomcal.toml");
     std::fs::write(&config, text).unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_roomcal"))
+    let binary = std::env::var("ROOMCAL_UDP_BIN").unwrap_or(env!("CARGO_BIN_EXE_roomcal").into());
+    let mut child = Command::new(binary)
         .args(["daemon", "--config", config.to_str().unwrap(), "--once"])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -161,7 +165,7 @@ fn run_case(name: &str, imp: Impairments, seed: u64) -> Outcome {
         if child.try_wait().unwrap().is_some() {
             break true;
         }
-        if started.elapsed() > LIMIT {
+        if started.elapsed() > limit {
             child.kill().unwrap();
             child.wait().unwrap();
             break false;
@@ -205,7 +209,7 @@ fn hostile_udp_input_costs_no_sweep_and_lost_packets_are_named() {
     ];
     let mut failures = Vec::new();
     for (name, imp) in cases {
-        let out = run_case(name, imp, 15);
+        let out = run_case(name, imp, 15, LIMIT);
         println!("--- {name} {imp:?}: ran {}, accepted {}", out.ran, out.accepted);
         out.lines.iter().for_each(|l| println!("    {l}"));
         let mut fail = |why: String| failures.push(format!("{name}: {why}"));
@@ -243,4 +247,21 @@ fn hostile_udp_input_costs_no_sweep_and_lost_packets_are_named() {
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");
+}
+
+#[test]
+fn a_lidar_that_sends_only_garbage_is_reported_not_silent() {
+    // Before: nothing logged after "state: room seen", however long it ran.
+    let imp = Impairments { header_garbage: 1.0, garbage_only: true, ..Default::default() };
+    let out = run_case("garbage-only", imp, 16, Duration::from_secs(13));
+    out.lines.iter().for_each(|l| println!("    {l}"));
+    assert!(!out.ran, "a run without a sweep: {}", out.log);
+    let reports: Vec<&String> =
+        out.lines.iter().filter(|l| l.contains("no complete sweep in 5 s")).collect();
+    // Rate limited: one report per 5 s.
+    assert!((1..=3).contains(&reports.len()), "{}", out.log);
+    for r in reports {
+        assert!(r.contains("waiting for the azimuth to pass the cut at 180.00°"), "{r}");
+        assert!(r.contains("corrupted)"), "{r}");
+    }
 }

@@ -351,3 +351,20 @@ fn a_clock_jump_is_followed_after_packets_agree() {
     // Two whole turns per pass; the sweep spanning the jump is not handed out as complete.
     assert_eq!(complete_sizes(&sweeps), [1800 * 64; 4], "{sweeps:?}");
 }
+
+#[test]
+fn valid_packets_of_another_clock_never_take_over_a_live_stream() {
+    // Every fifth packet also arrives a day later (valid in every field, consistent with
+    // each other): they are dropped; the live clock is kept and no sweep is lost.
+    let (cal, pk) = packets(Model::Pandar64, 3);
+    let mut input = Vec::new();
+    for (i, p) in pk.iter().enumerate() {
+        input.push(p.clone());
+        if i % 5 == 0 {
+            input.push(next_day(p));
+        }
+    }
+    let (sweeps, stats) = assemble_counts(cal, &input);
+    assert_eq!(complete_sizes(&sweeps), [1800 * 64, 1800 * 64], "{sweeps:?}");
+    assert_eq!((stats.resyncs, stats.out_of_sequence as usize), (0, pk.len().div_ceil(5)));
+}

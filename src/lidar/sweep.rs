@@ -12,8 +12,10 @@
 //! and, across a gap, where the sensor's measured turn rate puts it (so a packet with a
 //! time a little ahead, as a flipped bit makes, cannot drag the clock along).
 //! Anything else is dropped and counted (`out_of_sequence`) — unless [`RESYNC_AFTER`]
-//! such packets agree with each other: then the sensor's clock really jumped (a restart, a
-//! looped replay) and the assembler follows it, marking the sweep in progress incomplete.
+//! such packets in a row agree with each other, with no packet in sequence between them:
+//! then the sensor's clock really jumped (a restart, a looped replay) and the assembler
+//! follows it, marking the sweep in progress incomplete. (Valid packets of another clock
+//! mixed into a live stream never take it over.)
 
 use super::calibration::Calibration;
 use super::decoder::Model;
@@ -252,11 +254,14 @@ impl<'b> SweepAssembler<'b> {
         };
         let reordered = match self.order(stamp, period) {
             Order::Next { dt } => {
+                // The clock in use is alive: packets that disagree with it are garbage.
+                self.candidate = None;
                 self.count_gap(dt, period);
                 self.measure_turn_rate(stamp, dt, period);
                 false
             }
             Order::Reordered => {
+                self.candidate = None;
                 // A late packet fills a gap its successor counted as lost.
                 self.stats.lost = self.stats.lost.saturating_sub(1);
                 self.current.lost = self.current.lost.saturating_sub(1);
