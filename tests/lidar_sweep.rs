@@ -1,12 +1,18 @@
 //! Sweep assembly and malformed-packet handling: synthetic captures made with the encoder
 //! (three turns of a VLP-32C and a Pandar64), then packets dropped, duplicated, swapped,
-//! truncated, padded, corrupted or sent to other ports; and the real VLP-16 capture.
+//! truncated, padded, corrupted or sent to other ports, garbage that passes the header
+//! checks, a clock that jumps; and the real VLP-16 capture.
 
 use std::path::Path;
 
 use roomcal::lidar::{
-    encode_sweep, Calibration, Model, Point, SimReturn, SweepAssembler, SweepConfig, SweepStats,
+    encode_sweep, sweep, Calibration, Model, Point, SimReturn, SweepAssembler, SweepConfig,
+    SweepStats,
 };
+
+#[path = "common/impair.rs"]
+mod impair;
+use impair::{header_garbage, next_day, Rng, BLOCK0, BLOCK_LEN, TAIL_DATE};
 
 /// Three turns at 0.2° steps, every laser returning at a range that varies with azimuth.
 fn turns(model: Model, turns: usize) -> Vec<SimReturn> {
@@ -214,4 +220,151 @@ fn real_front_half_capture_counts_the_missing_half() {
     assert!(complete.iter().all(|s| (25_000..28_000).contains(&s.1)), "{complete:?}");
     let per_gap = stats.lost as f64 / complete.len() as f64;
     assert!((60.0..95.0).contains(&per_gap), "{per_gap} packets lost per back half");
+}
+
+/// Runs an assembler over payloads on the data port; returns the sweeps' (complete, points,
+/// packets, lost) and the stats.
+fn assemble_counts(
+    cal: Calibration,
+    input: &[Vec<u8>],
+) -> (Vec<(bool, usize, u64, u64)>, SweepStats) {
+    let mut buf = vec![Point::default(); 200_000];
+    let mut asm = SweepAssembler::new(cal, SweepConfig::for_calibration(&cal), &mut buf);
+    let mut sweeps = Vec::new();
+    let mut take =
+        |s: roomcal::lidar::Sweep<'_>| sweeps.push((s.complete, s.points.len(), s.packets, s.lost));
+    for payload in input {
+        asm.push(2368, payload, &mut take);
+    }
+    asm.flush(&mut take);
+    (sweeps, asm.stats())
+}
+
+fn complete_sizes(sweeps: &[(bool, usize, u64, u64)]) -> Vec<usize> {
+    sweeps.iter().filter(|s| s.0).map(|s| s.1).collect()
+}
+
+#[test]
+fn one_bad_packet_never_moves_the_clock_nor_cuts() {
+    let (cal, pk) = packets(Model::Pandar64, 3);
+    let clean = assemble_counts(cal, &pk);
+    let mut input = pk.clone();
+    // Consistent in itself but a day ahead: before, every later packet looked reordered
+    // and no sweep was ever cut.
+    input.insert(10, next_day(&pk[10]));
+    // The right time, a wild azimuth (90° on): before, it could cut the sweep.
+    let mut wild = pk[20].clone();
+    for b in 0..6 {
+        let at = BLOCK0 + b * BLOCK_LEN;
+        let az = u16::from_le_bytes([wild[at], wild[at + 1]]);
+        wild[at..at + 2].copy_from_slice(&((az + 9000) % 36000).to_le_bytes());
+    }
+    input.insert(20, wild);
+    // A flipped bit puts the time 131 ms ahead (within the window): the azimuth is not
+    // where the turn rate puts it. Before, the clock followed it and the packets of the
+    // next 131 ms were taken as reordered.
+    let mut ahead = pk[50].clone();
+    ahead[impair::TAIL_US + 2] ^= 0x02;
+    input.insert(50, ahead);
+    // Month 13; blocks out of order.
+    let mut month = pk[30].clone();
+    month[TAIL_DATE + 1] = 13;
+    input.insert(30, month);
+    let mut order = pk[40].clone();
+    order.copy_within(BLOCK0..BLOCK0 + 2, BLOCK0 + 3 * BLOCK_LEN);
+    input.insert(40, order);
+    let (sweeps, stats) = assemble_counts(cal, &input);
+    assert_eq!(complete_sizes(&sweeps), complete_sizes(&clean.0), "{sweeps:?}");
+    assert_eq!(complete_sizes(&sweeps), [1800 * 64, 1800 * 64]);
+    assert_eq!((stats.out_of_sequence, stats.corrupted, stats.lost), (3, 2, 0), "{stats:?}");
+    assert_eq!((stats.resyncs, stats.reordered, stats.packets as usize), (0, 0, pk.len()));
+}
+
+#[test]
+fn garbage_with_a_valid_header_costs_no_sweep() {
+    let (cal, pk) = packets(Model::Pandar64, 3);
+    let mut rng = Rng(15);
+    let mut input = Vec::new();
+    let mut garbage = 0;
+    for p in &pk {
+        if rng.chance(0.2) {
+            input.push(header_garbage(&mut rng, p));
+            garbage += 1;
+        }
+        input.push(p.clone());
+    }
+    let (sweeps, stats) = assemble_counts(cal, &input);
+    println!("{garbage} garbage packets among {}: {stats:?}", pk.len());
+    assert!(garbage > 150);
+    assert_eq!(complete_sizes(&sweeps), [1800 * 64, 1800 * 64], "{sweeps:?}");
+    assert_eq!(stats.corrupted + stats.out_of_sequence, garbage, "{stats:?}");
+    assert_eq!((stats.lost, stats.packets as usize), (0, pk.len()));
+}
+
+#[test]
+fn lost_packets_are_counted_exactly_through_reordering_and_duplicates() {
+    let (cal, pk) = packets(Model::Pandar64, 3);
+    let mut rng = Rng(20);
+    let (mut input, mut held, mut lost) = (Vec::new(), None::<Vec<u8>>, 0u64);
+    let last = pk.len() - 1;
+    for (i, p) in pk.iter().enumerate() {
+        // A loss at the very end leaves no later packet to show the gap.
+        if i > 0 && i < last - 1 && rng.chance(0.2) {
+            lost += 1;
+            continue;
+        }
+        if held.is_none() && i > 0 && i < last && rng.chance(0.2) {
+            held = Some(p.clone());
+            continue;
+        }
+        input.push(p.clone());
+        input.extend(held.take());
+        if rng.chance(0.2) {
+            input.push(p.clone());
+        }
+    }
+    let (sweeps, stats) = assemble_counts(cal, &input);
+    println!("{lost} lost: {stats:?}; sweeps (complete, points, packets, lost): {sweeps:?}");
+    assert!(lost > 150 && stats.reordered > 80 && stats.duplicates > 100, "{stats:?}");
+    assert_eq!(stats.lost, lost, "{stats:?}");
+    assert_eq!(stats.packets + lost, pk.len() as u64);
+    assert_eq!(stats.dropped(), stats.duplicates);
+    // Each whole turn is 300 packets, sent or lost (a packet late across the cut may land
+    // in the neighbouring sweep).
+    let complete: Vec<_> = sweeps.iter().filter(|s| s.0).collect();
+    assert_eq!(complete.len(), 2, "{sweeps:?}");
+    for s in complete {
+        assert!((298..=302).contains(&(s.2 + s.3)), "{s:?}");
+        assert!(s.3 > 30, "{s:?}");
+    }
+}
+
+#[test]
+fn a_clock_jump_is_followed_after_packets_agree() {
+    // A replay looped without new timestamps: the clock jumps back 0.3 s.
+    let (cal, pk) = packets(Model::Pandar64, 3);
+    let twice: Vec<Vec<u8>> = pk.iter().chain(&pk).cloned().collect();
+    let (sweeps, stats) = assemble_counts(cal, &twice);
+    assert_eq!(stats.resyncs, 1, "{stats:?}");
+    // The packets that agreed on the new clock before it was taken, but the last.
+    assert_eq!(stats.out_of_sequence, u64::from(sweep::RESYNC_AFTER) - 1);
+    // Two whole turns per pass; the sweep spanning the jump is not handed out as complete.
+    assert_eq!(complete_sizes(&sweeps), [1800 * 64; 4], "{sweeps:?}");
+}
+
+#[test]
+fn valid_packets_of_another_clock_never_take_over_a_live_stream() {
+    // Every fifth packet also arrives a day later (valid in every field, consistent with
+    // each other): they are dropped; the live clock is kept and no sweep is lost.
+    let (cal, pk) = packets(Model::Pandar64, 3);
+    let mut input = Vec::new();
+    for (i, p) in pk.iter().enumerate() {
+        input.push(p.clone());
+        if i % 5 == 0 {
+            input.push(next_day(p));
+        }
+    }
+    let (sweeps, stats) = assemble_counts(cal, &input);
+    assert_eq!(complete_sizes(&sweeps), [1800 * 64, 1800 * 64], "{sweeps:?}");
+    assert_eq!((stats.resyncs, stats.out_of_sequence as usize), (0, pk.len().div_ceil(5)));
 }

@@ -1,7 +1,7 @@
 //! Fuzzes the Hesai packet views, `Repr` and decoder for the Pandar64, Pandar40P, PandarXT32
 //! and PandarQT64: no panic
 //! on any bytes, and every packet that parses re-emits to the same bytes (reserved bytes
-//! aside, which `emit` zeroes).
+//! aside, which `emit` zeroes); the stream checks (`check_consistency`) never panic either.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
@@ -16,6 +16,7 @@ fuzz_target!(|data: &[u8]| {
             assert!(r.point.x.is_finite() && r.point.y.is_finite() && r.point.z.is_finite());
         });
         if let Ok(packet) = Packet::new_checked(data, model) {
+            let _ = packet.check_consistency();
             let repr = Repr::parse(&packet).expect("checked packets parse");
             let mut out = vec![0u8; repr.buffer_len()];
             let emitted = repr.emit(&mut out[..]).expect("emit into the right size");

@@ -1,5 +1,6 @@
 //! Fuzzes the Velodyne packet view, `Repr` and decoder: no panic on any bytes, and every
-//! packet that parses re-emits to the same bytes.
+//! packet that parses re-emits to the same bytes; the stream checks (`check_consistency`)
+//! never panic either.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
@@ -18,6 +19,7 @@ fuzz_target!(|data: &[u8]| {
         }
     }
     if let Ok(packet) = Packet::new_checked(data) {
+        let _ = packet.check_consistency();
         let repr = Repr::parse(&packet).expect("checked packets parse");
         let mut out = vec![0u8; repr.buffer_len()];
         repr.emit(&mut Packet::new_unchecked(&mut out[..])).expect("emit into the right size");

@@ -9,6 +9,8 @@
 //! count about once a second and the sweep-to-sweep motion drive the [`trigger`]; a run
 //! averages `frames` frames, accumulates `sweeps` sweeps, calibrates on a blocking thread
 //! and commits to the [`Store`] (accepted) or keeps the result among the rejected runs.
+//! A failed or rejected run on sweeps that lost packets says so in its reason ("LiDAR sweep
+//! incomplete: 812 of 1800 packets lost"): the counts travel with each sweep.
 //! Every second (and before every UDS read) `current.json` is checked against the record
 //! in force and put back if it was emptied or damaged. With `once`, a run that left nothing
 //! in the store (it failed, or the store could not be written) ends the daemon with an error.
@@ -37,7 +39,7 @@ use crate::store::{Store, StoreError};
 pub use backend::{DaemonBackend, Shared};
 pub use config::{CameraSource, Config, LidarSource};
 use motion::{sweep_motion, RangeImage};
-use sources::{AnySweepSource, OwnedSweep, SweepError, SweepSource};
+use sources::{AnySweepSource, OwnedSweep, PacketCounts, SweepError, SweepSource};
 use trigger::{Action, Trigger, Verdict};
 
 /// The calibration pipeline, injected (the real one is `calibrate.rs`; tests use a fake).
@@ -343,6 +345,8 @@ fn notify(state: &[sd_notify::NotifyState<'_>]) {
 struct RunBuffers {
     frames: Vec<GreyFrame>,
     sweeps: Vec<Vec<Point>>,
+    /// The packets of `sweeps`.
+    counts: PacketCounts,
     deadline: Option<tokio::time::Instant>,
 }
 
@@ -397,6 +401,8 @@ async fn run_daemon<C: Calibrator>(
     let mut scratch = Vec::new();
     let mut run = RunBuffers::default();
     let mut solving: Option<tokio::task::JoinHandle<CalibrationOutcome>> = None;
+    // The packets of the sweeps being calibrated, for the run's reason.
+    let mut solving_counts = PacketCounts::default();
     let mut summary = RunSummary::default();
     let mut last_state = DaemonState::Idle;
     let mut fatal: Option<DaemonError> = None;
@@ -444,6 +450,8 @@ async fn run_daemon<C: Calibrator>(
                 std::mem::swap(&mut image_prev, &mut image_next);
                 have_prev = true;
                 if capturing && run.sweeps.len() < config.sweeps {
+                    log_captured_sweep(&sweep, run.sweeps.len() + 1, config.sweeps);
+                    run.counts.add(sweep.counts);
                     run.sweeps.push(sweep.points);
                 }
             }
@@ -461,7 +469,8 @@ async fn run_daemon<C: Calibrator>(
                 }
             }, if solving.is_some() => {
                 solving = None;
-                outcome = Some(joined.unwrap_or_else(|e| CalibrationOutcome::Failed(format!("calibrator panicked: {e}"))));
+                let joined = joined.unwrap_or_else(|e| CalibrationOutcome::Failed(format!("calibrator panicked: {e}")));
+                outcome = Some(with_sweep_counts(joined, &solving_counts));
             }
         }
         if action == Action::Capture {
@@ -480,6 +489,7 @@ async fn run_daemon<C: Calibrator>(
             && run.sweeps.len() >= config.sweeps
         {
             trigger.on_captured();
+            solving_counts = run.counts;
             solving = Some(start_solve(&calibrator, &shared, std::mem::take(&mut run)));
         }
         if let Some(outcome) = outcome {
@@ -545,6 +555,36 @@ fn publish_state(shared: &Arc<Mutex<Shared>>, state: DaemonState, last: &mut Dae
         tracing::info!("state: {}", state.name());
         set_shared(shared, |s| s.state = state);
         notify(&[sd_notify::NotifyState::Status(state.name())]);
+    }
+}
+
+/// Logs a sweep taken into a run, with its packet counts.
+fn log_captured_sweep(sweep: &OwnedSweep, n: usize, of: usize) {
+    let points = sweep.points.len();
+    match sweep.counts.incomplete() {
+        Some(note) => tracing::warn!("sweep {n} of {of}: {points} points; {note}"),
+        None if sweep.counts.packets > 0 => {
+            tracing::info!("sweep {n} of {of}: {points} points, {}", sweep.counts)
+        }
+        None => tracing::info!("sweep {n} of {of}: {points} points"),
+    }
+}
+
+/// A failed or rejected outcome's reason, with the sweeps' lost packets when they lost
+/// some: "no LiDAR board could be paired; LiDAR sweep incomplete: 812 of 1800 packets
+/// lost". An accepted result is left as it is.
+fn with_sweep_counts(outcome: CalibrationOutcome, counts: &PacketCounts) -> CalibrationOutcome {
+    let Some(note) = counts.incomplete() else { return outcome };
+    match outcome {
+        CalibrationOutcome::Failed(why) => CalibrationOutcome::Failed(format!("{why}; {note}")),
+        CalibrationOutcome::Done(mut r) if r.status != Status::Accepted => {
+            r.reason = Some(match r.reason.take() {
+                Some(why) => format!("{why}; {note}"),
+                None => note,
+            });
+            CalibrationOutcome::Done(r)
+        }
+        done => done,
     }
 }
 

@@ -1,7 +1,10 @@
 //! LiDAR sweep sources for the daemon (tokio): live UDP packets (optionally multicast),
 //! pcap replay at the capture's own pace, and PCD replay (a file or a folder, looped).
 //! Packet sources run a task that feeds a [`SweepAssembler`] and hands finished sweeps
-//! over a small channel; a full channel drops sweeps instead of stalling the socket.
+//! over a small channel; a full channel drops sweeps instead of stalling the socket. Each
+//! sweep carries its packet counts (decoded, lost, dropped), so a run on an incomplete
+//! sweep can say so; the live UDP task logs, at most every [`REPORT_EVERY`], what it
+//! dropped and, while no sweep completes, what it is waiting for.
 
 use std::future::Future;
 use std::net::{Ipv4Addr, SocketAddr};
@@ -12,7 +15,7 @@ use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
 use crate::lidar::pcap::{read_udp, ReplayPacer};
-use crate::lidar::{pcd, Calibration, Point, SweepAssembler, SweepConfig};
+use crate::lidar::{pcd, Calibration, Point, Sweep, SweepAssembler, SweepConfig, SweepStats};
 
 /// One sweep (or one replayed cloud), owned.
 #[derive(Clone, Debug, PartialEq)]
@@ -20,7 +23,56 @@ pub struct OwnedSweep {
     pub points: Vec<Point>,
     /// Time of the first point (the sensor's clock), or replay time for PCD.
     pub time: f64,
+    /// Its packets (all zero for a replayed cloud).
+    pub counts: PacketCounts,
 }
+
+/// Packets of one sweep or of a run's sweeps.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PacketCounts {
+    /// Data packets decoded.
+    pub packets: u64,
+    /// Packets the sensor sent that never arrived (timestamp gaps).
+    pub lost: u64,
+    /// Payloads that arrived and were dropped (malformed, duplicate, out of sequence).
+    pub dropped: u64,
+}
+
+impl PacketCounts {
+    /// Adds another sweep's counts.
+    pub fn add(&mut self, other: PacketCounts) {
+        self.packets += other.packets;
+        self.lost += other.lost;
+        self.dropped += other.dropped;
+    }
+
+    /// "LiDAR sweep incomplete: 812 of 1800 packets lost (and 90 payloads dropped)" when
+    /// packets were lost, else None: what a failed or rejected run's reason adds.
+    pub fn incomplete(&self) -> Option<String> {
+        if self.lost == 0 {
+            return None;
+        }
+        let sent = self.packets + self.lost;
+        let dropped = match self.dropped {
+            0 => String::new(),
+            n => format!(" (and {n} malformed, duplicate or out-of-sequence payloads dropped)"),
+        };
+        Some(format!("LiDAR sweep incomplete: {} of {sent} packets lost{dropped}", self.lost))
+    }
+}
+
+impl std::fmt::Display for PacketCounts {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} packets decoded, {} lost, {} payloads dropped",
+            self.packets, self.lost, self.dropped
+        )
+    }
+}
+
+/// Least time between two reports of the live UDP task.
+pub const REPORT_EVERY: Duration = Duration::from_secs(5);
 
 /// Errors of sweep sources; each names the socket or file.
 #[derive(Debug, thiserror::Error)]
@@ -75,13 +127,21 @@ struct Feeder<'b> {
     sent: usize,
 }
 
+/// Owns a finished sweep, with its counts.
+fn owned(s: &Sweep<'_>) -> OwnedSweep {
+    OwnedSweep {
+        points: s.points.to_vec(),
+        time: s.start_time,
+        counts: PacketCounts { packets: s.packets, lost: s.lost, dropped: s.dropped },
+    }
+}
+
 impl Feeder<'_> {
     fn push(&mut self, port: u16, payload: &[u8]) {
         let (tx, sent) = (&self.tx, &mut self.sent);
         self.asm.push(port, payload, &mut |s| {
             if s.complete {
-                let _ =
-                    tx.try_send(Ok(OwnedSweep { points: s.points.to_vec(), time: s.start_time }));
+                let _ = tx.try_send(Ok(owned(&s)));
                 *sent += 1;
             }
         });
@@ -96,8 +156,70 @@ impl Feeder<'_> {
         }
         let tx = &self.tx;
         self.asm.flush(&mut |s| {
-            let _ = tx.try_send(Ok(OwnedSweep { points: s.points.to_vec(), time: s.start_time }));
+            let _ = tx.try_send(Ok(owned(&s)));
         });
+    }
+}
+
+/// What the live task logs every [`REPORT_EVERY`]: the counters at the last report.
+struct Reporter {
+    stats: SweepStats,
+    sent: usize,
+    payloads: u64,
+}
+
+impl Reporter {
+    /// Logs what changed since the last report: a warning naming what the assembler waits
+    /// for when no sweep completed, a note of the drops when some did; nothing when all is
+    /// well. `payloads` counts every datagram received.
+    fn report(&mut self, name: &str, feeder: &Feeder<'_>, payloads: u64, cut_azimuth: u16) {
+        let now = feeder.asm.stats();
+        let was = std::mem::replace(&mut self.stats, now);
+        let sent = std::mem::replace(&mut self.sent, feeder.sent);
+        let received = payloads - std::mem::replace(&mut self.payloads, payloads);
+        let drops = drop_summary(&was, &now);
+        let (lost, secs) = (now.lost.saturating_sub(was.lost), REPORT_EVERY.as_secs());
+        if feeder.sent == sent {
+            let waiting = if received == 0 {
+                "no datagrams at all".to_string()
+            } else {
+                format!(
+                    "the azimuth to pass the cut at {:.2}° ({} points pending)",
+                    f64::from(cut_azimuth) / 100.0,
+                    feeder.asm.pending().len()
+                )
+            };
+            tracing::warn!(
+                "{name}: no complete sweep in {secs} s: {received} datagrams, {} decoded, {lost} \
+                 lost, dropped {drops}; waiting for {waiting}",
+                now.packets - was.packets
+            );
+        } else if now.dropped() > was.dropped() || lost > 0 {
+            tracing::info!(
+                "{name}: {} sweeps in {secs} s; {received} datagrams, {lost} lost, dropped {drops}",
+                feeder.sent - sent
+            );
+        }
+    }
+}
+
+/// "12 (3 duplicate, 9 corrupted)": payloads dropped between two counters, by reason.
+fn drop_summary(was: &SweepStats, now: &SweepStats) -> String {
+    let reasons = [
+        ("duplicate", now.duplicates - was.duplicates),
+        ("unknown", now.unknown - was.unknown),
+        ("truncated", now.truncated - was.truncated),
+        ("oversized", now.oversized - was.oversized),
+        ("corrupted", now.corrupted - was.corrupted),
+        ("out of sequence", now.out_of_sequence - was.out_of_sequence),
+    ];
+    let parts: Vec<String> =
+        reasons.iter().filter(|r| r.1 > 0).map(|(what, n)| format!("{n} {what}")).collect();
+    let total = now.dropped() - was.dropped();
+    if parts.is_empty() {
+        "0".into()
+    } else {
+        format!("{total} ({})", parts.join(", "))
     }
 }
 
@@ -121,13 +243,26 @@ pub async fn udp(
         let mut feeder = Feeder { asm: SweepAssembler::new(cal, config, &mut buf), tx, sent: 0 };
         // The largest UDP datagram: Ouster packets run to 33 KB (128 beams, dual returns).
         let mut packet = vec![0u8; 65_536];
+        let mut reporter = Reporter { stats: SweepStats::default(), sent: 0, payloads: 0 };
+        let mut payloads = 0u64;
+        let mut report = tokio::time::interval(REPORT_EVERY);
+        report.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        report.tick().await;
         loop {
-            match socket.recv_from(&mut packet).await {
-                Ok((n, _)) => feeder.push(addr.port(), &packet[..n]),
-                Err(source) => {
-                    let e = SweepError::Udp { addr: task_name.clone(), source };
-                    let _ = feeder.tx.send(Err(e)).await;
-                    return;
+            tokio::select! {
+                got = socket.recv_from(&mut packet) => match got {
+                    Ok((n, _)) => {
+                        payloads += 1;
+                        feeder.push(addr.port(), &packet[..n]);
+                    }
+                    Err(source) => {
+                        let e = SweepError::Udp { addr: task_name.clone(), source };
+                        let _ = feeder.tx.send(Err(e)).await;
+                        return;
+                    }
+                },
+                _ = report.tick() => {
+                    reporter.report(&task_name, &feeder, payloads, config.cut_azimuth);
                 }
             }
         }
@@ -229,7 +364,7 @@ impl SweepSource for PcdReplay {
         self.next = (self.next + 1) % self.clouds.len();
         let time = self.served as f64 * self.period.as_secs_f64();
         self.served += 1;
-        Ok(OwnedSweep { points, time })
+        Ok(OwnedSweep { points, time, counts: PacketCounts::default() })
     }
 }
 

@@ -172,6 +172,10 @@ pub enum DecodeError {
     BadAzimuth(u16),
     /// The calibration is for another model.
     WrongCalibration,
+    /// The blocks' azimuths do not advance as a spinning sensor's do (the block's index).
+    AzimuthOrder(u8),
+    /// A timestamp field is out of its range (month 13, 1.2 million microseconds, ...).
+    BadTimestamp,
 }
 
 impl fmt::Display for DecodeError {
@@ -188,8 +192,36 @@ impl fmt::Display for DecodeError {
             DecodeError::BadReturnMode(m) => write!(f, "unknown return mode 0x{m:02x}"),
             DecodeError::BadAzimuth(a) => write!(f, "azimuth {a} out of range (0..36000)"),
             DecodeError::WrongCalibration => write!(f, "calibration is for another model"),
+            DecodeError::AzimuthOrder(b) => {
+                write!(f, "block {b}'s azimuth does not follow the one before it")
+            }
+            DecodeError::BadTimestamp => write!(f, "timestamp field out of range"),
         }
     }
+}
+
+/// Largest azimuth step between consecutive blocks of one packet, 0.01°: the coarsest
+/// firing step of the supported models is 0.8° (a VLP-16 block at 20 Hz); 3° leaves room.
+pub const MAX_BLOCK_STEP: u16 = 300;
+
+/// Checks that block azimuths (each < 36000) advance as a spinning sensor's do: clockwise,
+/// by at most [`MAX_BLOCK_STEP`] per block (equal azimuths are dual-return pairs or padding),
+/// except for one jump where a field-of-view limit skips the blind sector, and less than a
+/// turn in all. Random bytes pass this with odds below 10⁻⁷ for ≥ 6 blocks.
+pub fn check_azimuth_order(azimuths: impl Iterator<Item = u16>) -> Result<(), DecodeError> {
+    let (mut last, mut total, mut jumps) = (None::<u16>, 0u32, 0);
+    for (b, az) in azimuths.enumerate() {
+        if let Some(prev) = last {
+            let step = (36000 + u32::from(az) - u32::from(prev)) % 36000;
+            total += step;
+            jumps += u32::from(step > u32::from(MAX_BLOCK_STEP));
+            if jumps > 1 || total >= 36000 {
+                return Err(DecodeError::AzimuthOrder(b.min(255) as u8));
+            }
+        }
+        last = Some(az);
+    }
+    Ok(())
 }
 
 /// One decoded return: the point plus what sweep assembly and filters need.

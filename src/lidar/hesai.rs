@@ -24,8 +24,8 @@
 
 use super::calibration::Calibration;
 use super::decoder::{
-    civil_from_unix, to_xyz, unix_seconds, DecodeError, Model, PacketSummary, Return, ReturnMode,
-    SimReturn,
+    check_azimuth_order, civil_from_unix, to_xyz, unix_seconds, DecodeError, Model, PacketSummary,
+    Return, ReturnMode, SimReturn,
 };
 use super::trig::sin_cos_hundredths;
 use super::Point;
@@ -296,6 +296,21 @@ impl<T: AsRef<[u8]>> Packet<T> {
         let mode = mode_of(mode).ok_or(DecodeError::BadReturnMode(mode))?;
         if mode == ReturnMode::Dual && l.blocks % 2 != 0 {
             return Err(DecodeError::BadReturnMode(self.return_mode_byte()));
+        }
+        Ok(())
+    }
+
+    /// What `check` leaves out and a stream of packets relies on (the sweep assembler runs
+    /// it): block azimuths advancing as a spinning sensor's (see `check_azimuth_order`), and a
+    /// real calendar date and time with microseconds below a second. Call after `check`.
+    pub fn check_consistency(&self) -> Result<(), DecodeError> {
+        check_azimuth_order((0..self.layout.blocks).map(|b| self.azimuth(b)))?;
+        let [_, month, day, hour, minute, second] = self.date_time();
+        let calendar = (1..=12).contains(&month) && (1..=31).contains(&day);
+        // Second 60 is a leap second.
+        let clock = hour < 24 && minute < 60 && second <= 60;
+        if !calendar || !clock || self.timestamp_us() >= 1_000_000 {
+            return Err(DecodeError::BadTimestamp);
         }
         Ok(())
     }

@@ -1,9 +1,21 @@
 //! Sweep assembly from raw UDP payloads (no sockets, no heap): points go into a caller's
 //! buffer and a sweep is handed out each time the firing azimuth passes the cut azimuth.
 //! Lost packets are counted from timestamp jumps, reordered packets (older than the last
-//! one) are kept in the current sweep without cutting it, duplicates (byte-identical to one
-//! of the last 32 packets) are dropped, and unknown, truncated, oversized and corrupted
-//! payloads are counted and dropped.
+//! one) are kept in the current sweep without cutting it (and take back the loss their gap
+//! counted), duplicates (byte-identical to one of the last 32 packets) are dropped, and
+//! unknown, truncated, oversized and corrupted payloads are counted and dropped.
+//!
+//! One packet never moves the sweep's clock far: a packet must be consistent in itself
+//! (azimuths advancing block by block, a real date; the views' `check_consistency`), and
+//! with the stream — its time within [`FORWARD_WINDOW_S`] after or [`REORDER_WINDOW_S`]
+//! before the last packet's, its azimuth no further on than the sensor can turn in between
+//! and, across a gap, where the sensor's measured turn rate puts it (so a packet with a
+//! time a little ahead, as a flipped bit makes, cannot drag the clock along).
+//! Anything else is dropped and counted (`out_of_sequence`) — unless [`RESYNC_AFTER`]
+//! such packets in a row agree with each other, with no packet in sequence between them:
+//! then the sensor's clock really jumped (a restart, a looped replay) and the assembler
+//! follows it, marking the sweep in progress incomplete. (Valid packets of another clock
+//! mixed into a live stream never take it over.)
 
 use super::calibration::Calibration;
 use super::decoder::Model;
@@ -31,8 +43,13 @@ pub struct SweepStats {
     pub unknown: u64,
     pub truncated: u64,
     pub oversized: u64,
-    /// Bad magic, header, return mode or azimuth (dropped).
+    /// Bad magic, header, return mode, azimuth, azimuth order or timestamp field (dropped).
     pub corrupted: u64,
+    /// Valid packets whose time or azimuth does not follow the stream's (dropped; see the
+    /// module docs).
+    pub out_of_sequence: u64,
+    /// Times the assembler followed a jump of the sensor's clock.
+    pub resyncs: u64,
     /// Points that did not fit the caller's buffer.
     pub overflow: u64,
 }
@@ -47,13 +64,20 @@ impl SweepStats {
             DecodeError::BadMagic
             | DecodeError::BadHeader
             | DecodeError::BadReturnMode(_)
-            | DecodeError::BadAzimuth(_) => self.corrupted += 1,
+            | DecodeError::BadAzimuth(_)
+            | DecodeError::AzimuthOrder(_)
+            | DecodeError::BadTimestamp => self.corrupted += 1,
         }
     }
 
     /// Payloads dropped for any reason.
     pub fn dropped(&self) -> u64 {
-        self.duplicates + self.unknown + self.truncated + self.oversized + self.corrupted
+        self.duplicates
+            + self.unknown
+            + self.truncated
+            + self.oversized
+            + self.corrupted
+            + self.out_of_sequence
     }
 }
 
@@ -87,11 +111,37 @@ pub struct Sweep<'a> {
     pub end_time: f64,
     /// Whether the sweep started at the cut (false for the first, partial one and a flush).
     pub complete: bool,
-    /// Packets lost while this sweep was assembled.
+    /// Data packets decoded into this sweep.
+    pub packets: u64,
+    /// Packets lost while this sweep was assembled (timestamp gaps not filled by late
+    /// packets): the sensor sent `packets + lost`.
     pub lost: u64,
+    /// Payloads dropped while this sweep was assembled (any reason in [`SweepStats::dropped`]).
+    pub dropped: u64,
     /// Points that did not fit the buffer.
     pub overflow: u64,
 }
+
+/// Newest a packet may be after the last one and still be in sequence, seconds: a gap of
+/// up to 2.5 turns at 10 Hz (a field-of-view limit leaves half a turn silent, every turn).
+pub const FORWARD_WINDOW_S: f64 = 0.25;
+/// Oldest a reordered packet may be, seconds: networks reorder by a few packets; anything
+/// older belongs to a finished sweep.
+pub const REORDER_WINDOW_S: f64 = 0.02;
+/// Packets out of sequence but in sequence with each other after which the assembler takes
+/// their clock as the sensor's.
+pub const RESYNC_AFTER: u32 = 8;
+/// The fastest turn of the supported sensors (20 Hz), 0.01° per second.
+const MAX_TURN_RATE: f64 = 20.0 * 36000.0;
+/// Azimuth a packet may run ahead of the turn rate (the packet time stamps its first or
+/// last firing, depending on the vendor), 0.01°.
+const AZIMUTH_SLACK: f64 = 1000.0;
+/// Gaps (in packet periods) up to which consecutive packets measure the turn rate; beyond,
+/// the rate predicts where the packet's azimuth must be.
+const RATE_GAP: f64 = 4.0;
+/// How far off the predicted azimuth a packet across a gap may be, as a share of the
+/// predicted advance (on top of `AZIMUTH_SLACK`): the rate drifts and packets jitter.
+const RATE_TOLERANCE: f64 = 0.05;
 
 /// Number of recent packet fingerprints kept for duplicate detection.
 const RECENT: usize = 32;
@@ -105,7 +155,31 @@ pub struct SweepAssembler<'b> {
     stats: SweepStats,
     recent: [Option<u64>; RECENT],
     recent_next: usize,
-    last_time: Option<f64>,
+    /// Time and last block azimuth of the newest packet in sequence.
+    last: Option<Stamp>,
+    /// The newest of the packets out of sequence that agree with each other, and how many.
+    candidate: Option<(Stamp, u32)>,
+    /// The sensor's turn rate measured from consecutive packets, 0.01° per second.
+    turn_rate: Option<f64>,
+}
+
+/// Where a packet sits in the stream: its time (s) and its first and last block azimuths.
+#[derive(Clone, Copy, Debug)]
+struct Stamp {
+    time: f64,
+    first_azimuth: u16,
+    last_azimuth: u16,
+}
+
+/// How a packet relates to the newest one in sequence.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Order {
+    /// Later (by `dt` seconds).
+    Next { dt: f64 },
+    /// Slightly older: kept, never cuts.
+    Reordered,
+    /// Too far off in time or azimuth.
+    OutOfSequence,
 }
 
 /// State of the sweep being filled.
@@ -115,7 +189,9 @@ struct Current {
     start_time: f64,
     end_time: f64,
     complete: bool,
+    packets: u64,
     lost: u64,
+    dropped: u64,
     overflow: u64,
     /// Azimuth of the last return relative to the cut, 0.01°.
     last_rel: Option<u16>,
@@ -133,7 +209,9 @@ impl<'b> SweepAssembler<'b> {
             stats: SweepStats::default(),
             recent: [None; RECENT],
             recent_next: 0,
-            last_time: None,
+            last: None,
+            candidate: None,
+            turn_rate: None,
         }
     }
 
@@ -163,13 +241,39 @@ impl<'b> SweepAssembler<'b> {
         let fingerprint = fnv1a(payload);
         if self.recent.contains(&Some(fingerprint)) {
             self.stats.duplicates += 1;
+            self.current.dropped += 1;
             return;
         }
-        let (time, reordered) = match self.check(payload) {
-            Ok(t) => t,
+        let (stamp, period) = match self.stamp(payload) {
+            Ok(s) => s,
             Err(e) => {
                 self.stats.count_error(e);
+                self.current.dropped += 1;
                 return;
+            }
+        };
+        let reordered = match self.order(stamp, period) {
+            Order::Next { dt } => {
+                // The clock in use is alive: packets that disagree with it are garbage.
+                self.candidate = None;
+                self.count_gap(dt, period);
+                self.measure_turn_rate(stamp, dt, period);
+                false
+            }
+            Order::Reordered => {
+                self.candidate = None;
+                // A late packet fills a gap its successor counted as lost.
+                self.stats.lost = self.stats.lost.saturating_sub(1);
+                self.current.lost = self.current.lost.saturating_sub(1);
+                true
+            }
+            Order::OutOfSequence => {
+                if !self.follow_clock_jump(stamp) {
+                    self.stats.out_of_sequence += 1;
+                    self.current.dropped += 1;
+                    return;
+                }
+                false
             }
         };
         self.recent[self.recent_next] = Some(fingerprint);
@@ -191,13 +295,14 @@ impl<'b> SweepAssembler<'b> {
             push_point(buf, cur, stats, r.point);
         };
         if let Err(e) = decode_packet(&cal, payload, &mut sink) {
-            // Unreachable after `check`, but never trust bytes.
+            // Unreachable after `stamp`, but never trust bytes.
             self.stats.count_error(e);
             return;
         }
         self.stats.packets += 1;
+        self.current.packets += 1;
         if !reordered {
-            self.last_time = Some(time);
+            self.last = Some(stamp);
         }
     }
 
@@ -209,47 +314,133 @@ impl<'b> SweepAssembler<'b> {
         }
     }
 
-    /// Validates a payload and compares its time with the last packet's: returns its time and
-    /// whether it is older (reordered); counts lost packets from a forward gap.
-    fn check(&mut self, payload: &[u8]) -> Result<(f64, bool), DecodeError> {
+    /// Validates a payload, in itself (the view's checks and `check_consistency`): its
+    /// time, block azimuths and the packet period of its return mode.
+    fn stamp(&self, payload: &[u8]) -> Result<(Stamp, f64), DecodeError> {
         let model = self.cal.model;
-        let (time, returns, period) = if model == Model::Ouster {
+        let (stamp, returns, period) = if model == Model::Ouster {
             let p = ouster::Packet::new_checked(payload, &self.cal.ouster)?;
-            // Both returns travel in one packet: the period is the packet period.
-            (p.timestamp(0) as f64 * 1e-9, 1, ouster::packet_period(&self.cal.ouster))
+            // Both returns travel in one packet: the period is the packet period. Columns
+            // carry no block azimuth: the stream check uses time alone.
+            let time = p.timestamp(0) as f64 * 1e-9;
+            let stamp = Stamp { time, first_azimuth: 0, last_azimuth: 0 };
+            (stamp, 1, ouster::packet_period(&self.cal.ouster))
         } else if model.is_velodyne() {
             let p = velodyne::Packet::new_checked(payload)?;
             let product = velodyne::Product::from_id(p.product_id());
             if product.map(|p| p.model()) != Some(model) {
                 return Err(DecodeError::WrongCalibration);
             }
-            (
-                f64::from(p.timestamp_us()) * 1e-6,
-                p.return_mode().returns(),
-                velodyne::packet_period(model),
-            )
+            p.check_consistency()?;
+            let stamp = Stamp {
+                time: f64::from(p.timestamp_us()) * 1e-6,
+                first_azimuth: p.azimuth(0),
+                last_azimuth: p.azimuth(velodyne::field::BLOCKS - 1),
+            };
+            (stamp, p.return_mode().returns(), velodyne::packet_period(model))
         } else {
             let p = hesai::Packet::new_checked(payload, model)?;
-            (p.time(), p.return_mode().returns(), hesai::packet_period(model))
+            p.check_consistency()?;
+            let stamp = Stamp {
+                time: p.time(),
+                first_azimuth: p.azimuth(0),
+                last_azimuth: p.azimuth(p.layout().blocks - 1),
+            };
+            (stamp, p.return_mode().returns(), hesai::packet_period(model))
         };
-        let Some(last) = self.last_time else { return Ok((time, false)) };
-        let mut dt = time - last;
+        // Dual-return packets carry half a turn's worth of blocks as often.
+        Ok((stamp, period / returns as f64))
+    }
+
+    /// Compares a packet with the newest one in sequence.
+    fn order(&self, stamp: Stamp, period: f64) -> Order {
+        match self.last {
+            None => Order::Next { dt: 0.0 },
+            Some(last) => self.follows(last, stamp, period),
+        }
+    }
+
+    /// Whether `next` follows `last` in time (within the windows) and in azimuth (no further
+    /// on than the fastest sensor turns in the time between).
+    fn follows(&self, last: Stamp, next: Stamp, period: f64) -> Order {
+        let mut dt = next.time - last.time;
         // Velodyne time counts from the top of the hour.
-        if model.is_velodyne() && dt < -1800.0 {
+        if self.cal.model.is_velodyne() && dt < -1800.0 {
             dt += 3600.0;
         }
-        if dt < 0.0 {
-            return Ok((time, true));
+        if !(-REORDER_WINDOW_S..=FORWARD_WINDOW_S).contains(&dt) {
+            return Order::OutOfSequence;
         }
-        // Dual-return packets carry half a turn's worth of blocks as often.
-        let period = period / returns as f64;
+        if dt < 0.0 {
+            return Order::Reordered;
+        }
+        if self.cal.model == Model::Ouster {
+            return Order::Next { dt };
+        }
+        let reach = (dt + period) * MAX_TURN_RATE + AZIMUTH_SLACK;
+        if f64::from(advance(last.last_azimuth, next.first_azimuth)) > reach {
+            return Order::OutOfSequence;
+        }
+        if let Some(rate) = self.turn_rate.filter(|_| dt > RATE_GAP * period) {
+            let predicted = dt * rate;
+            let measured = f64::from(advance(last.first_azimuth, next.first_azimuth));
+            let off = libm::fabs(measured - libm::fmod(predicted, 36000.0));
+            let off = off.min(36000.0 - off);
+            if off > AZIMUTH_SLACK + RATE_TOLERANCE * predicted {
+                return Order::OutOfSequence;
+            }
+        }
+        Order::Next { dt }
+    }
+
+    /// Updates the turn rate from a packet `dt` after the last one in sequence (a running
+    /// mean over about 16 packets), when the gap is short enough to measure it.
+    fn measure_turn_rate(&mut self, stamp: Stamp, dt: f64, period: f64) {
+        let Some(last) = self.last else { return };
+        if self.cal.model == Model::Ouster || dt <= 0.0 || dt > RATE_GAP * period {
+            return;
+        }
+        let rate = f64::from(advance(last.first_azimuth, stamp.first_azimuth)) / dt;
+        if rate > 2.0 * MAX_TURN_RATE {
+            return;
+        }
+        self.turn_rate = Some(match self.turn_rate {
+            Some(r) => r + (rate - r) / 16.0,
+            None => rate,
+        });
+    }
+
+    /// Counts the packets a forward gap of `dt` seconds implies were lost.
+    fn count_gap(&mut self, dt: f64, period: f64) {
         if dt > 1.5 * period {
             let lost = libm::round(dt / period) as u64 - 1;
             self.stats.lost += lost;
             self.current.lost += lost;
         }
-        Ok((time, false))
     }
+
+    /// A packet out of sequence: remembers it, and once [`RESYNC_AFTER`] of them follow each
+    /// other, takes their clock (true: decode this packet). The sweep in progress spans
+    /// the jump: it is marked incomplete.
+    fn follow_clock_jump(&mut self, stamp: Stamp) -> bool {
+        let chained = self.candidate.and_then(|(c, n)| {
+            matches!(self.follows(c, stamp, 0.0), Order::Next { .. }).then_some(n + 1)
+        });
+        let n = chained.unwrap_or(1);
+        if n < RESYNC_AFTER {
+            self.candidate = Some((stamp, n));
+            return false;
+        }
+        self.candidate = None;
+        self.stats.resyncs += 1;
+        self.current.complete = false;
+        true
+    }
+}
+
+/// Clockwise advance from azimuth `from` to `to`, 0.01° (0 ..< 36000).
+fn advance(from: u16, to: u16) -> u32 {
+    (36000 + u32::from(to) - u32::from(from)) % 36000
 }
 
 fn push_point(buf: &mut [Point], cur: &mut Current, stats: &mut SweepStats, p: Point) {
@@ -283,7 +474,9 @@ fn emit(
         start_time: cur.start_time,
         end_time: cur.end_time,
         complete: cur.complete,
+        packets: cur.packets,
         lost: cur.lost,
+        dropped: cur.dropped,
         overflow: cur.overflow,
     });
     *cur = Current { last_rel: cur.last_rel, ..Current::default() };

@@ -9,7 +9,9 @@
 //! clock, so `Point::time` is seconds past the hour plus the firing offset (manual ch. 9).
 
 use super::calibration::{Calibration, Interpolation};
-use super::decoder::{to_xyz, DecodeError, Model, PacketSummary, Return, ReturnMode, SimReturn};
+use super::decoder::{
+    check_azimuth_order, to_xyz, DecodeError, Model, PacketSummary, Return, ReturnMode, SimReturn,
+};
 use super::trig::sin_cos_turn;
 use super::Point;
 
@@ -123,6 +125,17 @@ impl<T: AsRef<[u8]>> Packet<T> {
             m => return Err(DecodeError::BadReturnMode(m)),
         }
         Product::from_id(self.product_id()).ok_or(DecodeError::BadHeader)?;
+        Ok(())
+    }
+
+    /// What `check` leaves out and a stream of packets relies on (the sweep assembler runs
+    /// it): block azimuths advancing as a spinning sensor's (see `check_azimuth_order`; a
+    /// field-of-view limit makes one jump) and a timestamp within the hour. Call after `check`.
+    pub fn check_consistency(&self) -> Result<(), DecodeError> {
+        check_azimuth_order((0..field::BLOCKS).map(|b| self.azimuth(b)))?;
+        if self.timestamp_us() >= 3_600_000_000 {
+            return Err(DecodeError::BadTimestamp);
+        }
         Ok(())
     }
 
