@@ -1,3 +1,4 @@
 //! Parts of the command line that outgrew `main.rs`, one file per concern.
 
+pub mod progress;
 pub mod summary;
