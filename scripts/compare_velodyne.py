@@ -5,7 +5,7 @@ VLP-32C captures: point by point, the median, p99 and largest distance between t
 decoders' points, per capture and convention. Not needed by `cargo test`.
 
     python3 -m venv target/velodyne-venv
-    target/velodyne-venv/bin/pip install velodyne-decoder numpy
+    target/velodyne-venv/bin/pip install -r scripts/requirements-velodyne.txt
     cargo build --release
     target/velodyne-venv/bin/python scripts/compare_velodyne.py [--bin target/release/roomcal]
 
@@ -20,6 +20,7 @@ ring must agree with it (`ring agreement` is printed: anything under 1 means the
 failed, and the distances mean nothing).
 """
 import argparse
+import importlib.metadata
 import os
 import struct
 import subprocess
@@ -150,7 +151,9 @@ def main():
     import numpy as np
     import velodyne_decoder as vd
 
-    print(f"roomcal ({args.bin}) against velodyne-decoder {vd.__version__}")
+    # The distribution's version: 3.1.0's module still reports __version__ 3.0.0.
+    version = importlib.metadata.version("velodyne-decoder")
+    print(f"roomcal ({args.bin}) against velodyne-decoder {version}")
     for folder, model, vd_model, calibration in CAPTURES:
         for convention in CONVENTIONS:
             result = compare(np, vd, args.bin, folder, model, vd_model, calibration, convention)
