@@ -108,7 +108,7 @@ struct CalibrateArgs {
     /// Print the result file to stdout instead of the summary.
     #[arg(long, conflicts_with = "quiet")]
     json: bool,
-    /// Print only the status line.
+    /// Print only the status line (no progress line, no refused-plane sentences).
     #[arg(long)]
     quiet: bool,
 }
@@ -564,12 +564,22 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
         Some(path) => Some(roomcal::result::load(path).map_err(bad_input)?),
         None => None,
     };
-    let mut images =
-        args.image.iter().map(|path| load_image(&room, path)).collect::<Result<Vec<_>, _>>()?;
+    let mut progress = cli::progress::Progress::on_stderr("calibrate", steps(&args), args.quiet);
+    let mut images = args
+        .image
+        .iter()
+        .map(|path| {
+            progress.step(&format!("reading {}", path.display()));
+            load_image(&room, path)
+        })
+        .collect::<Result<Vec<_>, _>>()?;
     let mut clouds = args
         .cloud
         .iter()
-        .map(|path| load_cloud(&room, path, args.lidar_calibration.as_deref()))
+        .map(|path| {
+            progress.step(&format!("reading {}", path.display()));
+            load_cloud(&room, path, args.lidar_calibration.as_deref())
+        })
         .collect::<Result<Vec<_>, _>>()?;
     if args.standing {
         (images, clouds) = standing_frame(images, clouds);
@@ -578,6 +588,7 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
     let mut frames = Vec::new();
     let mut refused = Vec::new();
     for (i, image) in images.iter().enumerate() {
+        progress.step(&format!("detecting boards, frame {} of {}", i + 1, images.len()));
         let mut frame = FrameDetections {
             camera: detectors.detect_image(image).map_err(bad_input)?,
             lidar: Vec::new(),
@@ -591,7 +602,7 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
             let planes = detectors.refused_in_cloud().to_vec();
             if !args.quiet {
                 for plane in &planes {
-                    eprintln!("{}", refused_message(&name, plane));
+                    progress.note(&refused_message(&name, plane));
                 }
             }
             refused.push(planes);
@@ -603,6 +614,7 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
     if args.cloud.is_empty() {
         room.lidar = None;
     }
+    progress.step("solving");
     let run = roomcal::calibrate::calibrate(
         &room,
         &frames,
@@ -612,6 +624,7 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
             without_planes: args.without_planes,
         },
     );
+    progress.step("writing the results");
     let mut written = write_result(&args.out, &run.result)?;
     if let Some(report) = &args.report {
         let first_refused = refused.first().map_or(&[][..], Vec::as_slice);
@@ -623,6 +636,7 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
         let files = roomcal::export::write_dir(dir, &run.result).map_err(bad_input)?;
         written.extend(files.iter().map(|f| f.display().to_string()));
     }
+    progress.finish(); // the line is cleared before the summary
     if args.json {
         print!("{}", result_json(&run.result));
     } else if args.quiet {
@@ -714,6 +728,13 @@ fn parallel_map<T: Sync, R: Send>(
         .into_iter()
         .map(|r| r.unwrap_or_else(|| Err(Failure::new(1, anyhow::anyhow!("a worker stopped")))))
         .collect()
+}
+
+/// The steps `calibrate` shows progress for: each file read, each frame's detection (a
+/// standing vehicle's frames are one), the solve and the writing.
+fn steps(args: &CalibrateArgs) -> usize {
+    let frames = if args.standing { 1 } else { args.image.len() };
+    args.image.len() + args.cloud.len() + frames + 2
 }
 
 /// One frame of a standing vehicle: its images averaged (every image was loaded at the

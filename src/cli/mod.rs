@@ -1,4 +1,5 @@
 //! Parts of the command line that outgrew `main.rs`, one file per concern.
 
+pub mod progress;
 pub mod summary;
 pub mod survey;

@@ -769,6 +769,116 @@ mod tests {
         assert!((last.point.time - expect).abs() < 1e-9, "{} {}", last.point.time, expect);
     }
 
+    /// Every return of a decoded `sample` packet as (block, channel slot, time past the
+    /// packet's timestamp in µs, firing azimuth): `sample` writes raw distance
+    /// 1000 + 7·channel + block, which gives the slot back.
+    #[cfg(feature = "std")]
+    fn decoded_slots(cal: &Calibration, bytes: &[u8]) -> std::vec::Vec<(usize, usize, f64, u16)> {
+        let t0 =
+            f64::from(u32::from_le_bytes([bytes[1200], bytes[1201], bytes[1202], bytes[1203]]));
+        let mut out = std::vec::Vec::new();
+        decode(cal, bytes, &mut |r| {
+            let raw = libm::roundf(r.distance / cal.distance_resolution) as usize;
+            let block = usize::from(r.block);
+            let slot = (raw - 1000 - block) / 7;
+            out.push((block, slot, r.point.time * 1e6 - t0, r.azimuth));
+        })
+        .unwrap();
+        out
+    }
+
+    /// VLP-16 user manual §9.4 ("Discreet Point Timing Calculation"): number the data points
+    /// of a firing sequence 0–15 and the sequences of a packet 0–23; a point is
+    /// 55.296 µs × sequence + 2.304 µs × data point after the packet's timestamp. Its table
+    /// builder gives a point in block x, channel y (0–31) the sequence 2x + y div 16, or in
+    /// dual-return mode (x − x mod 2) + y div 16 (the two echo blocks share their firings).
+    /// The numbers below are worked by hand from that, not by the decoder's own table.
+    #[cfg(feature = "std")]
+    #[test]
+    fn vlp16_point_times_are_the_manuals_table() {
+        let cal = Calibration::nominal(Model::Vlp16);
+        // 16 firings 2.304 µs apart, then the recharge, make the 55.296 µs cycle (the manual
+        // rounds the recharge to 18.43 µs).
+        assert!((55.296 - 16.0 * 2.304 - 18.432f64).abs() < 1e-9);
+        for (mode, dual) in [(return_mode::STRONGEST, false), (return_mode::DUAL, true)] {
+            let got = decoded_slots(&cal, &sample(Product::Vlp16, mode));
+            assert_eq!(got.len(), 384, "every slot of the sample is a return");
+            for &(x, y, t, _) in &got {
+                let sequence = if dual { x - x % 2 + y / 16 } else { 2 * x + y / 16 };
+                let manual = 55.296 * sequence as f64 + 2.304 * (y % 16) as f64;
+                assert!(
+                    (t - manual).abs() < 1e-3,
+                    "dual {dual}, block {x}, channel {y}: {t} µs, manual {manual}"
+                );
+            }
+            let last = got.iter().find(|&&(x, y, _, _)| (x, y) == (11, 31)).unwrap().2;
+            // Single: sequence 23, point 15 = 1306.368 µs; dual: sequence 11 = 642.816 µs.
+            let manual_last = if dual { 642.816 } else { 1306.368 };
+            assert!((last - manual_last).abs() < 1e-3, "dual {dual}: last point at {last} µs");
+        }
+    }
+
+    /// VLP-32C user manual §9.4: the lasers fire in pairs (channels 2k and 2k+1 together),
+    /// 16 pairs 2.304 µs apart in a 55.296 µs firing sequence, one sequence per data block;
+    /// in dual-return mode the two echo blocks of a sequence share its times.
+    #[cfg(feature = "std")]
+    #[test]
+    fn vlp32c_point_times_pair_the_lasers_as_the_manual_does() {
+        let cal = Calibration::nominal(Model::Vlp32c);
+        for (mode, dual) in [(return_mode::STRONGEST, false), (return_mode::DUAL, true)] {
+            let got = decoded_slots(&cal, &sample(Product::Vlp32c, mode));
+            assert_eq!(got.len(), 384);
+            for &(x, y, t, _) in &got {
+                let sequence = if dual { x / 2 } else { x };
+                let manual = 55.296 * sequence as f64 + 2.304 * (y / 2) as f64;
+                assert!(
+                    (t - manual).abs() < 1e-3,
+                    "dual {dual}, block {x}, channel {y}: {t} µs, manual {manual}"
+                );
+            }
+        }
+        // The last pair of a sequence fires 15 × 2.304 = 34.56 µs in: block 11 single return.
+        let got = decoded_slots(&cal, &sample(Product::Vlp32c, return_mode::STRONGEST));
+        let last = got.iter().find(|&&(x, y, _, _)| (x, y) == (11, 31)).unwrap().2;
+        assert!((last - (11.0 * 55.296 + 34.56)).abs() < 1e-3, "{last}");
+    }
+
+    /// Manual §9.5 ("Precision Azimuth Calculation"), with the rotation taken as constant
+    /// between blocks: a point's azimuth is its block's plus the block-to-block gap times
+    /// its firing time over the time the gap spans. `sample` turns 0.20° a block (gap 20 in
+    /// 0.01°, about 600 rpm for the VLP-32C); block 1 is at 0.10°, block 2 at 0.30°.
+    /// Results are rounded half away from zero to 0.01°, as the packet's resolution.
+    #[cfg(feature = "std")]
+    #[test]
+    fn firing_azimuths_are_the_manuals_interpolation() {
+        let azimuth_of = |model, product, interpolation, channel| {
+            let cal = Calibration { interpolation, ..Calibration::nominal(model) };
+            let got = decoded_slots(&cal, &sample(product, return_mode::STRONGEST));
+            got.iter().find(|&&(x, y, _, _)| (x, y) == (1, channel)).unwrap().3
+        };
+        // VLP-16: the gap spans a block's two firing sequences (2 × 55.296 µs); channel 16
+        // (second firing, laser 0) is 55.296 µs in: 10 + 20 × ½ = 20; channel 31 is
+        // 55.296 + 15 × 2.304 = 89.856 µs in: 10 + 20 × 0.8125 = 26.25 → 26; channel 5 is
+        // 11.52 µs in: 10 + 20 × 0.10417 = 12.08 → 12.
+        for (channel, manual) in [(0, 10), (5, 12), (16, 20), (31, 26)] {
+            let got = azimuth_of(Model::Vlp16, Product::Vlp16, Interpolation::Manual, channel);
+            assert_eq!(got, manual, "VLP-16 channel {channel}");
+        }
+        // VLP-32C: the gap spans one sequence (55.296 µs); channel c fires with its pair,
+        // (c div 2) × 2.304 µs in, so 10 + 20 × (c div 2) / 24: channel 2 → 10.83 → 11,
+        // 4 → 11.67 → 12, 11 → 14.17 → 14, 29 → 21.67 → 22. nebula 0.x advances each channel
+        // 2.304 µs instead, 10 + 20 × c / 24: 2 → 11.67 → 12, 4 → 13.33 → 13, 11 → 19.17 → 19,
+        // 29 → 34.17 → 34. (Channels whose value ends in .5 are left out: f32 may round
+        // either way there.)
+        let pairs = [(2, 11, 12), (4, 12, 13), (11, 14, 19), (29, 22, 34)];
+        for (channel, manual, nebula) in pairs {
+            let got = azimuth_of(Model::Vlp32c, Product::Vlp32c, Interpolation::Manual, channel);
+            assert_eq!(got, manual, "VLP-32C channel {channel}, manual timing");
+            let got = azimuth_of(Model::Vlp32c, Product::Vlp32c, Interpolation::Nebula, channel);
+            assert_eq!(got, nebula, "VLP-32C channel {channel}, nebula's");
+        }
+    }
+
     #[test]
     fn position_packet_view() {
         let mut buf = [0u8; 512];
