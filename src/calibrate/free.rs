@@ -17,6 +17,61 @@ use crate::solve::{
 };
 use crate::target::Room;
 
+/// A board's hole RMS this many times the median of the others' marks its LiDAR
+/// placement as wrong (issue 14: one board placed with its holes turned in its plane)…
+pub const HOLE_OUTLIER_RATIO: f64 = 5.0;
+/// …when it is also above this (px): below it every board agrees well enough.
+pub const HOLE_OUTLIER_FLOOR_PX: f64 = 1.0;
+
+/// The free-board run: [`solve_all`], then, when one board's hole residuals are far
+/// above the others' ([`HOLE_OUTLIER_RATIO`]), that board's LiDAR placement is named,
+/// left out, and the run solved again (once).
+pub(super) fn solve_free(
+    room: &Room,
+    frames: &[FrameDetections],
+    options: &CalibrateOptions,
+) -> Result<Calibration, String> {
+    let first = solve_all(room, frames, options)?;
+    let Some((index, worst, median)) = hole_outlier(room, &first) else {
+        return Ok(first);
+    };
+    let board = &first.boards[index];
+    let frame = board.frame as usize;
+    let name = format!(
+        "frame {frame} board {}: its LiDAR hole RMS {worst:.2} px is {:.0}× the other boards' median ({median:.2} px); its LiDAR placement was left out",
+        first.boards[..index].iter().filter(|b| b.frame == board.frame).count(),
+        worst / median.max(1e-9)
+    );
+    tracing::warn!("{name}");
+    let mut without = frames.to_vec();
+    without[frame].lidar.retain(|l| !same_holes(&l.holes, &board.holes_lidar));
+    let mut second = solve_all(room, &without, options).map_err(|e| format!("{e}; {name}"))?;
+    second.notes.push(name);
+    Ok(second)
+}
+
+/// The used board whose hole RMS stands out, with it and the others' median (px).
+fn hole_outlier(room: &Room, run: &Calibration) -> Option<(usize, f64, f64)> {
+    let rms: Vec<(usize, f64)> = run
+        .boards
+        .iter()
+        .enumerate()
+        .filter_map(|(i, b)| run.board_rms(&room.board, b).1.map(|h| (i, h)))
+        .collect();
+    if rms.len() < 3 {
+        return None; // with two boards, which one is wrong is not decidable
+    }
+    let (index, worst) = rms.iter().copied().max_by(|a, b| a.1.total_cmp(&b.1))?;
+    let median = median(rms.iter().filter(|(i, _)| *i != index).map(|(_, h)| *h));
+    (worst > HOLE_OUTLIER_FLOOR_PX && worst > HOLE_OUTLIER_RATIO * median)
+        .then_some((index, worst, median))
+}
+
+/// Whether two hole sets are the same points in any order.
+fn same_holes(a: &[Vec3], b: &[Vec3]) -> bool {
+    a.len() == b.len() && a.iter().all(|p| b.iter().any(|q| (p - q).norm() < 1e-12))
+}
+
 pub(super) fn solve_all(
     room: &Room,
     frames: &[FrameDetections],
@@ -112,6 +167,7 @@ pub(super) fn solve_all(
         boards,
         holes_board: holes_board.clone(),
         iterations,
+        notes: Vec::new(),
     })
 }
 
@@ -138,7 +194,7 @@ const SAME_MINIMUM: f64 = 1e-9;
 /// tried in order until two of them reach the same lowest minimum. (One start fitting the
 /// corners nearly as well as their noise allows is not enough: on a 90° lens the closed
 /// form's own minimum lay 1.4 % off in focal length and 14 px in cx.)
-fn intrinsics_start(
+pub(super) fn intrinsics_start(
     room: &Room,
     object: &[Vec3],
     boards: &[(u32, &CameraBoard)],
@@ -204,7 +260,7 @@ fn intrinsics_start(
     }
 }
 
-fn accepted(
+pub(super) fn accepted(
     params: &JointParams<Camera, MAX_OBSERVATIONS>,
     report: &SolveReport,
     sigma: &crate::solve::Uncertainty,
@@ -241,6 +297,7 @@ fn accepted(
                 },
             })
             .collect(),
+        camera_in_room: None,
     }
 }
 
@@ -253,5 +310,6 @@ pub(super) fn rejected(camera: &Camera, reason: String, with_lidar: bool) -> Cal
         uncertainty: Uncertainty::default(),
         quality: Quality::default(),
         boards: Vec::new(),
+        camera_in_room: None,
     }
 }

@@ -77,10 +77,34 @@ pub(super) fn gate(
             },
         )?;
     }
+    if let (Some(in_room), Some(lidar)) = (&r.camera_in_room, &room.lidar) {
+        check_parking(q, lidar, in_room)?;
+    }
     if let Some(current) = &options.current {
         check_change(q, current, r)?;
     }
     Ok(())
+}
+
+/// The parking box of a surveyed room: the camera's pose in the room against the nominal
+/// parking, which is the room's nominal mounting read as room → camera (the survey's room
+/// frame is the nominal LiDAR frame at the nominal spot). The angle is the whole rotation
+/// between the two (on a level floor, the yaw).
+fn check_parking(
+    q: &crate::target::QualitySpec,
+    lidar: &crate::target::LidarSpec,
+    camera_in_room: &crate::result::Extrinsic,
+) -> Result<(), String> {
+    let nominal = super::association::lidar_nominal(lidar).inverse();
+    let (angle, shift) = crate::result::Extrinsic::from_se3(&nominal).difference(camera_in_room);
+    check(shift <= q.max_parking_offset_m && angle <= q.max_parking_yaw_deg, || {
+        format!(
+            "parked {:.0} mm / {angle:.1}° from the nominal spot (limits {:.0} mm / {}°)",
+            shift * 1000.0,
+            q.max_parking_offset_m * 1000.0,
+            q.max_parking_yaw_deg
+        )
+    })
 }
 
 /// The change limits against the calibration in force.

@@ -20,6 +20,8 @@ mod association;
 mod detectors;
 mod free;
 mod gate;
+pub mod identify;
+mod surveyed;
 
 pub use detectors::{plane_points, Detectors};
 pub use gate::coverage;
@@ -67,6 +69,8 @@ pub struct CalibrateOptions {
     /// Leaves the LiDAR's board-plane points out of the joint solve (the paper's cost
     /// alone; for comparisons).
     pub without_planes: bool,
+    /// Ignores the room's `[survey]`: every board observation gets its own pose.
+    pub free_boards: bool,
 }
 
 /// One board observation as the solver used it.
@@ -92,6 +96,8 @@ pub struct Calibration {
     pub holes_board: Vec<Vec3>,
     /// Solver iterations over all stages.
     pub iterations: usize,
+    /// What the run decided on its own (e.g. a board left out), for the operator.
+    pub notes: Vec<String>,
 }
 
 impl Calibration {
@@ -125,12 +131,29 @@ pub fn calibrate(
     frames: &[FrameDetections],
     options: &CalibrateOptions,
 ) -> Calibration {
+    calibrate_with_clouds(room, frames, &[], options)
+}
+
+/// [`calibrate`] with each frame's sweep (`clouds[f]`, may be empty): in a surveyed room
+/// (unless `free_boards`) the room model is solved as one rigid target, and the LiDAR's
+/// points on the surveyed planes enter it.
+pub fn calibrate_with_clouds(
+    room: &Room,
+    frames: &[FrameDetections],
+    clouds: &[&[crate::lidar::Point]],
+    options: &CalibrateOptions,
+) -> Calibration {
     let fallback_camera = nominal_camera(room, default_fov(room.camera.model));
-    match free::solve_all(room, frames, options) {
+    let solved = match room.survey.as_ref().filter(|_| !options.free_boards) {
+        Some(survey) => surveyed::solve_surveyed(room, survey, frames, clouds, options),
+        None => free::solve_free(room, frames, options),
+    };
+    match solved {
         Ok(mut calibration) => {
             if let Err(reason) = gate::gate(room, frames, options, &calibration) {
                 calibration.result.status = Status::Rejected;
-                calibration.result.reason = Some(reason);
+                let notes = calibration.notes.iter().map(|n| format!("; {n}"));
+                calibration.result.reason = Some(notes.fold(reason, |r, n| r + &n));
             }
             calibration
         }
@@ -141,6 +164,7 @@ pub fn calibrate(
             boards: Vec::new(),
             holes_board: Vec::new(),
             iterations: 0,
+            notes: Vec::new(),
         },
     }
 }
