@@ -13,8 +13,13 @@
 //! 3. **Joint solve** (`solve::JointProblem`): corners and the paper's hole term, each
 //!    weighted by its σ, Huber loss. `two_stage` solves the intrinsics from the corners
 //!    first and then the extrinsic with them fixed (the paper's ablation).
-//! 4. **Gate** (`target::QualitySpec`): residuals, boards, coverage, σ, and the change from
-//!    the calibration in force.
+//! 4. **Gate** (`target::QualitySpec`): residuals, boards, coverage, σ, the change from
+//!    the calibration in force, and in a surveyed room the parking box.
+//!
+//! In a surveyed room (`[survey]`, unless `free_boards`) steps 2–3 are `surveyed.rs`: the
+//! boards identified against the survey (`identify.rs`) and the room solved as one rigid
+//! target (`solve::room`). Files: `detectors.rs`, `association.rs`, `free.rs` (the
+//! free-board model), `identify.rs`, `surveyed.rs`, `gate.rs`.
 
 mod association;
 mod detectors;
