@@ -84,6 +84,9 @@ struct CalibrateArgs {
     /// Intrinsics from the corners first, then the extrinsic with them fixed.
     #[arg(long)]
     two_stage: bool,
+    /// Ignore the room's `[survey]`: every board gets its own pose (the free-board model).
+    #[arg(long)]
+    free_boards: bool,
     /// Leave the LiDAR's board-plane points out of the solve (the paper's cost alone).
     #[arg(long)]
     without_planes: bool,
@@ -614,14 +617,17 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
     if args.cloud.is_empty() {
         room.lidar = None;
     }
+    let sweeps: Vec<&[roomcal::lidar::Point]> = clouds.iter().map(Vec::as_slice).collect();
     progress.step("solving");
-    let run = roomcal::calibrate::calibrate(
+    let run = roomcal::calibrate::calibrate_with_clouds(
         &room,
         &frames,
+        &sweeps,
         &CalibrateOptions {
             two_stage: args.two_stage,
             current,
             without_planes: args.without_planes,
+            free_boards: args.free_boards,
         },
     );
     progress.step("writing the results");

@@ -110,6 +110,9 @@ pub struct CalibrationResult {
     pub uncertainty: Uncertainty,
     pub quality: Quality,
     pub boards: Vec<BoardDetection>,
+    /// Surveyed rooms: the camera's pose in the room frame (camera → room).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_in_room: Option<Extrinsic>,
 }
 
 impl CameraResult {
@@ -216,6 +219,14 @@ impl CalibrationResult {
                 "lidar_to_camera.rotation",
                 &e.rotation,
                 "lidar_to_camera.translation",
+                &e.translation,
+            )?;
+        }
+        if let Some(e) = &self.camera_in_room {
+            crate::target::validate_mounting(
+                "camera_in_room.rotation",
+                &e.rotation,
+                "camera_in_room.translation",
                 &e.translation,
             )?;
         }

@@ -171,6 +171,12 @@ pub struct QualitySpec {
     pub max_change_principal_px: f64,
     pub max_change_rotation_deg: f64,
     pub max_change_translation_m: f64,
+    /// Surveyed rooms: largest distance (m) and yaw (deg, about the room's vertical — the
+    /// rotation angle of the parking pose) of the camera from its nominal parking pose,
+    /// the room's nominal LiDAR mounting read as room → camera (the survey's room frame is
+    /// the nominal LiDAR frame at the nominal spot). Defaults 0.5 m and 10°.
+    pub max_parking_offset_m: f64,
+    pub max_parking_yaw_deg: f64,
 }
 
 impl Default for QualitySpec {
@@ -189,6 +195,8 @@ impl Default for QualitySpec {
             max_change_principal_px: 25.0,
             max_change_rotation_deg: 2.0,
             max_change_translation_m: 0.1,
+            max_parking_offset_m: 0.5,
+            max_parking_yaw_deg: 10.0,
         }
     }
 }
@@ -648,6 +656,8 @@ impl QualitySpec {
             ("quality.max_change_principal_px", self.max_change_principal_px),
             ("quality.max_change_rotation_deg", self.max_change_rotation_deg),
             ("quality.max_change_translation_m", self.max_change_translation_m),
+            ("quality.max_parking_offset_m", self.max_parking_offset_m),
+            ("quality.max_parking_yaw_deg", self.max_parking_yaw_deg),
         ];
         for (key, value) in limits {
             positive.check(key, Index::None, value)?;

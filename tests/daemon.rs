@@ -39,6 +39,7 @@ fn result(fx: f64, status: Status) -> CalibrationResult {
         uncertainty: Uncertainty::default(),
         quality: Quality { corner_rms_px: 0.25, hole_rms_px: 0.5, boards: 6 },
         boards: vec![],
+        camera_in_room: None,
     }
 }
 

@@ -46,6 +46,7 @@ fn result(model: CameraModel) -> CalibrationResult {
         uncertainty: Uncertainty::default(),
         quality: Quality::default(),
         boards: Vec::new(),
+        camera_in_room: None,
     }
 }
 

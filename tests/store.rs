@@ -34,6 +34,7 @@ fn result(tag: f64, status: Status) -> CalibrationResult {
         uncertainty: Uncertainty::default(),
         quality: Quality { corner_rms_px: 0.2, hole_rms_px: 0.7, boards: 6 },
         boards: vec![],
+        camera_in_room: None,
     }
 }
 

@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use crate::calibrate::{calibrate, CalibrateOptions, Detectors, FrameDetections};
+use crate::calibrate::{calibrate_with_clouds, CalibrateOptions, Detectors, FrameDetections};
 use crate::capture::GreyFrame;
 use crate::detect::holes::RefusedBoard;
 use crate::lidar::Point;
@@ -87,7 +87,9 @@ impl Calibrator for RoomCalibrator {
             detections.push(FrameDetections { camera, lidar });
         }
         let options = CalibrateOptions { current: current.cloned(), ..CalibrateOptions::default() };
-        let run = calibrate(&self.room, &detections, &options);
+        // In a surveyed room the sweeps' points on the surveyed planes enter the solve.
+        let clouds: Vec<&[Point]> = sweeps.iter().map(Vec::as_slice).collect();
+        let run = calibrate_with_clouds(&self.room, &detections, &clouds, &options);
         if let Some(first) = frames.first() {
             self.write_report(first, sweeps.first(), &run, &refused_first);
         }

@@ -58,6 +58,7 @@ pub mod init;
 pub mod linalg;
 pub mod lm;
 pub mod problem;
+pub mod room;
 
 use core::fmt;
 

@@ -1,0 +1,108 @@
+//! The detectors of a room (chessboards in the image, hole boards in the cloud) and the
+//! selection of a placed board's face points for the point-to-plane term.
+
+use super::{median, CameraBoard, LidarBoard};
+use crate::detect::holes::{HoleConfig, HoleDetector};
+use crate::detect::{ChessboardDetector, DetectError, GreyImage};
+use crate::geometry::{Se3, Vec2, Vec3};
+use crate::solve::PlanePoints;
+use crate::target::{BoardSpec, Room};
+
+/// The detectors of a room, with their workspaces (made once, reused for every frame).
+pub struct Detectors {
+    spec: BoardSpec,
+    chess: ChessboardDetector,
+    holes: HoleDetector,
+    found_holes: Vec<crate::detect::holes::LidarBoard>,
+}
+
+impl Detectors {
+    /// Detectors for the room's board and camera.
+    pub fn new(room: &Room) -> Result<Self, DetectError> {
+        Ok(Detectors {
+            spec: room.board.clone(),
+            chess: ChessboardDetector::new(room.camera.width, room.camera.height, &room.board)?,
+            holes: HoleDetector::new(&room.board, HoleConfig::default()),
+            found_holes: Vec::new(),
+        })
+    }
+
+    /// Every board the LiDAR places in the cloud, with its hole centres.
+    pub fn detect_cloud(&mut self, points: &[crate::lidar::Point]) -> Vec<LidarBoard> {
+        self.holes.detect(points, &mut self.found_holes);
+        self.found_holes
+            .iter()
+            .map(|b| LidarBoard {
+                holes: b.holes.to_vec(),
+                sigma_m: median(b.hole_sigma_m.iter().copied()),
+                plane: plane_points(
+                    &self.spec,
+                    &b.pose,
+                    PLANE_CUT_SIGMAS * b.plane_rms_m.max(PLANE_MIN_SIGMA_M),
+                    points.iter().map(|p| Vec3::new(p.x as f64, p.y as f64, p.z as f64)),
+                ),
+            })
+            .collect()
+    }
+
+    /// Why boards seen in the last cloud were not placed (for the operator).
+    pub fn refused_in_cloud(&self) -> &[crate::detect::holes::RefusedBoard] {
+        self.holes.refused()
+    }
+
+    /// Every complete board in the frame (incomplete ones are not used).
+    pub fn detect_image(&mut self, image: &GreyImage) -> Result<Vec<CameraBoard>, DetectError> {
+        self.detect_pixels(&image.data)
+    }
+
+    /// Every complete board in a grey frame of the room camera's size (row-major).
+    pub fn detect_pixels(&mut self, pixels: &[u8]) -> Result<Vec<CameraBoard>, DetectError> {
+        let mut found = Vec::new();
+        self.chess.detect(pixels, &mut found)?;
+        Ok(found
+            .iter()
+            .filter(|b| b.complete)
+            .map(|b| CameraBoard {
+                corners: b.corners.iter().map(|c| Vec2::new(c.x, c.y)).collect(),
+                sigma_px: median(b.corners.iter().map(|c| c.sigma)),
+            })
+            .collect())
+    }
+}
+
+/// Points farther than this many plane σ from a board's plane are not its face.
+const PLANE_CUT_SIGMAS: f64 = 3.0;
+/// Floor of the per-point plane σ (m): no LiDAR ranges better than this.
+const PLANE_MIN_SIGMA_M: f64 = 0.002;
+/// Points this close to the board's outline or a hole's rim are left out of the plane
+/// term (m): beams there hit partly the board, partly what is behind it.
+const PLANE_EDGE_MARGIN_M: f64 = 0.03;
+
+/// The points on the face of a board placed at `board_to_lidar`: within `cut_m` of its
+/// plane, inside its outline and outside its holes (with a margin), summarised with their
+/// own RMS distance from the plane as σ. `None` when too few remain.
+pub fn plane_points(
+    spec: &BoardSpec,
+    board_to_lidar: &Se3,
+    cut_m: f64,
+    points: impl Iterator<Item = Vec3>,
+) -> Option<PlanePoints> {
+    let to_board = board_to_lidar.inverse();
+    let (half_w, half_h) =
+        (spec.width / 2.0 - PLANE_EDGE_MARGIN_M, spec.height / 2.0 - PLANE_EDGE_MARGIN_M);
+    let keep_out = spec.hole_radius + PLANE_EDGE_MARGIN_M;
+    let on_face = |p: &Vec3| {
+        let b = to_board.act(p);
+        b.z.abs() <= cut_m
+            && b.x.abs() <= half_w
+            && b.y.abs() <= half_h
+            && (0..spec.holes.len())
+                .all(|h| (spec.hole(h) - Vec3::new(b.x, b.y, 0.0)).norm() >= keep_out)
+    };
+    let face: Vec<Vec3> = points.filter(on_face).collect();
+    let normal = board_to_lidar.rotation.column(2).into_owned();
+    let origin = board_to_lidar.translation;
+    let sum_sq: f64 = face.iter().map(|p| normal.dot(&(p - origin)).powi(2)).sum();
+    let sigma = (sum_sq / face.len().max(1) as f64).sqrt().max(PLANE_MIN_SIGMA_M);
+    PlanePoints::from_points(face, sigma)
+}

@@ -1,0 +1,163 @@
+//! The quality gate (`target::QualitySpec`): residuals, boards, coverage, σ, and the change
+//! from the calibration in force.
+
+use super::{CalibrateOptions, Calibration, FrameDetections, UsedBoard};
+use crate::geometry::Camera;
+use crate::result::CalibrationResult;
+use crate::target::Room;
+
+/// The quality gate: `Err(reason)` names the first threshold the run fails.
+pub(super) fn gate(
+    room: &Room,
+    frames: &[FrameDetections],
+    options: &CalibrateOptions,
+    run: &Calibration,
+) -> Result<(), String> {
+    let q = &room.quality;
+    let r = &run.result;
+    let min_boards = q.min_boards.unwrap_or(room.board.count) as usize;
+    for (f, frame) in frames.iter().enumerate() {
+        let complete = run.boards.iter().filter(|b| b.frame as usize == f).count();
+        if complete < min_boards {
+            return Err(format!(
+                "frame {f}: {complete} complete boards seen by the camera, the room needs {min_boards} ({} detected in all)",
+                frame.camera.len()
+            ));
+        }
+    }
+    check(r.quality.corner_rms_px <= q.max_corner_rms_px, || {
+        format!("corner RMS {:.3} px exceeds {} px", r.quality.corner_rms_px, q.max_corner_rms_px)
+    })?;
+    let coverage = coverage(&run.camera, &run.boards);
+    check(coverage >= q.min_coverage, || {
+        format!(
+            "corners cover {:.0} % of the image, at least {:.0} % needed",
+            coverage * 100.0,
+            q.min_coverage * 100.0
+        )
+    })?;
+    let u = &r.uncertainty;
+    let c = &r.camera;
+    check(u.fx <= q.max_sigma_focal_rel * c.fx && u.fy <= q.max_sigma_focal_rel * c.fy, || {
+        format!(
+            "focal length uncertain: σ fx {:.2} px, fy {:.2} px (limit {} %)",
+            u.fx,
+            u.fy,
+            q.max_sigma_focal_rel * 100.0
+        )
+    })?;
+    check(u.cx <= q.max_sigma_principal_px && u.cy <= q.max_sigma_principal_px, || {
+        format!(
+            "principal point uncertain: σ cx {:.2} px, cy {:.2} px (limit {} px)",
+            u.cx, u.cy, q.max_sigma_principal_px
+        )
+    })?;
+    if run.lidar_to_camera.is_some() {
+        let lidar_boards = run.boards.iter().filter(|b| !b.holes_lidar.is_empty()).count();
+        check(lidar_boards >= q.min_lidar_boards as usize, || {
+            format!(
+                "{lidar_boards} boards seen by both sensors, at least {} needed",
+                q.min_lidar_boards
+            )
+        })?;
+        check(r.quality.hole_rms_px <= q.max_hole_rms_px, || {
+            format!("hole RMS {:.3} px exceeds {} px", r.quality.hole_rms_px, q.max_hole_rms_px)
+        })?;
+        check(
+            u.rotation_deg <= q.max_sigma_rotation_deg
+                && u.translation_m <= q.max_sigma_translation_m,
+            || {
+                format!(
+                    "extrinsic uncertain: σ {:.3}° / {:.1} mm (limits {}° / {} mm)",
+                    u.rotation_deg,
+                    u.translation_m * 1000.0,
+                    q.max_sigma_rotation_deg,
+                    q.max_sigma_translation_m * 1000.0
+                )
+            },
+        )?;
+    }
+    if let (Some(in_room), Some(lidar)) = (&r.camera_in_room, &room.lidar) {
+        check_parking(q, lidar, in_room)?;
+    }
+    if let Some(current) = &options.current {
+        check_change(q, current, r)?;
+    }
+    Ok(())
+}
+
+/// The parking box of a surveyed room: the camera's pose in the room against the nominal
+/// parking, which is the room's nominal mounting read as room → camera (the survey's room
+/// frame is the nominal LiDAR frame at the nominal spot). The angle is the whole rotation
+/// between the two (on a level floor, the yaw).
+fn check_parking(
+    q: &crate::target::QualitySpec,
+    lidar: &crate::target::LidarSpec,
+    camera_in_room: &crate::result::Extrinsic,
+) -> Result<(), String> {
+    let nominal = super::association::lidar_nominal(lidar).inverse();
+    let (angle, shift) = crate::result::Extrinsic::from_se3(&nominal).difference(camera_in_room);
+    check(shift <= q.max_parking_offset_m && angle <= q.max_parking_yaw_deg, || {
+        format!(
+            "parked {:.0} mm / {angle:.1}° from the nominal spot (limits {:.0} mm / {}°)",
+            shift * 1000.0,
+            q.max_parking_offset_m * 1000.0,
+            q.max_parking_yaw_deg
+        )
+    })
+}
+
+/// The change limits against the calibration in force.
+fn check_change(
+    q: &crate::target::QualitySpec,
+    current: &CalibrationResult,
+    new: &CalibrationResult,
+) -> Result<(), String> {
+    let (a, b) = (&current.camera, &new.camera);
+    let focal = ((b.fx - a.fx) / a.fx).abs().max(((b.fy - a.fy) / a.fy).abs());
+    check(focal <= q.max_change_focal_rel, || {
+        format!(
+            "focal length moved {:.2} % from the current calibration (limit {} %)",
+            focal * 100.0,
+            q.max_change_focal_rel * 100.0
+        )
+    })?;
+    let principal = (b.cx - a.cx).hypot(b.cy - a.cy);
+    check(principal <= q.max_change_principal_px, || {
+        format!(
+            "principal point moved {principal:.1} px from the current calibration (limit {} px)",
+            q.max_change_principal_px
+        )
+    })?;
+    if let (Some(x), Some(y)) = (&current.lidar_to_camera, &new.lidar_to_camera) {
+        let (angle, shift) = x.difference(y);
+        check(angle <= q.max_change_rotation_deg && shift <= q.max_change_translation_m, || {
+            format!(
+                "extrinsic moved {angle:.2}° / {:.0} mm from the current calibration (limits {}° / {} mm)",
+                shift * 1000.0,
+                q.max_change_rotation_deg,
+                q.max_change_translation_m * 1000.0
+            )
+        })?;
+    }
+    Ok(())
+}
+
+fn check(ok: bool, reason: impl FnOnce() -> String) -> Result<(), String> {
+    if ok {
+        Ok(())
+    } else {
+        Err(reason())
+    }
+}
+
+/// Fraction of a 4×4 grid of image cells that hold at least one used corner.
+pub fn coverage(camera: &Camera, boards: &[UsedBoard]) -> f64 {
+    let mut cells = [false; 16];
+    for c in boards.iter().flat_map(|b| &b.corners) {
+        let i = ((c.x / camera.width as f64 * 4.0).floor() as usize).min(3);
+        let j = ((c.y / camera.height as f64 * 4.0).floor() as usize).min(3);
+        cells[j * 4 + i] = true;
+    }
+    cells.iter().filter(|&&c| c).count() as f64 / 16.0
+}

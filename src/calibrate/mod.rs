@@ -1,0 +1,232 @@
+//! One calibration run from detections to a gated result, no I/O: associate the camera's
+//! boards with the LiDAR's, start from a closed form, refine everything jointly, measure
+//! the uncertainty and let the quality gate decide.
+//!
+//! 1. **Intrinsics start**: several seeds (Zhang's closed form from the boards'
+//!    homographies, the room's nominal intrinsics, a range of fields of view) are each
+//!    refined on the corners alone; the lowest cost wins. Nothing is hard-coded.
+//! 2. **Association**: every LiDAR board is paired with a camera board of the same frame
+//!    by carrying its hole centres into the camera with the room's nominal mounting;
+//!    the pairing is redone with the extrinsic re-estimated (Kabsch) from the pairs found,
+//!    under a tightening gate, so a nominal mounting 5° and 20 cm off is tolerated. The
+//!    LiDAR's hole order is resolved through the camera board's pose.
+//! 3. **Joint solve** (`solve::JointProblem`): corners and the paper's hole term, each
+//!    weighted by its σ, Huber loss. `two_stage` solves the intrinsics from the corners
+//!    first and then the extrinsic with them fixed (the paper's ablation).
+//! 4. **Gate** (`target::QualitySpec`): residuals, boards, coverage, σ, the change from
+//!    the calibration in force, and in a surveyed room the parking box.
+//!
+//! In a surveyed room (`[survey]`, unless `free_boards`) steps 2–3 are `surveyed.rs`: the
+//! boards identified against the survey (`identify.rs`) and the room solved as one rigid
+//! target (`solve::room`). Files: `detectors.rs`, `association.rs`, `free.rs` (the
+//! free-board model), `identify.rs`, `surveyed.rs`, `gate.rs`.
+
+mod association;
+mod detectors;
+mod free;
+mod gate;
+pub mod identify;
+pub mod survey;
+mod surveyed;
+
+pub use detectors::{plane_points, Detectors};
+pub use gate::coverage;
+
+use crate::geometry::{Camera, CameraModel, Se3, Vec2, Vec3};
+use crate::result::{CalibrationResult, Status};
+use crate::solve::{PlanePoints, SolveError};
+use crate::target::{BoardSpec, Room};
+
+/// Most board observations (boards × frames) in one run.
+pub const MAX_OBSERVATIONS: usize = 32;
+
+/// A checkerboard the camera saw completely, corners in the board model's order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CameraBoard {
+    pub corners: Vec<Vec2>,
+    /// Typical 1σ of a corner (px).
+    pub sigma_px: f64,
+}
+
+/// A board the LiDAR saw: its hole centres (LiDAR frame, m), in any order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LidarBoard {
+    pub holes: Vec<Vec3>,
+    /// Typical 1σ of a hole centre (m).
+    pub sigma_m: f64,
+    /// The LiDAR's points on the board face, for the point-to-plane term.
+    pub plane: Option<PlanePoints>,
+}
+
+/// Everything detected in one image/cloud pair.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct FrameDetections {
+    pub camera: Vec<CameraBoard>,
+    pub lidar: Vec<LidarBoard>,
+}
+
+/// How to run.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CalibrateOptions {
+    /// Intrinsics from the corners first, then the extrinsic with them fixed.
+    pub two_stage: bool,
+    /// The calibration in force, for the gate's change limits.
+    pub current: Option<CalibrationResult>,
+    /// Leaves the LiDAR's board-plane points out of the joint solve (the paper's cost
+    /// alone; for comparisons).
+    pub without_planes: bool,
+    /// Ignores the room's `[survey]`: every board observation gets its own pose.
+    pub free_boards: bool,
+}
+
+/// One board observation as the solver used it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct UsedBoard {
+    pub frame: u32,
+    pub corners: Vec<Vec2>,
+    /// The LiDAR's hole centres in the room's hole order (empty when unpaired).
+    pub holes_lidar: Vec<Vec3>,
+    /// Board → camera, as solved.
+    pub pose: Se3,
+}
+
+/// The outcome of a run: the result file and what the report needs to draw it.
+#[derive(Clone, Debug)]
+pub struct Calibration {
+    pub result: CalibrationResult,
+    pub camera: Camera,
+    /// LiDAR → camera (rooms with a LiDAR).
+    pub lidar_to_camera: Option<Se3>,
+    pub boards: Vec<UsedBoard>,
+    /// The room's hole centres in the board frame (m).
+    pub holes_board: Vec<Vec3>,
+    /// Solver iterations over all stages.
+    pub iterations: usize,
+    /// What the run decided on its own (e.g. a board left out), for the operator.
+    pub notes: Vec<String>,
+}
+
+impl Calibration {
+    /// A used board's hole centres in the camera frame, placed by its solved pose.
+    pub fn holes_in_camera(&self, board: &UsedBoard) -> Vec<Vec3> {
+        self.holes_board.iter().map(|h| board.pose.act(h)).collect()
+    }
+
+    /// A used board's residuals as the solution leaves them: the RMS (px) of its corners
+    /// against the board model seen through its pose, and of its LiDAR hole centres seen
+    /// through the extrinsic against the board's holes (`None` without LiDAR holes).
+    pub fn board_rms(&self, spec: &BoardSpec, board: &UsedBoard) -> (f64, Option<f64>) {
+        let corners = board.corners.iter().enumerate().map(|(i, seen)| {
+            let model = board.pose.act(&spec.corner(i));
+            self.camera.project(&model).map(|px| (px - seen).norm_squared())
+        });
+        let holes = self.lidar_to_camera.filter(|_| !board.holes_lidar.is_empty()).map(|t| {
+            let pairs = board.holes_lidar.iter().zip(self.holes_in_camera(board));
+            rms(pairs.map(|(l, b)| {
+                let (seen, model) = (self.camera.project(&t.act(l)), self.camera.project(&b));
+                seen.zip(model).map(|(s, m)| (s - m).norm_squared())
+            }))
+        });
+        (rms(corners), holes)
+    }
+}
+
+/// Runs association, start, joint solve and gate on one set of detections.
+pub fn calibrate(
+    room: &Room,
+    frames: &[FrameDetections],
+    options: &CalibrateOptions,
+) -> Calibration {
+    calibrate_with_clouds(room, frames, &[], options)
+}
+
+/// [`calibrate`] with each frame's sweep (`clouds[f]`, may be empty): in a surveyed room
+/// (unless `free_boards`) the room model is solved as one rigid target, and the LiDAR's
+/// points on the surveyed planes enter it.
+pub fn calibrate_with_clouds(
+    room: &Room,
+    frames: &[FrameDetections],
+    clouds: &[&[crate::lidar::Point]],
+    options: &CalibrateOptions,
+) -> Calibration {
+    let fallback_camera = nominal_camera(room, default_fov(room.camera.model));
+    let solved = match room.survey.as_ref().filter(|_| !options.free_boards) {
+        Some(survey) => surveyed::solve_surveyed(room, survey, frames, clouds, options),
+        None => free::solve_free(room, frames, options),
+    };
+    match solved {
+        Ok(mut calibration) => {
+            if let Err(reason) = gate::gate(room, frames, options, &calibration) {
+                calibration.result.status = Status::Rejected;
+                let notes = calibration.notes.iter().map(|n| format!("; {n}"));
+                calibration.result.reason = Some(notes.fold(reason, |r, n| r + &n));
+            }
+            calibration
+        }
+        Err(reason) => Calibration {
+            result: free::rejected(&fallback_camera, reason, room.lidar.is_some()),
+            camera: fallback_camera,
+            lidar_to_camera: None,
+            boards: Vec::new(),
+            holes_board: Vec::new(),
+            iterations: 0,
+            notes: Vec::new(),
+        },
+    }
+}
+
+/// The room's nominal camera: its intrinsics where the room gives them, else a centred
+/// lens of `hfov_deg`.
+pub fn nominal_camera(room: &Room, hfov_deg: f64) -> Camera {
+    let spec = &room.camera;
+    let mut camera = Camera::from_fov(spec.model, spec.width, spec.height, hfov_deg, [0.0; 5]);
+    if let Some(fx) = spec.fx {
+        camera.fx = fx;
+        camera.fy = spec.fy.unwrap_or(fx);
+    }
+    camera.cx = spec.cx.unwrap_or(camera.cx);
+    camera.cy = spec.cy.unwrap_or(camera.cy);
+    if let Some(d) = &spec.distortion {
+        camera.distortion[..d.len()].copy_from_slice(d);
+    }
+    camera
+}
+
+fn default_fov(model: CameraModel) -> f64 {
+    match model {
+        CameraModel::PinholeRadtan => 70.0,
+        CameraModel::Fisheye => 120.0,
+    }
+}
+
+/// Fields of view tried as starts besides Zhang and the nominal intrinsics.
+fn fov_guesses(model: CameraModel) -> &'static [f64] {
+    match model {
+        CameraModel::PinholeRadtan => &[45.0, 60.0, 75.0, 90.0, 110.0],
+        CameraModel::Fisheye => &[90.0, 120.0, 150.0, 180.0],
+    }
+}
+
+/// RMS of squared residuals; a point that does not project counts as infinitely off.
+fn rms(squares: impl Iterator<Item = Option<f64>>) -> f64 {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for sq in squares {
+        sum += sq.unwrap_or(f64::INFINITY);
+        n += 1;
+    }
+    if n == 0 {
+        0.0
+    } else {
+        (sum / n as f64).sqrt()
+    }
+}
+
+fn median(values: impl Iterator<Item = f64>) -> f64 {
+    let mut v: Vec<f64> = values.collect();
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(0.0)
+}
+
+fn solver_reason(e: SolveError) -> String {
+    format!("the solver failed: {e}")
+}

@@ -1,0 +1,388 @@
+//! Calibration in a surveyed room (the room file has a `[survey]`): the room is one rigid
+//! target. The camera boards are identified against the survey ([`super::identify`]),
+//! which also gives the vehicle's room→camera pose; the LiDAR's boards are paired as in
+//! the free model; the LiDAR's points near every surveyed plane are selected with the
+//! room pose and the extrinsic (registration against the room model, no global search);
+//! then `solve::room` refines intrinsics, extrinsic, ONE room→camera pose (frames are a
+//! standing vehicle) and every seen board and plane within its survey σ.
+//!
+//! A board whose solved pose lies far outside its survey σ (moved, knocked over) is
+//! named, left out, and the room solved again; two such boards reject the run.
+
+use super::association::{associate, lidar_nominal};
+use super::free::{accepted, intrinsics_start};
+use super::identify::{identify, oriented};
+use super::{
+    median, solver_reason, CalibrateOptions, Calibration, CameraBoard, FrameDetections, UsedBoard,
+    MAX_OBSERVATIONS,
+};
+use crate::geometry::{Camera, Se3, Vec3};
+use crate::lidar::Point;
+use crate::result::Extrinsic;
+use crate::solve::init::kabsch_from_pairs;
+use crate::solve::room::{
+    plane_frame, room_covariance, solve_room, BlockPrior, RoomParams, RoomProblem, ROOM_SHARED,
+};
+use crate::solve::{
+    covariance::SharedCovariance, hole_sigma_px, BoardObservation, JointParams, Loss, ParamMask,
+    PlanePoints, SolveReport, Termination, SHARED,
+};
+use crate::target::{Room, SurveySpec};
+
+/// A board disagrees with the survey when `|prior residual|²` (6 rows, whitened by the
+/// survey's σ) exceeds this: χ²₆ passes 36 with probability 5·10⁻⁶.
+pub const MOVED_BOARD_CHI2: f64 = 36.0;
+/// Points within this distance (m) of a surveyed plane predicted from the start are
+/// its candidates; the final selection is 3σ of their own spread.
+const PLANE_START_CUT_M: f64 = 0.10;
+/// Floor of a surveyed plane's per-point σ (m).
+const PLANE_MIN_SIGMA_M: f64 = 0.002;
+/// Points closer than this to a board's centre (m, in the room) are its face, not a plane.
+const PLANE_BOARD_CLEARANCE_M: f64 = 1.0;
+
+type Problem<'a> = RoomProblem<'a, MAX_OBSERVATIONS>;
+type Params = RoomParams<Camera, MAX_OBSERVATIONS>;
+
+/// One calibration in the surveyed room; `clouds[f]` is frame `f`'s sweep (may be empty).
+pub(super) fn solve_surveyed(
+    room: &Room,
+    survey: &SurveySpec,
+    frames: &[FrameDetections],
+    clouds: &[&[Point]],
+    _options: &CalibrateOptions,
+) -> Result<Calibration, String> {
+    let spec = &room.board;
+    let object: Vec<Vec3> = (0..spec.corner_count()).map(|i| spec.corner(i)).collect();
+    let holes_board: Vec<Vec3> = (0..spec.holes.len()).map(|h| spec.hole(h)).collect();
+    let seen: Vec<(u32, &CameraBoard)> = frames
+        .iter()
+        .enumerate()
+        .flat_map(|(f, d)| d.camera.iter().map(move |b| (f as u32, b)))
+        .filter(|(_, b)| b.corners.len() == object.len())
+        .take(MAX_OBSERVATIONS)
+        .collect();
+    if seen.is_empty() {
+        return Err("no complete checkerboard was detected in any image".into());
+    }
+    let corner_sigma = median(seen.iter().map(|(_, b)| b.sigma_px)).max(0.02);
+    let (camera, poses, mut iterations) = intrinsics_start(room, &object, &seen, corner_sigma)?;
+    let surveyed: Vec<Se3> = survey.boards.iter().map(|b| b.pose()).collect();
+
+    // Identification, frame by frame; a standing vehicle's frames share one parking pose.
+    let mut identified: Vec<(u32, CameraBoard, usize, Se3)> = Vec::new();
+    let mut room_to_camera = None;
+    let mut unmatched: Vec<String> = Vec::new();
+    for f in 0..frames.len() as u32 {
+        let in_frame: Vec<usize> = (0..seen.len()).filter(|&i| seen[i].0 == f).collect();
+        if in_frame.is_empty() {
+            continue;
+        }
+        let frame_poses: Vec<Se3> = in_frame.iter().map(|&i| poses[i]).collect();
+        let (ids, pose) =
+            identify(spec, &surveyed, &frame_poses).map_err(|e| format!("frame {f}: {e}"))?;
+        room_to_camera.get_or_insert(pose);
+        for (&i, id) in in_frame.iter().zip(&ids) {
+            let Some(id) = id else {
+                unmatched.push(unmatched_note(f, &poses[i], &pose, &surveyed));
+                continue;
+            };
+            let mut board = seen[i].1.clone();
+            if id.half_turned {
+                board.corners.reverse();
+            }
+            identified.push((f, board, id.board, oriented(&poses[i], id.half_turned)));
+        }
+    }
+    let room_to_camera = room_to_camera.ok_or("no board could be identified")?;
+
+    let lidar = room.lidar.as_ref();
+    let camera_boards: Vec<(u32, &CameraBoard)> =
+        identified.iter().map(|(f, b, _, _)| (*f, b)).collect();
+    let board_poses: Vec<Se3> = identified.iter().map(|(_, _, _, p)| *p).collect();
+    let pairs = match lidar {
+        Some(l) => associate(&lidar_nominal(l), frames, &camera_boards, &board_poses, &holes_board),
+        None => vec![None; camera_boards.len()],
+    };
+    let holes_model = &holes_board;
+    let extrinsic = lidar.map(|l| {
+        let correspondences = pairs.iter().zip(&board_poses).flat_map(|(pair, pose)| {
+            pair.iter().flat_map(move |p| {
+                p.holes_lidar.iter().zip(holes_model).map(move |(l, h)| (*l, pose.act(h)))
+            })
+        });
+        kabsch_from_pairs(correspondences).unwrap_or_else(|_| lidar_nominal(l))
+    });
+
+    let mut left_out: Vec<usize> = Vec::new();
+    loop {
+        let keep: Vec<usize> =
+            (0..identified.len()).filter(|&i| !left_out.contains(&identified[i].2)).collect();
+        let ext = extrinsic.unwrap_or_else(Se3::identity);
+        // Plane points from the start, then again from the first solve.
+        let mut planes = room_planes(survey, &surveyed, clouds, &room_to_camera, &ext, None);
+        let mut params = None;
+        for pass in 0..2 {
+            let mut problem: Problem<'_> = RoomProblem::new(corner_sigma, 2.0, Loss::Huber(3.0));
+            let blocks = add_observations(
+                &mut problem,
+                survey,
+                &object,
+                &holes_board,
+                &identified,
+                &pairs,
+                &keep,
+                &planes,
+                camera.fx,
+            )?;
+            let mut p = problem.params_at_priors(camera, ext, room_to_camera);
+            if let Some(previous) = &params {
+                let previous: &Params = previous;
+                (p.camera, p.lidar_to_camera, p.room_to_camera) =
+                    (previous.camera, previous.lidar_to_camera, previous.room_to_camera);
+            }
+            let report = solve_room(&problem, &mut p, 100).map_err(solver_reason)?;
+            iterations += report.iterations;
+            if pass == 0 {
+                planes = room_planes(
+                    survey,
+                    &surveyed,
+                    clouds,
+                    &p.room_to_camera,
+                    &p.lidar_to_camera,
+                    Some(&planes),
+                );
+                params = Some(p);
+                continue;
+            }
+            if let Some((board, chi2)) = worst_moved(&problem, &p, &blocks)? {
+                if left_out.is_empty() && keep.len() > 2 {
+                    tracing::warn!(board, chi2, "board disagrees with the survey; left out");
+                    left_out.push(board);
+                    break;
+                }
+                return Err(format!(
+                    "board {board} disagrees with the survey (χ² {chi2:.0} over its 6 survey σ, limit {MOVED_BOARD_CHI2}){}: it has moved, or the survey is stale",
+                    if left_out.is_empty() { String::new() } else { format!(" after leaving out board {}", left_out[0]) }
+                ));
+            }
+            let sigma = room_covariance(&problem, &p).map_err(solver_reason)?;
+            let mut run = calibration(
+                room,
+                &problem,
+                &p,
+                &report,
+                &sigma,
+                &identified,
+                &pairs,
+                &keep,
+                &holes_board,
+                iterations,
+                &left_out,
+            );
+            run.notes.extend(unmatched);
+            return Ok(run);
+        }
+    }
+}
+
+/// What to tell the operator about a seen board that lands on no surveyed board: the
+/// nearest surveyed board and how far off it is (it may have been knocked over or moved).
+fn unmatched_note(frame: u32, seen: &Se3, room_to_camera: &Se3, surveyed: &[Se3]) -> String {
+    let nearest = surveyed
+        .iter()
+        .enumerate()
+        .map(|(k, b)| (k, (room_to_camera.compose(b).translation - seen.translation).norm()))
+        .min_by(|a, b| a.1.total_cmp(&b.1));
+    match nearest {
+        Some((k, d)) => format!(
+            "frame {frame}: a board the camera sees matches no surveyed board (nearest: board {k}, {:.0} mm away); it was left out: board {k} may have moved",
+            d * 1000.0
+        ),
+        None => format!("frame {frame}: a board the camera sees matches no surveyed board"),
+    }
+}
+
+/// Adds one block per seen surveyed board and per surveyed plane with points, and the
+/// observations; returns the survey index of every block (`None` for planes).
+#[allow(clippy::too_many_arguments)]
+fn add_observations<'a>(
+    problem: &mut Problem<'a>,
+    survey: &SurveySpec,
+    object: &'a [Vec3],
+    holes_board: &'a [Vec3],
+    identified: &'a [(u32, CameraBoard, usize, Se3)],
+    pairs: &'a [Option<super::association::Pair>],
+    keep: &[usize],
+    planes: &[(usize, PlanePoints)],
+    fx: f64,
+) -> Result<Vec<Option<usize>>, String> {
+    let mut blocks: Vec<Option<usize>> = Vec::new();
+    for &i in keep {
+        let (_, board, k, pose) = &identified[i];
+        let block = match blocks.iter().position(|b| *b == Some(*k)) {
+            Some(b) => b,
+            None => {
+                let s = &survey.boards[*k];
+                let prior = BlockPrior {
+                    pose: s.pose(),
+                    sigma_m: s.sigma_m,
+                    sigma_rad: s.sigma_deg.to_radians(),
+                };
+                blocks.push(Some(*k));
+                problem.add_block(prior).map_err(solver_reason)?
+            }
+        };
+        let pair = pairs[i].as_ref();
+        let (hb, hl): (&[Vec3], &[Vec3]) = match pair {
+            Some(p) => (holes_board, &p.holes_lidar),
+            None => (&[], &[]),
+        };
+        let observation = BoardObservation {
+            object,
+            corners: &board.corners,
+            holes_board: hb,
+            holes_lidar: hl,
+            hole_sigma_px: pair.map(|p| hole_sigma_px(fx, p.sigma_m, pose.translation.z)),
+            plane: pair.and_then(|p| p.plane),
+        };
+        problem.add_observation(block, observation).map_err(solver_reason)?;
+    }
+    for (index, points) in planes {
+        let s = &survey.planes[*index];
+        let prior = BlockPrior {
+            pose: plane_frame(&Vec3::from(s.normal), s.offset),
+            sigma_m: s.sigma_m,
+            sigma_rad: s.sigma_deg.to_radians(),
+        };
+        let block = problem.add_block(prior).map_err(solver_reason)?;
+        blocks.push(None);
+        let observation = BoardObservation { plane: Some(*points), ..BoardObservation::default() };
+        problem.add_observation(block, observation).map_err(solver_reason)?;
+    }
+    Ok(blocks)
+}
+
+/// The LiDAR's points on every surveyed plane, over all clouds: those within a cut of
+/// the plane carried into the LiDAR frame by `room_to_camera` and `extrinsic`, and not
+/// near a board. The cut is [`PLANE_START_CUT_M`] at first, then 3σ of the previous
+/// selection of that plane.
+fn room_planes(
+    survey: &SurveySpec,
+    surveyed: &[Se3],
+    clouds: &[&[Point]],
+    room_to_camera: &Se3,
+    extrinsic: &Se3,
+    previous: Option<&[(usize, PlanePoints)]>,
+) -> Vec<(usize, PlanePoints)> {
+    let lidar_to_room = room_to_camera.inverse().compose(extrinsic);
+    let mut out = Vec::new();
+    for (index, plane) in survey.planes.iter().enumerate() {
+        let normal = Vec3::from(plane.normal);
+        let cut = match previous {
+            Some(prev) => match prev.iter().find(|(i, _)| *i == index) {
+                Some((_, p)) => 3.0 * p.sigma_m,
+                None => continue,
+            },
+            None => PLANE_START_CUT_M,
+        };
+        let near = |q: &Vec3| {
+            let distance = normal.dot(q) - plane.offset;
+            distance.abs() <= cut
+                && surveyed.iter().all(|b| (b.translation - q).norm() > PLANE_BOARD_CLEARANCE_M)
+        };
+        let points: Vec<Vec3> = clouds
+            .iter()
+            .flat_map(|c| c.iter())
+            .map(|p| Vec3::new(p.x as f64, p.y as f64, p.z as f64))
+            .filter(|p| p.iter().all(|v| v.is_finite()))
+            .filter(|p| near(&lidar_to_room.act(p)))
+            .collect();
+        let rms = (points
+            .iter()
+            .map(|p| (normal.dot(&lidar_to_room.act(p)) - plane.offset).powi(2))
+            .sum::<f64>()
+            / points.len().max(1) as f64)
+            .sqrt();
+        if let Some(summary) = PlanePoints::from_points(points, rms.max(PLANE_MIN_SIGMA_M)) {
+            out.push((index, summary));
+        }
+    }
+    out
+}
+
+/// The board block farthest outside its survey σ, if any is beyond [`MOVED_BOARD_CHI2`]:
+/// (survey index, χ²).
+fn worst_moved(
+    problem: &Problem<'_>,
+    params: &Params,
+    blocks: &[Option<usize>],
+) -> Result<Option<(usize, f64)>, String> {
+    let costs = problem.block_costs(params).map_err(solver_reason)?;
+    Ok(costs
+        .iter()
+        .zip(blocks)
+        .filter_map(|((_, prior), board)| board.map(|b| (b, 2.0 * prior)))
+        .filter(|(_, chi2)| *chi2 > MOVED_BOARD_CHI2)
+        .max_by(|a, b| a.1.total_cmp(&b.1)))
+}
+
+/// The run's outcome from the solved room problem.
+#[allow(clippy::too_many_arguments)]
+fn calibration(
+    room: &Room,
+    problem: &Problem<'_>,
+    params: &Params,
+    report: &crate::solve::room::RoomReport,
+    sigma: &nalgebra::SMatrix<f64, ROOM_SHARED, ROOM_SHARED>,
+    identified: &[(u32, CameraBoard, usize, Se3)],
+    pairs: &[Option<super::association::Pair>],
+    keep: &[usize],
+    holes_board: &[Vec3],
+    iterations: usize,
+    left_out: &[usize],
+) -> Calibration {
+    let joint: JointParams<Camera, MAX_OBSERVATIONS> = problem.joint_params(params);
+    let with_lidar = room.lidar.is_some() && problem.sees_lidar();
+    let boards: Vec<UsedBoard> = keep
+        .iter()
+        .zip(joint.board_poses.iter())
+        .map(|(&i, pose)| UsedBoard {
+            frame: identified[i].0,
+            corners: identified[i].1.corners.clone(),
+            holes_lidar: pairs[i].as_ref().map_or(Vec::new(), |p| p.holes_lidar.clone()),
+            pose: *pose,
+        })
+        .collect();
+    let shared = SharedCovariance {
+        matrix: sigma.fixed_view::<SHARED, SHARED>(0, 0).into_owned(),
+        residual_variance: 1.0,
+        dof: report.residuals,
+        mask: ParamMask::free(),
+    };
+    let solve_report = SolveReport {
+        iterations: report.iterations,
+        initial_cost: report.initial_cost,
+        final_cost: report.final_cost,
+        termination: Termination::CostConverged,
+        residuals: report.residuals,
+        free_parameters: ROOM_SHARED,
+        corner_rms_px: report.corner_rms_px,
+        hole_rms_px: report.hole_rms_px,
+        final_lambda: 0.0,
+    };
+    let mut result = accepted(&joint, &solve_report, &shared.uncertainty(), &boards, with_lidar);
+    result.camera_in_room = Some(Extrinsic::from_se3(&params.room_to_camera.inverse()));
+    let notes = left_out
+        .iter()
+        .map(|b| format!("board {b} disagrees with the survey and was left out"))
+        .collect();
+    Calibration {
+        result,
+        camera: params.camera,
+        lidar_to_camera: with_lidar.then_some(params.lidar_to_camera),
+        boards,
+        holes_board: holes_board.to_vec(),
+        iterations,
+        notes,
+    }
+}

@@ -1,0 +1,513 @@
+//! The surveyed-room problem: the room as one rigid target. Unknowns are the intrinsics,
+//! the LiDAR→camera extrinsic, ONE room→camera pose (the vehicle's parking; a standing
+//! vehicle's frames share it) and one pose per room *block* — a surveyed board or a
+//! surveyed plane — in the room frame, held near the survey by a prior of the survey's σ.
+//!
+//! Every measurement is a [`BoardObservation`] of the free-board problem
+//! ([`super::JointProblem`]) whose board→camera pose is `T_rc ∘ T_kr` (block `k` → room →
+//! camera), so the corner, hole and point-to-plane blocks and their analytic Jacobians
+//! are the free-board ones, carried by the chain rule of the left perturbation
+//! (`R ← exp(δω) R`, `t ← t + δt`) of `C = A ∘ B`:
+//! - `δA` moves `C` by `δω_C = δω_A`, `δt_C = δt_A − [R_A t_B]× δω_A`;
+//! - `δB` moves `C` by `δω_C = R_A δω_B`, `δt_C = R_A δt_B`.
+//!
+//! A surveyed plane `n · p_room = d` is a block whose frame has its z axis along `n` and
+//! its origin at `d n` ([`plane_frame`]): the LiDAR points near it are a board-face term
+//! with that pose. Its in-plane rotation and shift are seen by nothing but their prior.
+//!
+//! Shared parameters (21): intrinsics (9), extrinsic `[δω δt]` (6), room→camera `[δω δt]`
+//! (6). Blocks are eliminated by the Schur complement as in [`super::lm`]. Fixed size:
+//! nothing here allocates.
+
+use nalgebra::{SMatrix, SVector};
+
+use super::init::perturb;
+use super::linalg::Cholesky;
+use super::problem::{BoardObservation, JointParams, JointProblem, Loss, ResidualKind};
+use super::{Projector, SolveError, EXT_ROTATION, EXT_TRANSLATION, INTRINSICS, SHARED};
+use crate::geometry::se3::{skew, so3_left_jacobian_inv, so3_log};
+use crate::geometry::{Mat3, Se3, Vec3};
+
+/// Shared parameters of the room problem: intrinsics, extrinsic, room→camera pose.
+pub const ROOM_SHARED: usize = SHARED + 6;
+/// Index of the room→camera rotation in the shared vector (translation follows).
+pub const ROOM_ROTATION: usize = SHARED;
+
+/// Smallest prior σ used (m, rad): an exact survey (σ = 0) holds its block this tightly.
+pub const PRIOR_FLOOR: f64 = 1e-6;
+
+/// What the survey says about one block: its pose (block → room) and its 1σ.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BlockPrior {
+    pub pose: Se3,
+    /// Position σ (m), every axis.
+    pub sigma_m: f64,
+    /// Orientation σ (rad), every axis.
+    pub sigma_rad: f64,
+}
+
+/// The estimate of a room problem.
+#[derive(Clone, Debug)]
+pub struct RoomParams<C, const B: usize> {
+    pub camera: C,
+    pub lidar_to_camera: Se3,
+    /// Room → camera: `p_camera = R p_room + t`.
+    pub room_to_camera: Se3,
+    /// Block → room, one per block in the problem's order.
+    pub blocks: heapless::Vec<Se3, B>,
+}
+
+/// Observations by reference, the blocks they see and the blocks' priors.
+#[derive(Clone, Debug)]
+pub struct RoomProblem<'a, const B: usize> {
+    inner: JointProblem<'a, B>,
+    block_of: heapless::Vec<usize, B>,
+    priors: heapless::Vec<BlockPrior, B>,
+}
+
+/// What a room solve did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RoomReport {
+    pub iterations: usize,
+    pub initial_cost: f64,
+    pub final_cost: f64,
+    /// Scalar residuals (measurements and prior rows).
+    pub residuals: usize,
+    pub corner_rms_px: f64,
+    pub hole_rms_px: f64,
+}
+
+/// The frame of the plane `normal · p = offset`: z along the (unit) normal, origin at
+/// `offset · normal`; x, y any orthonormal completion.
+pub fn plane_frame(normal: &Vec3, offset: f64) -> Se3 {
+    let z = normal.normalize();
+    let helper = if z.x.abs() < 0.9 { Vec3::x() } else { Vec3::y() };
+    let x = helper.cross(&z).normalize();
+    let y = z.cross(&x);
+    Se3 { rotation: Mat3::from_columns(&[x, y, z]), translation: z * offset }
+}
+
+impl<'a, const B: usize> RoomProblem<'a, B> {
+    /// An empty problem with these measurement σ and loss (as [`JointProblem::new`]).
+    pub fn new(corner_sigma_px: f64, hole_sigma_px: f64, loss: Loss) -> Self {
+        RoomProblem {
+            inner: JointProblem::new(corner_sigma_px, hole_sigma_px, loss),
+            block_of: heapless::Vec::new(),
+            priors: heapless::Vec::new(),
+        }
+    }
+
+    /// Adds a block (board or plane) with its survey prior; returns its index.
+    pub fn add_block(&mut self, prior: BlockPrior) -> Result<usize, SolveError> {
+        let positive = |v: f64| v.is_finite() && v >= 0.0;
+        if !positive(prior.sigma_m) || !positive(prior.sigma_rad) {
+            return Err(SolveError::BadSetting("survey σ must be non-negative"));
+        }
+        self.priors.push(prior).map_err(|_| SolveError::TooManyBoards { capacity: B })?;
+        Ok(self.priors.len() - 1)
+    }
+
+    /// Adds what one frame measured of block `block`; returns the observation's index.
+    pub fn add_observation(
+        &mut self,
+        block: usize,
+        observation: BoardObservation<'a>,
+    ) -> Result<usize, SolveError> {
+        if block >= self.priors.len() {
+            return Err(SolveError::BadBoard { board: block, what: "no such block" });
+        }
+        let index = self.inner.add_board(observation)?;
+        self.block_of.push(block).map_err(|_| SolveError::TooManyBoards { capacity: B })?;
+        Ok(index)
+    }
+
+    /// The blocks' priors, in order.
+    pub fn priors(&self) -> &[BlockPrior] {
+        &self.priors
+    }
+
+    /// The observations (as the free-board problem holds them) and their blocks.
+    pub fn observations(&self) -> (&[BoardObservation<'a>], &[usize]) {
+        (self.inner.boards(), &self.block_of)
+    }
+
+    /// Params starting every block at its prior.
+    pub fn params_at_priors<C>(
+        &self,
+        camera: C,
+        lidar_to_camera: Se3,
+        room_to_camera: Se3,
+    ) -> RoomParams<C, B> {
+        let blocks = self.priors.iter().map(|p| p.pose).collect();
+        RoomParams { camera, lidar_to_camera, room_to_camera, blocks }
+    }
+
+    /// The free-board parameters these room parameters imply (one board→camera pose per
+    /// observation).
+    pub fn joint_params<C: Clone>(&self, params: &RoomParams<C, B>) -> JointParams<C, B> {
+        let board_poses = self
+            .block_of
+            .iter()
+            .map(|&k| params.room_to_camera.compose(&params.blocks[k]))
+            .collect();
+        JointParams {
+            camera: params.camera.clone(),
+            lidar_to_camera: params.lidar_to_camera,
+            board_poses,
+        }
+    }
+
+    /// Calls `f(block, whitened prior residual, its Jacobian)` for every block.
+    pub fn for_each_prior<C>(
+        &self,
+        params: &RoomParams<C, B>,
+        mut f: impl FnMut(usize, &SVector<f64, 6>, &SMatrix<f64, 6, 6>),
+    ) {
+        for (k, (prior, pose)) in self.priors.iter().zip(params.blocks.iter()).enumerate() {
+            let (r, j) = prior_residual(prior, pose);
+            f(k, &r, &j);
+        }
+    }
+
+    /// Calls `f(block, residual, ∂r/∂shared (2×21), ∂r/∂block (2×6))` for every
+    /// measurement block (corners, holes, planes), whitened.
+    pub fn for_each_residual<C: Projector + Clone>(
+        &self,
+        params: &RoomParams<C, B>,
+        mut f: impl FnMut(
+            usize,
+            ResidualKind,
+            &SVector<f64, 2>,
+            &SMatrix<f64, 2, ROOM_SHARED>,
+            &SMatrix<f64, 2, 6>,
+            usize,
+        ),
+    ) -> Result<(), SolveError> {
+        self.check(params)?;
+        let joint = self.joint_params(params);
+        let a = &params.room_to_camera;
+        self.inner.for_each_residual(&joint, |res| {
+            let k = self.block_of[res.board];
+            let (to_room, to_block) = chain(a, &params.blocks[k]);
+            let mut j = SMatrix::<f64, 2, ROOM_SHARED>::zeros();
+            j.fixed_view_mut::<2, SHARED>(0, 0).copy_from(&res.j_shared);
+            j.fixed_view_mut::<2, 6>(0, ROOM_ROTATION).copy_from(&(res.j_board * to_room));
+            f(k, res.kind, &res.r, &j, &(res.j_board * to_block), res.rows);
+        })
+    }
+
+    /// Robust cost: measurements as the free-board problem counts them, plus ½|prior|².
+    pub fn cost<C: Projector + Clone>(&self, params: &RoomParams<C, B>) -> Result<f64, SolveError> {
+        self.check(params)?;
+        let mut cost = self.inner.cost(&self.joint_params(params))?;
+        self.for_each_prior(params, |_, r, _| cost += 0.5 * r.norm_squared());
+        if cost.is_finite() {
+            Ok(cost)
+        } else {
+            Err(SolveError::NonFinite)
+        }
+    }
+
+    /// Whether any hole or LiDAR plane term exists (otherwise the extrinsic is unseen).
+    pub fn sees_lidar(&self) -> bool {
+        self.inner.boards().iter().any(|b| !b.holes_lidar.is_empty() || b.plane.is_some())
+    }
+
+    /// Scalar residuals: measurements and 6 prior rows per block.
+    pub fn residual_count(&self) -> usize {
+        self.inner.residual_count() + 6 * self.priors.len()
+    }
+
+    /// Per block, `(measurement cost, prior cost)` at `params` (`½ Σ ρ` of its whitened
+    /// blocks), for naming a block that disagrees with the survey.
+    pub fn block_costs<C: Projector + Clone>(
+        &self,
+        params: &RoomParams<C, B>,
+    ) -> Result<heapless::Vec<(f64, f64), B>, SolveError> {
+        let mut out: heapless::Vec<(f64, f64), B> =
+            self.priors.iter().map(|_| (0.0, 0.0)).collect();
+        self.for_each_residual(params, |k, kind, r, _, _, _| {
+            out[k].0 += 0.5 * self.inner.loss_for(kind).eval(r.norm_squared()).0;
+        })?;
+        self.for_each_prior(params, |k, r, _| out[k].1 += 0.5 * r.norm_squared());
+        Ok(out)
+    }
+
+    /// Plain RMS pixel error of the corners and of the hole term.
+    pub fn rms_px<C: Projector + Clone>(
+        &self,
+        params: &RoomParams<C, B>,
+    ) -> Result<(f64, f64), SolveError> {
+        self.inner.rms_px(&self.joint_params(params))
+    }
+
+    fn check<C>(&self, params: &RoomParams<C, B>) -> Result<(), SolveError> {
+        if params.blocks.len() != self.priors.len() {
+            return Err(SolveError::LengthMismatch {
+                left: self.priors.len(),
+                right: params.blocks.len(),
+            });
+        }
+        Ok(())
+    }
+
+    /// Shared parameters nothing moves: unused intrinsics; the extrinsic without LiDAR.
+    fn structural_mask<C: Projector>(&self, camera: &C) -> [bool; ROOM_SHARED] {
+        let mut fixed = [false; ROOM_SHARED];
+        for f in fixed.iter_mut().take(INTRINSICS).skip(camera.num_params().min(INTRINSICS)) {
+            *f = true;
+        }
+        if !self.sees_lidar() {
+            for f in fixed.iter_mut().skip(EXT_ROTATION).take(6) {
+                *f = true;
+            }
+        }
+        fixed
+    }
+}
+
+/// The whitened prior residual `[log(R R₀ᵀ)/σ_r; (t − t₀)/σ_t]` of a block pose and its
+/// Jacobian under the left perturbation (`J_l⁻¹` of the rotation error).
+fn prior_residual(prior: &BlockPrior, pose: &Se3) -> (SVector<f64, 6>, SMatrix<f64, 6, 6>) {
+    let (wr, wt) = (1.0 / prior.sigma_rad.max(PRIOR_FLOOR), 1.0 / prior.sigma_m.max(PRIOR_FLOOR));
+    let phi = so3_log(&(pose.rotation * prior.pose.rotation.transpose()));
+    let dt = pose.translation - prior.pose.translation;
+    let r =
+        SVector::<f64, 6>::new(phi.x * wr, phi.y * wr, phi.z * wr, dt.x * wt, dt.y * wt, dt.z * wt);
+    let mut j = SMatrix::<f64, 6, 6>::zeros();
+    j.fixed_view_mut::<3, 3>(0, 0).copy_from(&(so3_left_jacobian_inv(&phi) * wr));
+    j.fixed_view_mut::<3, 3>(3, 3).copy_from(&(Mat3::identity() * wt));
+    (r, j)
+}
+
+/// The maps from the left perturbations of `A` (room→camera) and `B` (block→room) to
+/// that of `A ∘ B` (block→camera), see the module doc.
+fn chain(a: &Se3, b: &Se3) -> (SMatrix<f64, 6, 6>, SMatrix<f64, 6, 6>) {
+    let mut to_a = SMatrix::<f64, 6, 6>::identity();
+    to_a.fixed_view_mut::<3, 3>(3, 0).copy_from(&(-skew(&(a.rotation * b.translation))));
+    let mut to_b = SMatrix::<f64, 6, 6>::zeros();
+    to_b.fixed_view_mut::<3, 3>(0, 0).copy_from(&a.rotation);
+    to_b.fixed_view_mut::<3, 3>(3, 3).copy_from(&a.rotation);
+    (to_a, to_b)
+}
+
+/// The undamped normal equations of a room problem, blocks kept apart for the Schur
+/// complement (as [`super::lm::NormalEquations`], with 21 shared parameters).
+#[derive(Clone, Debug)]
+pub struct RoomNormalEquations<const B: usize> {
+    pub blocks: usize,
+    pub u: [SMatrix<f64, 6, 6>; B],
+    pub w: [SMatrix<f64, ROOM_SHARED, 6>; B],
+    pub g_block: [SVector<f64, 6>; B],
+    pub v: SMatrix<f64, ROOM_SHARED, ROOM_SHARED>,
+    pub g_shared: SVector<f64, ROOM_SHARED>,
+    pub cost: f64,
+    pub residuals: usize,
+}
+
+impl<const B: usize> RoomNormalEquations<B> {
+    /// Accumulates the normal equations at `params`.
+    pub fn build<C: Projector + Clone>(
+        problem: &RoomProblem<'_, B>,
+        params: &RoomParams<C, B>,
+    ) -> Result<Self, SolveError> {
+        let mut ne = RoomNormalEquations {
+            blocks: problem.priors.len(),
+            u: [SMatrix::zeros(); B],
+            w: [SMatrix::zeros(); B],
+            g_block: [SVector::zeros(); B],
+            v: SMatrix::zeros(),
+            g_shared: SVector::zeros(),
+            cost: 0.0,
+            residuals: 6 * problem.priors.len(),
+        };
+        problem.for_each_residual(params, |k, kind, r, js, jb, rows| {
+            let (rho, weight) = problem.inner.loss_for(kind).eval(r.norm_squared());
+            ne.cost += 0.5 * rho;
+            ne.residuals += rows;
+            ne.u[k].gemm_tr(weight, jb, jb, 1.0);
+            ne.g_block[k].gemv_tr(weight, jb, r, 1.0);
+            ne.w[k].gemm_tr(weight, js, jb, 1.0);
+            ne.v.gemm_tr(weight, js, js, 1.0);
+            ne.g_shared.gemv_tr(weight, js, r, 1.0);
+        })?;
+        problem.for_each_prior(params, |k, r, j| {
+            ne.cost += 0.5 * r.norm_squared();
+            ne.u[k].gemm_tr(1.0, j, j, 1.0);
+            ne.g_block[k].gemv_tr(1.0, j, r, 1.0);
+        });
+        if ne.cost.is_finite() {
+            Ok(ne)
+        } else {
+            Err(SolveError::NonFinite)
+        }
+    }
+
+    /// The structural mask plus every shared parameter nothing touches.
+    fn mask<C: Projector>(&self, problem: &RoomProblem<'_, B>, camera: &C) -> [bool; ROOM_SHARED] {
+        let mut fixed = problem.structural_mask(camera);
+        for (i, f) in fixed.iter_mut().enumerate() {
+            *f |= self.v[(i, i)] <= 0.0;
+        }
+        fixed
+    }
+
+    /// The reduced system after eliminating the blocks, damped by `λ`.
+    fn reduce(
+        &self,
+        lambda: f64,
+        fixed: &[bool; ROOM_SHARED],
+    ) -> Result<(SMatrix<f64, ROOM_SHARED, ROOM_SHARED>, SVector<f64, ROOM_SHARED>), SolveError>
+    {
+        let mut s = self.v;
+        damp(&mut s, lambda);
+        let mut rhs = -self.g_shared;
+        for k in 0..self.blocks {
+            let ch = Cholesky::new(&damped(&self.u[k], lambda))?;
+            let y_t = ch.solve_matrix(&self.w[k].transpose());
+            s.gemm(-1.0, &self.w[k], &y_t, 1.0);
+            rhs.gemv_tr(1.0, &y_t, &self.g_block[k], 1.0);
+        }
+        for (i, _) in fixed.iter().enumerate().filter(|(_, f)| **f) {
+            s.row_mut(i).fill(0.0);
+            s.column_mut(i).fill(0.0);
+            s[(i, i)] = 1.0;
+            rhs[i] = 0.0;
+        }
+        Ok((s, rhs))
+    }
+
+    /// The damped step: shared and per block.
+    fn step(
+        &self,
+        lambda: f64,
+        fixed: &[bool; ROOM_SHARED],
+    ) -> Result<(SVector<f64, ROOM_SHARED>, [SVector<f64, 6>; B]), SolveError> {
+        let (s, rhs) = self.reduce(lambda, fixed)?;
+        let shared = Cholesky::new(&s)?.solve(&rhs);
+        let mut blocks = [SVector::<f64, 6>::zeros(); B];
+        for (k, out) in blocks.iter_mut().enumerate().take(self.blocks) {
+            let ch = Cholesky::new(&damped(&self.u[k], lambda))?;
+            let mut rhs_k = -self.g_block[k];
+            rhs_k.gemv_tr(-1.0, &self.w[k], &shared, 1.0);
+            *out = ch.solve(&rhs_k);
+        }
+        Ok((shared, blocks))
+    }
+}
+
+/// Levenberg–Marquardt on the room problem from `params` (updated in place).
+pub fn solve_room<C: Projector + Clone, const B: usize>(
+    problem: &RoomProblem<'_, B>,
+    params: &mut RoomParams<C, B>,
+    max_iterations: usize,
+) -> Result<RoomReport, SolveError> {
+    const COST_TOLERANCE: f64 = 1e-9;
+    let mut ne = RoomNormalEquations::build(problem, params)?;
+    let fixed = ne.mask(problem, &params.camera);
+    let initial_cost = ne.cost;
+    let mut lambda = 1e-4;
+    let mut iterations = 0;
+    'outer: while iterations < max_iterations {
+        iterations += 1;
+        loop {
+            if lambda > 1e16 {
+                break 'outer;
+            }
+            let (shared, blocks) = match ne.step(lambda, &fixed) {
+                Ok(s) => s,
+                Err(SolveError::NotPositiveDefinite { .. }) => {
+                    lambda *= 10.0;
+                    continue;
+                }
+                Err(e) => return Err(e),
+            };
+            let trial = apply_room_step(params, &shared, &blocks);
+            match problem.cost(&trial) {
+                Ok(c) if c < ne.cost => {
+                    let done = ne.cost - c <= COST_TOLERANCE * ne.cost;
+                    *params = trial;
+                    ne = RoomNormalEquations::build(problem, params)?;
+                    lambda = (lambda * 0.1).max(1e-15);
+                    if done {
+                        break 'outer;
+                    }
+                    break;
+                }
+                Ok(_) | Err(SolveError::NotProjectable { .. }) | Err(SolveError::NonFinite) => {
+                    lambda *= 10.0
+                }
+                Err(e) => return Err(e),
+            }
+        }
+    }
+    let (corner_rms_px, hole_rms_px) = problem.rms_px(params)?;
+    Ok(RoomReport {
+        iterations,
+        initial_cost,
+        final_cost: ne.cost,
+        residuals: ne.residuals,
+        corner_rms_px,
+        hole_rms_px,
+    })
+}
+
+/// Covariance of the 21 shared parameters at `params` (normally the solution), scaled
+/// by the residual variance `2·cost/dof` as the free-board covariance is. Fixed
+/// parameters have zero rows and columns.
+pub fn room_covariance<C: Projector + Clone, const B: usize>(
+    problem: &RoomProblem<'_, B>,
+    params: &RoomParams<C, B>,
+) -> Result<SMatrix<f64, ROOM_SHARED, ROOM_SHARED>, SolveError> {
+    let ne = RoomNormalEquations::build(problem, params)?;
+    let fixed = ne.mask(problem, &params.camera);
+    let free = fixed.iter().filter(|f| !**f).count() + 6 * ne.blocks;
+    if ne.residuals <= free {
+        return Err(SolveError::TooFewPoints { needed: free + 1, got: ne.residuals });
+    }
+    let variance = 2.0 * ne.cost / (ne.residuals - free) as f64;
+    let (s, _) = ne.reduce(0.0, &fixed)?;
+    let mut matrix = Cholesky::new(&s)?.inverse() * variance;
+    for (i, _) in fixed.iter().enumerate().filter(|(_, f)| **f) {
+        matrix.row_mut(i).fill(0.0);
+        matrix.column_mut(i).fill(0.0);
+    }
+    Ok(matrix)
+}
+
+/// `params ⊕ step`: additive intrinsics, left-perturbed extrinsic, room pose and blocks.
+pub fn apply_room_step<C: Projector + Clone, const B: usize>(
+    params: &RoomParams<C, B>,
+    shared: &SVector<f64, ROOM_SHARED>,
+    blocks: &[SVector<f64, 6>; B],
+) -> RoomParams<C, B> {
+    let mut out = params.clone();
+    let mut k = params.camera.params();
+    for (i, v) in k.iter_mut().enumerate() {
+        *v += shared[i];
+    }
+    out.camera.set_params(&k);
+    out.lidar_to_camera =
+        perturb(&params.lidar_to_camera, &shared.fixed_rows::<6>(EXT_ROTATION).into_owned());
+    out.room_to_camera =
+        perturb(&params.room_to_camera, &shared.fixed_rows::<6>(ROOM_ROTATION).into_owned());
+    for (pose, d) in out.blocks.iter_mut().zip(blocks.iter()) {
+        *pose = perturb(pose, d);
+    }
+    out
+}
+
+fn damped<const N: usize>(a: &SMatrix<f64, N, N>, lambda: f64) -> SMatrix<f64, N, N> {
+    let mut d = *a;
+    damp(&mut d, lambda);
+    d
+}
+
+fn damp<const N: usize>(a: &mut SMatrix<f64, N, N>, lambda: f64) {
+    for i in 0..N {
+        a[(i, i)] += lambda * a[(i, i)].max(super::lm::DIAG_FLOOR);
+    }
+}
+
+// The shared layout: intrinsics, extrinsic rotation, translation, then the room pose.
+const _: () = assert!(EXT_TRANSLATION + 3 == ROOM_ROTATION);

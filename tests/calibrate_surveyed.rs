@@ -1,0 +1,435 @@
+//! Calibration in a surveyed room (`calibrate::calibrate_with_clouds` with `[survey]`):
+//! a new vehicle (a visit the survey was not made from) in a seven-board Pandar64 room,
+//! the survey built from the simulator's room truth — exact, and with noise drawn at the
+//! stated σ (boards ±0.5 mm / 0.01°, planes ±2 mm / 0.01°) — against the free-board model
+//! on the same detections; identification over random parkings, missing and half-turned
+//! boards; a moved board named and left out; the parking box.
+//!
+//! Detections are the simulator's truth with noise (corners 0.025 px, holes 3 mm) and
+//! the rendered sweep (2 cm ranges), so the test measures the model, not the detectors.
+
+use std::path::Path;
+
+use roomcal::calibrate::identify::{identify, Identity};
+use roomcal::calibrate::{
+    calibrate_with_clouds, plane_points, CalibrateOptions, Calibration, CameraBoard,
+    FrameDetections, LidarBoard,
+};
+use roomcal::geometry::se3::so3_exp;
+use roomcal::geometry::{Se3, Vec2, Vec3};
+use roomcal::lidar::Point;
+use roomcal::result::Status;
+use roomcal::sim::visits::{simulate_visits, RoomTruth, Visit};
+use roomcal::sim::{ImageNoise, Layout, SimOptions};
+use roomcal::target::{LidarModel, Room, SurveySpec, SurveyedBoard, SurveyedPlane};
+
+const CORNER_NOISE_PX: f64 = 0.025;
+const HOLE_NOISE_M: f64 = 0.003;
+
+struct Rng(u64);
+impl Rng {
+    fn uniform(&mut self) -> f64 {
+        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((self.0 >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    }
+    fn normal(&mut self) -> f64 {
+        (-2.0 * self.uniform().ln()).sqrt() * (2.0 * std::f64::consts::PI * self.uniform()).cos()
+    }
+    fn vec3(&mut self, s: f64) -> Vec3 {
+        Vec3::new(self.normal(), self.normal(), self.normal()) * s
+    }
+}
+
+fn base_room() -> Room {
+    roomcal::room::load(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/config/room.toml")))
+        .unwrap()
+}
+
+fn options(seed: u64, hfov_deg: f64, layout: Layout) -> SimOptions {
+    SimOptions {
+        seed,
+        boards: Some(7),
+        lidar: Some(LidarModel::Pandar64),
+        hfov_deg: Some(hfov_deg),
+        layout,
+        range_noise_m: 0.02,
+        image: ImageNoise { supersample: 1, ..ImageNoise::default() },
+        ..SimOptions::default()
+    }
+}
+
+/// The survey a perfect (σ = 0) or a noisy survey would write.
+fn survey(truth: &RoomTruth, noise: Option<(&mut Rng, f64, f64, f64, f64)>) -> SurveySpec {
+    let (mut rng, bm, bdeg, pm, pdeg) = match noise {
+        Some((r, a, b, c, d)) => (Some(r), a, b, c, d),
+        None => (None, 0.0, 0.0, 0.0, 0.0),
+    };
+    let mut boards = heapless::Vec::new();
+    for b in &truth.boards {
+        let mut pose = b.to_se3();
+        if let Some(r) = rng.as_deref_mut() {
+            pose.rotation = so3_exp(&r.vec3(bdeg.to_radians())) * pose.rotation;
+            pose.translation += r.vec3(bm);
+        }
+        let e = roomcal::result::Extrinsic::from_se3(&pose);
+        let board = SurveyedBoard {
+            rotation: e.rotation,
+            translation: e.translation,
+            sigma_m: bm,
+            sigma_deg: bdeg,
+        };
+        boards.push(board).unwrap();
+    }
+    let mut planes = heapless::Vec::new();
+    for p in &truth.planes {
+        let (mut n, mut d) = (Vec3::from(p.normal), p.offset);
+        if let Some(r) = rng.as_deref_mut() {
+            n = so3_exp(&r.vec3(pdeg.to_radians())) * n;
+            d += pm * r.normal();
+        }
+        let plane = SurveyedPlane {
+            name: heapless::String::try_from(p.name.as_str()).unwrap(),
+            normal: [n.x, n.y, n.z],
+            offset: d,
+            sigma_m: pm,
+            sigma_deg: pdeg,
+        };
+        if planes.push(plane).is_err() {
+            break;
+        }
+    }
+    SurveySpec { visits: 16, frame: heapless::String::try_from("sim").unwrap(), boards, planes }
+}
+
+/// Perfect detectors with the stated noise; the LiDAR's holes of placeable boards.
+fn detections(visit: &Visit, room: &Room, rng: &mut Rng) -> FrameDetections {
+    let scene = &visit.scene;
+    let lidar_to_camera = scene.truth.lidar_to_camera.as_ref().unwrap().to_se3();
+    let cloud = scene.cloud.as_ref().unwrap();
+    let mut frame = FrameDetections::default();
+    for board in &scene.truth.boards {
+        let corners = board
+            .corners_px
+            .iter()
+            .map(|c| {
+                Vec2::new(
+                    c[0] + CORNER_NOISE_PX * rng.normal(),
+                    c[1] + CORNER_NOISE_PX * rng.normal(),
+                )
+            })
+            .collect();
+        frame.camera.push(CameraBoard { corners, sigma_px: CORNER_NOISE_PX });
+        if board.hole_scan_lines.iter().filter(|&&n| n >= 2).count() >= 2 {
+            let holes =
+                board.holes_lidar.iter().map(|h| Vec3::from(*h) + rng.vec3(HOLE_NOISE_M)).collect();
+            let to_lidar = lidar_to_camera.inverse().compose(&board.board_to_camera.to_se3());
+            let points = cloud.iter().map(|p| Vec3::new(p.x as f64, p.y as f64, p.z as f64));
+            let plane = plane_points(&room.board, &to_lidar, 0.06, points);
+            frame.lidar.push(LidarBoard { holes, sigma_m: HOLE_NOISE_M, plane });
+        }
+    }
+    frame
+}
+
+struct Errors {
+    fx_pct: f64,
+    cx_px: f64,
+    cy_px: f64,
+    rot_deg: f64,
+    t_mm: f64,
+}
+
+fn errors(run: &Calibration, visit: &Visit) -> Errors {
+    let truth = &visit.scene.truth;
+    let t = truth.lidar_to_camera.as_ref().unwrap();
+    let got = run.result.lidar_to_camera.as_ref().unwrap();
+    let (rot_deg, t_m) = t.difference(got);
+    Errors {
+        fx_pct: ((run.camera.fx - truth.camera.fx) / truth.camera.fx).abs() * 100.0,
+        cx_px: (run.camera.cx - truth.camera.cx).abs(),
+        cy_px: (run.camera.cy - truth.camera.cy).abs(),
+        rot_deg,
+        t_mm: t_m * 1000.0,
+    }
+}
+
+fn line(what: &str, e: &Errors, run: &Calibration) {
+    let u = &run.result.uncertainty;
+    println!(
+        "{what:<28} fx {:.4} % (σ {:.4}) cx {:.2} px (σ {:.2}) cy {:.2} px (σ {:.2}) rot {:.4}° (σ {:.4}) t {:.2} mm (σ {:.2})",
+        e.fx_pct,
+        u.fx / run.camera.fx * 100.0,
+        e.cx_px,
+        u.cx,
+        e.cy_px,
+        u.cy,
+        e.rot_deg,
+        u.rotation_deg,
+        e.t_mm,
+        u.translation_m * 1000.0
+    );
+}
+
+fn within_3_sigma(e: &Errors, run: &Calibration, what: &str) {
+    let u = &run.result.uncertainty;
+    let fx_sigma = u.fx / run.camera.fx * 100.0;
+    // Rotation and translation σ are worst-axis; errors are norms over 3 axes: 3σ·√3.
+    let checks = [
+        ("fx", e.fx_pct, 3.0 * fx_sigma),
+        ("cx", e.cx_px, 3.0 * u.cx),
+        ("cy", e.cy_px, 3.0 * u.cy),
+        ("rotation", e.rot_deg, 3.0 * 3f64.sqrt() * u.rotation_deg),
+        ("translation", e.t_mm, 3.0 * 3f64.sqrt() * u.translation_m * 1000.0),
+    ];
+    for (name, err, bound) in checks {
+        assert!(err <= bound, "{what}: {name} error {err:.4} outside 3σ ({bound:.4})");
+    }
+}
+
+fn run(room: &Room, frame: &FrameDetections, cloud: &[Point], free: bool) -> Calibration {
+    let options = CalibrateOptions { free_boards: free, ..CalibrateOptions::default() };
+    calibrate_with_clouds(room, std::slice::from_ref(frame), &[cloud], &options)
+}
+
+/// One simulated room, its survey visits' parkings aside, and a new vehicle: visit 1 of
+/// a run whose seed did not make the survey (the survey is the room's truth).
+fn new_vehicle() -> (Room, RoomTruth, Visit) {
+    // Seven boards leave the parking margin only on a wide enough lens: the first lens
+    // and layout they fit on (printed).
+    for hfov in [60.0, 65.0, 70.0, 80.0] {
+        for layout in [Layout::Grid, Layout::Band] {
+            if let Ok(sim) = simulate_visits(&base_room(), &options(2026, hfov, layout), 1) {
+                println!("room: 7 boards, Pandar64, {hfov}° lens, {layout:?} layout");
+                return (sim.room, sim.truth, sim.visits.into_iter().next().unwrap());
+            }
+        }
+    }
+    panic!("seven boards fit on no lens tried");
+}
+
+#[test]
+fn a_new_vehicle_in_the_surveyed_room_beats_free_boards() {
+    let (mut room, truth, visit) = new_vehicle();
+    let mut rng = Rng(7);
+    let frame = detections(&visit, &room, &mut rng);
+    let cloud = visit.scene.cloud.clone().unwrap();
+    let free = run(&room, &frame, &cloud, true);
+    assert_eq!(free.result.status, Status::Accepted, "{:?}", free.result.reason);
+    let free_e = errors(&free, &visit);
+    line("free boards", &free_e, &free);
+
+    room.survey = Some(survey(&truth, None));
+    let exact = run(&room, &frame, &cloud, false);
+    assert_eq!(exact.result.status, Status::Accepted, "{:?}", exact.result.reason);
+    assert!(exact.result.camera_in_room.is_some());
+    let exact_e = errors(&exact, &visit);
+    line("surveyed (exact)", &exact_e, &exact);
+
+    let mut noise = Rng(11);
+    room.survey = Some(survey(&truth, Some((&mut noise, 0.0005, 0.01, 0.002, 0.01))));
+    let noisy = run(&room, &frame, &cloud, false);
+    assert_eq!(noisy.result.status, Status::Accepted, "{:?}", noisy.result.reason);
+    let noisy_e = errors(&noisy, &visit);
+    line("surveyed (±0.5 mm/0.01°)", &noisy_e, &noisy);
+
+    // The camera's pose in the room against the truth (room → camera inverted).
+    let cir = exact.result.camera_in_room.as_ref().unwrap().to_se3();
+    let truth_cir = visit.room_to_camera.inverse();
+    let shift = (cir.translation - truth_cir.translation).norm();
+    println!("camera_in_room (exact survey) off by {:.2} mm", shift * 1000.0);
+    assert!(shift < 0.005, "camera_in_room off by {shift} m");
+
+    within_3_sigma(&exact_e, &exact, "exact survey");
+    within_3_sigma(&noisy_e, &noisy, "noisy survey");
+    // The issue's one-frame targets, on the exact survey (its bound is 5–10× below them).
+    assert!(exact_e.rot_deg <= 0.03, "rotation {:.4}°", exact_e.rot_deg);
+    assert!(exact_e.t_mm <= 3.0, "translation {:.2} mm", exact_e.t_mm);
+    assert!(exact_e.fx_pct <= 0.05, "fx {:.4} %", exact_e.fx_pct);
+    assert!(
+        exact_e.cx_px <= 0.7 && exact_e.cy_px <= 0.7,
+        "cx {:.2} cy {:.2}",
+        exact_e.cx_px,
+        exact_e.cy_px
+    );
+    // The survey's information shows: the surveyed model's reported σ is below the free one's.
+    let (s, f) = (&noisy.result.uncertainty, &free.result.uncertainty);
+    assert!(s.rotation_deg < f.rotation_deg && s.translation_m < f.translation_m);
+}
+
+#[test]
+fn a_moved_board_is_named_and_left_out() {
+    let (mut room, truth, visit) = new_vehicle();
+    let mut rng = Rng(3);
+    let frame = detections(&visit, &room, &mut rng);
+    let cloud = visit.scene.cloud.clone().unwrap();
+    // The survey says board 2 stands where it no longer is: shifted 2 cm, turned 1°,
+    // knocked over (lying 0.6 m lower, turned 90° about its x axis).
+    let cases: [(&str, Se3); 3] = [
+        (
+            "shifted 2 cm",
+            Se3 { rotation: so3_exp(&Vec3::zeros()), translation: Vec3::new(0.02, 0.0, 0.0) },
+        ),
+        (
+            "turned 1°",
+            Se3 {
+                rotation: so3_exp(&Vec3::new(0.0, 0.0, 1f64.to_radians())),
+                translation: Vec3::zeros(),
+            },
+        ),
+        (
+            "knocked over",
+            Se3 {
+                rotation: so3_exp(&Vec3::new(std::f64::consts::FRAC_PI_2, 0.0, 0.0)),
+                translation: Vec3::new(0.0, 0.0, -0.6),
+            },
+        ),
+    ];
+    for (what, moved) in cases {
+        let mut spec = survey(&truth, None);
+        for b in spec.boards.iter_mut() {
+            (b.sigma_m, b.sigma_deg) = (0.0005, 0.01);
+        }
+        let b = &mut spec.boards[2];
+        let pose = b.pose();
+        // The move about the board's own centre (the room's vertical is z).
+        let new = Se3 {
+            rotation: moved.rotation * pose.rotation,
+            translation: pose.translation + moved.translation,
+        };
+        let e = roomcal::result::Extrinsic::from_se3(&new);
+        (b.rotation, b.translation) = (e.rotation, e.translation);
+        room.survey = Some(spec);
+        let run = run(&room, &frame, &cloud, false);
+        println!(
+            "{what}: status {:?} reason {:?} notes {:?}",
+            run.result.status, run.result.reason, run.notes
+        );
+        let named = run.notes.iter().chain(run.result.reason.iter()).any(|n| n.contains("board 2"));
+        assert!(
+            named,
+            "{what}: the moved board is not named: {:?} {:?}",
+            run.notes, run.result.reason
+        );
+        if run.result.status == Status::Accepted {
+            let e = errors(&run, &visit);
+            line(what, &e, &run);
+            within_3_sigma(&e, &run, what);
+        }
+    }
+}
+
+#[test]
+fn identification_survives_parking_missing_and_half_turned_boards() {
+    let (room, truth, visit) = new_vehicle();
+    let surveyed: Vec<Se3> = truth.boards.iter().map(|b| b.to_se3()).collect();
+    let spec = &room.board;
+    assert!(roomcal::calibrate::identify::half_turn_symmetric(spec));
+    let mut rng = Rng(99);
+    let mut trials = 0;
+    for _ in 0..200 {
+        // A parking ±0.3 m / ±5° off this visit's, boards dropped and half-turned at random.
+        let offset = Se3 {
+            rotation: so3_exp(&Vec3::new(0.0, (rng.uniform() - 0.5) * 10f64.to_radians(), 0.0)),
+            translation: Vec3::new(rng.uniform() - 0.5, 0.0, rng.uniform() - 0.5) * 0.6,
+        };
+        let room_to_camera = offset.compose(&visit.room_to_camera);
+        let mut seen = Vec::new();
+        let mut expected = Vec::new();
+        for (k, b) in surveyed.iter().enumerate() {
+            if rng.uniform() < 0.25 {
+                continue;
+            }
+            let mut pose = room_to_camera.compose(b);
+            // Corner-only poses are good to a few cm and a fraction of a degree.
+            pose.translation += rng.vec3(0.01);
+            pose.rotation = so3_exp(&rng.vec3(0.3f64.to_radians())) * pose.rotation;
+            let turned = rng.uniform() < 0.3;
+            if turned {
+                pose = roomcal::calibrate::identify::oriented(&pose, true);
+            }
+            seen.push(pose);
+            expected.push(Some(Identity { board: k, half_turned: turned }));
+        }
+        if seen.len() < 2 {
+            continue;
+        }
+        trials += 1;
+        match identify(spec, &surveyed, &seen) {
+            Ok((ids, pose)) => {
+                assert_eq!(ids, expected, "wrong identification");
+                let off = (pose.translation - room_to_camera.translation).norm();
+                let turn = (pose.rotation.transpose() * room_to_camera.rotation).trace();
+                // A start for the solver: board poses noisy by 1 cm / 0.3° per axis carry
+                // a few centimetres into it with three boards.
+                assert!(
+                    off < 0.1,
+                    "room pose off by {off} m (trace {turn}), {} boards",
+                    seen.len()
+                );
+            }
+            // Refusing is allowed only where the arrangement is honestly ambiguous.
+            Err(e) => panic!("refused with {} of 7 boards: {e}", seen.len()),
+        }
+    }
+    assert!(trials > 150);
+    // One board alone cannot be placed in a room of seven: refused, not guessed.
+    assert!(identify(spec, &surveyed, &[room_to_camera_of(&visit).compose(&surveyed[0])]).is_err());
+}
+
+fn room_to_camera_of(visit: &Visit) -> Se3 {
+    visit.room_to_camera
+}
+
+#[test]
+fn the_gate_rejects_a_parking_outside_the_box() {
+    let (mut room, truth, visit) = new_vehicle();
+    let mut rng = Rng(5);
+    let frame = detections(&visit, &room, &mut rng);
+    let cloud = visit.scene.cloud.clone().unwrap();
+    room.survey = Some(survey(&truth, None));
+    room.quality.max_parking_offset_m = 0.001;
+    let run = run(&room, &frame, &cloud, false);
+    assert_eq!(run.result.status, Status::Rejected);
+    let reason = run.result.reason.unwrap();
+    assert!(reason.contains("from the nominal spot"), "{reason}");
+}
+
+/// Issue 14 item 4, the free-board model: one LiDAR board placed wrong (its holes turned
+/// 20° in the board's plane about their centre, ~20 cm at the holes) is named, left out,
+/// and the run solved again from the others.
+#[test]
+fn a_wrongly_placed_lidar_board_is_named_and_left_out() {
+    let (room, _, visit) = new_vehicle();
+    let mut rng = Rng(21);
+    let mut frame = detections(&visit, &room, &mut rng);
+    let cloud = visit.scene.cloud.clone().unwrap();
+    assert!(frame.lidar.len() >= 4, "{} LiDAR boards", frame.lidar.len());
+    let clean = run(&room, &frame, &cloud, true);
+    assert!(clean.notes.is_empty(), "a clean run names no board: {:?}", clean.notes);
+    let bad = &mut frame.lidar[1];
+    let centre = bad.holes.iter().sum::<Vec3>() / bad.holes.len() as f64;
+    let normal = (bad.holes[1] - bad.holes[0]).cross(&(bad.holes[2] - bad.holes[0])).normalize();
+    let turn = so3_exp(&(normal * 20f64.to_radians()));
+    for h in bad.holes.iter_mut() {
+        *h = centre + turn * (*h - centre);
+    }
+    let run = run(&room, &frame, &cloud, true);
+    println!("status {:?} reason {:?} notes {:?}", run.result.status, run.result.reason, run.notes);
+    assert_eq!(run.notes.len(), 1, "{:?}", run.notes);
+    // LiDAR board 1 is the second placeable board; camera boards follow the truth's order.
+    let placeable: Vec<usize> = (0..visit.scene.truth.boards.len())
+        .filter(|&b| {
+            visit.scene.truth.boards[b].hole_scan_lines.iter().filter(|&&n| n >= 2).count() >= 2
+        })
+        .collect();
+    let expected = format!("frame 0 board {}:", placeable[1]);
+    assert!(
+        run.notes[0].contains(&expected) && run.notes[0].contains("left out"),
+        "{:?}",
+        run.notes
+    );
+    assert_eq!(run.result.status, Status::Accepted, "{:?}", run.result.reason);
+    let e = errors(&run, &visit);
+    line("free, wrong board left out", &e, &run);
+    within_3_sigma(&e, &run, "wrong board left out");
+}
