@@ -697,7 +697,11 @@ fn survey(args: SurveyArgs) -> Result<(), Failure> {
         ));
         Ok(visit)
     })?;
-    let solved = survey(&room, &prepared).map_err(bad_input)?;
+    let mut solved = survey(&room, &prepared).map_err(bad_input)?;
+    // The file's room frame is the nominal LiDAR frame at the visits' mean parking spot
+    // (the parking box's reference), not the solve's board-0 gauge.
+    let lidar = room.lidar.as_ref().expect("checked above: the room has a LiDAR");
+    solved.spec = solved.in_parking_frame(lidar);
     solved.spec.validate(room.board.count).map_err(bad_input)?;
     let mut surveyed = room;
     surveyed.survey = Some(solved.spec.clone());

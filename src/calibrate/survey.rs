@@ -270,6 +270,60 @@ pub fn survey(room: &Room, visits: &[SurveyVisit]) -> Result<Survey, SurveyError
     })
 }
 
+/// How the written room file's frame is defined (see [`Survey::in_parking_frame`]).
+pub const PARKING_FRAME: &str = "the nominal LiDAR frame at the visits' mean parking spot (every \
+visit's room→camera pose is the room's [lidar] mounting, on average); σ are relative to board 0";
+
+impl Survey {
+    /// The survey in the frame the room file holds: the room's nominal LiDAR frame at the
+    /// visits' mean parking spot, so that a vehicle parked as the surveyed ones were has the
+    /// room's `[lidar]` mounting as its room→camera pose — the reference of the quality
+    /// gate's parking box. The solve's gauge (board 0) only fixes the frame; this is one
+    /// rigid motion `G` of the whole solution (boards `G⁻¹ B`, planes carried along), which
+    /// leaves every relative pose, and so every measurement, unchanged. The σ stay those of
+    /// the board-0 gauge (board 0's own pose is then exact, as the gauge made it).
+    pub fn in_parking_frame(&self, lidar: &crate::target::LidarSpec) -> SurveySpec {
+        let nominal = super::association::lidar_nominal(lidar);
+        let g = mean_motion(
+            self.state.visits.iter().map(|v| v.room_to_camera.inverse().compose(&nominal)),
+        );
+        let to_new = g.inverse();
+        let mut spec = self.spec.clone();
+        spec.frame.clear();
+        let _ = spec
+            .frame
+            .push_str(&PARKING_FRAME[..PARKING_FRAME.len().min(crate::target::MAX_SURVEY_TEXT)]);
+        for board in spec.boards.iter_mut() {
+            let pose = to_new.compose(&board.pose());
+            board.rotation = rows(&pose.rotation);
+            board.translation = pose.translation.into();
+        }
+        for plane in spec.planes.iter_mut() {
+            // n · p_room = d with p_room = G p_new: (R_Gᵀ n) · p_new = d − n · t_G.
+            let n = Vec3::from(plane.normal);
+            plane.normal = (g.rotation.transpose() * n).into();
+            plane.offset -= n.dot(&g.translation);
+        }
+        spec
+    }
+}
+
+/// The mean of rigid motions: rotations averaged in the tangent space of the first, then
+/// translations averaged. The visits' parking differs by centimetres and degrees, where
+/// this is the Karcher mean to far below the survey's σ.
+fn mean_motion(motions: impl Iterator<Item = Se3>) -> Se3 {
+    let all: Vec<Se3> = motions.collect();
+    let Some(first) = all.first() else { return Se3::identity() };
+    let n = all.len() as f64;
+    let omega = all
+        .iter()
+        .map(|m| crate::geometry::se3::so3_log(&(m.rotation * first.rotation.transpose())))
+        .fold(Vec3::zeros(), |a, w| a + w)
+        / n;
+    let translation = all.iter().fold(Vec3::zeros(), |a, m| a + m.translation) / n;
+    Se3 { rotation: crate::geometry::se3::so3_exp(&omega) * first.rotation, translation }
+}
+
 /// Two visits with identical camera detections are one visit given twice.
 fn check_distinct(visits: &[SurveyVisit]) -> Result<(), SurveyError> {
     for (again, later) in visits.iter().enumerate() {
