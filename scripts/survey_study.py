@@ -116,6 +116,14 @@ def study(sim_dir, count, work):
     with open(os.path.join(sim_dir, "room-truth.json")) as f:
         truth = json.load(f)
     ours = [(b["rotation"], b["translation"]) for b in survey["boards"]]
+    # The file's frame is the nominal LiDAR frame at the visits' mean parking spot; the
+    # errors are taken in the solve's gauge (board 0's frame), as the σ are.
+    b0 = ours[0]
+    ours = [compose(inverse(b0), b) for b in ours]
+    for plane in survey.get("planes", []):
+        n = plane["normal"]
+        plane["offset"] -= sum(x * y for x, y in zip(n, b0[1]))
+        plane["normal"] = apply(transpose(b0[0]), n)
     truth_boards = [(b["rotation"], b["translation"]) for b in truth["boards"]]
     matched, gauge_to_truth = gauge_truth(truth_boards, ours)
     pos, rot, within, total = [], [], 0, 0
