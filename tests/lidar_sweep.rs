@@ -1,7 +1,8 @@
 //! Sweep assembly and malformed-packet handling: synthetic captures made with the encoder
 //! (three turns of a VLP-32C and a Pandar64), then packets dropped, duplicated, swapped,
 //! truncated, padded, corrupted or sent to other ports, garbage that passes the header
-//! checks, a clock that jumps; and the real VLP-16 capture.
+//! checks, a clock that jumps; an Ouster stream with a wild and a torn packet; and the real
+//! VLP-16 capture.
 
 use std::path::Path;
 
@@ -367,4 +368,79 @@ fn valid_packets_of_another_clock_never_take_over_a_live_stream() {
     let (sweeps, stats) = assemble_counts(cal, &input);
     assert_eq!(complete_sizes(&sweeps), [1800 * 64, 1800 * 64], "{sweeps:?}");
     assert_eq!((stats.resyncs, stats.out_of_sequence as usize), (0, pk.len().div_ceil(5)));
+}
+
+/// Three turns (from a quarter turn on) of an OS1-32 (LEGACY, 1024×10, 16 columns a packet), every pixel at 5 m.
+fn ouster_packets() -> (Calibration, Vec<Vec<u8>>) {
+    use roomcal::lidar::ouster::{ColumnRepr, PixelRepr, Repr};
+    let cal = Calibration::nominal(Model::Ouster);
+    let g = cal.ouster;
+    let (per_packet, per_turn) =
+        (usize::from(g.columns_per_packet), usize::from(g.columns_per_frame));
+    let column_ns = 1e9 / (per_turn as f64 * f64::from(g.frequency_hz));
+    let pixel = PixelRepr { range: 5000, reflectivity: 9, ..PixelRepr::default() };
+    let mut out = Vec::new();
+    for packet in 0..3 * per_turn / per_packet {
+        let mut repr = Repr::<32> {
+            geometry: g,
+            frame_id: 0,
+            init_id: 0,
+            serial: 0,
+            columns: Default::default(),
+        };
+        for (c, col) in repr.columns.iter_mut().take(per_packet).enumerate() {
+            // From a quarter turn on, so that the cut (behind) falls inside the turns.
+            let column = packet * per_packet + c + per_turn / 4;
+            *col = ColumnRepr {
+                timestamp: 1_000_000_000 + (column as f64 * column_ns) as u64,
+                measurement_id: (column % per_turn) as u16,
+                frame_id: (column / per_turn) as u16,
+                encoder_count: 0,
+                status: 0xFFFF_FFFF,
+                pixels: [pixel; 32],
+            };
+        }
+        let mut bytes = vec![0u8; repr.buffer_len()];
+        repr.emit(&mut bytes[..]).unwrap();
+        out.push(bytes);
+    }
+    (cal, out)
+}
+
+#[test]
+fn ouster_stream_drops_a_wild_and_a_torn_packet_not_the_sweep() {
+    let (cal, pk) = ouster_packets();
+    let run = |input: &[Vec<u8>]| {
+        let mut buf = vec![Point::default(); 200_000];
+        let mut asm = SweepAssembler::new(cal, SweepConfig::for_calibration(&cal), &mut buf);
+        let mut sizes = Vec::new();
+        for payload in input {
+            asm.push(Model::Ouster.data_port(), payload, &mut |s| {
+                sizes.push((s.complete, s.points.len()))
+            });
+        }
+        (sizes.iter().filter(|s| s.0).map(|s| s.1).collect::<Vec<_>>(), asm.stats())
+    };
+    let (clean, stats) = run(&pk);
+    assert_eq!(clean, [1024 * 32, 1024 * 32], "{stats:?}");
+    assert_eq!((stats.dropped(), stats.lost), (0, 0), "{stats:?}");
+    // Consistent in itself, the right time, a quarter turn on (every measurement id + 256):
+    // before, Ouster packets were checked by time alone and its 512 points went into the
+    // sweep a quarter turn off.
+    let mut input = pk.clone();
+    let mut wild = pk[20].clone();
+    let column_len = 16 + 32 * 12 + 4;
+    for c in 0..16 {
+        let at = c * column_len + 8;
+        let m = u16::from_le_bytes([wild[at], wild[at + 1]]);
+        wild[at..at + 2].copy_from_slice(&((m + 256) % 1024).to_le_bytes());
+    }
+    input.insert(21, wild);
+    // One column's measurement id torn (not its neighbours'): before, taken as it came.
+    let mut torn = pk[40].clone();
+    torn[5 * column_len + 8..5 * column_len + 10].copy_from_slice(&999u16.to_le_bytes());
+    input.insert(41, torn);
+    let (sizes, stats) = run(&input);
+    assert_eq!(sizes, clean, "{stats:?}");
+    assert_eq!((stats.out_of_sequence, stats.corrupted, stats.lost), (1, 1, 0), "{stats:?}");
 }

@@ -202,6 +202,48 @@ impl<T: AsRef<[u8]>> Packet<T> {
         Ok(())
     }
 
+    /// What `check` leaves out and a stream of packets relies on (the sweep assembler runs
+    /// it), over the valid columns: measurement ids consecutive (a packet holds neighbouring
+    /// columns), LEGACY columns of one frame, and timestamps non-decreasing within two packet
+    /// periods of the first (a packet spans 15/16 of one). Call after `check`.
+    pub fn check_consistency(&self) -> Result<(), DecodeError> {
+        let g = &self.geometry;
+        let mut valid = (0..usize::from(g.columns_per_packet)).filter(|c| self.column_valid(*c));
+        let Some(first) = valid.next() else { return Ok(()) };
+        let (id0, frame0, t0) =
+            (self.measurement_id(first), self.column_frame_id(first), self.timestamp(first));
+        let span_ns = (2.0 * packet_period(g) * 1e9) as u64;
+        let mut previous = t0;
+        for c in valid {
+            if u32::from(self.measurement_id(c)) != u32::from(id0) + (c - first) as u32 {
+                return Err(DecodeError::AzimuthOrder(c.min(255) as u8));
+            }
+            if self.column_frame_id(c) != frame0 {
+                return Err(DecodeError::BadHeader);
+            }
+            let t = self.timestamp(c);
+            if t < previous || t - t0 > span_ns {
+                return Err(DecodeError::BadTimestamp);
+            }
+            previous = t;
+        }
+        Ok(())
+    }
+
+    /// Time of the first valid column (of column 0 when none is valid), seconds: the
+    /// packet's place in the stream.
+    pub fn time(&self) -> f64 {
+        let columns = usize::from(self.geometry.columns_per_packet);
+        let c = (0..columns).find(|c| self.column_valid(*c)).unwrap_or(0);
+        self.timestamp(c) as f64 * 1e-9
+    }
+
+    /// Column `c`'s encoder direction in the sensor frame, clockwise from +x, 0.01° (it
+    /// grows with the measurement id, as a spinning sensor's block azimuth does).
+    pub fn azimuth(&self, c: usize) -> u16 {
+        ColumnAngles::new(&self.geometry, self.measurement_id(c)).azimuth
+    }
+
     pub fn geometry(&self) -> &OusterGeometry {
         &self.geometry
     }
@@ -578,8 +620,8 @@ pub fn decode<F: FnMut(Return) + ?Sized>(
         model: Model::Ouster,
         return_mode: if echoes == 2 { ReturnMode::Dual } else { ReturnMode::Strongest },
         time: p.timestamp(0) as f64 * 1e-9,
-        first_azimuth: ColumnAngles::new(&g, p.measurement_id(0)).azimuth,
-        last_azimuth: ColumnAngles::new(&g, p.measurement_id(columns - 1)).azimuth,
+        first_azimuth: p.azimuth(0),
+        last_azimuth: p.azimuth(columns - 1),
         sequence: Some(u32::from(p.packet_frame_id())),
         returns,
     })
@@ -867,6 +909,62 @@ mod tests {
             Packet::new_checked(&bytes[..], &silly).unwrap_err(),
             DecodeError::WrongCalibration
         );
+    }
+
+    /// A valid LEGACY packet of `columns` columns × 2 beams from measurement id `first`,
+    /// one column per 97.65625 µs (1024×10).
+    fn legacy_stream_packet(columns: u16, first: u16) -> ([u8; 16 * 44], OusterGeometry) {
+        let g = geometry(Profile::Legacy, 2, columns);
+        let mut repr = Repr::<2> {
+            geometry: g,
+            frame_id: 0,
+            init_id: 0,
+            serial: 0,
+            columns: Default::default(),
+        };
+        for (c, col) in repr.columns.iter_mut().take(usize::from(columns)).enumerate() {
+            let m = first + c as u16;
+            col.timestamp = 5_000_000_000 + u64::from(m) * 97_656;
+            col.measurement_id = m;
+            col.frame_id = 7;
+            col.status = 0xFFFF_FFFF;
+        }
+        let mut out = [0u8; 16 * 44];
+        repr.emit(&mut out[..g.packet_len()]).unwrap();
+        (out, g)
+    }
+
+    #[test]
+    fn consistency_needs_neighbouring_columns_of_one_frame_in_time_order() {
+        let (bytes, g) = legacy_stream_packet(4, 100);
+        let len = g.packet_len();
+        let consistency = |d: &[u8]| Packet::new_checked(d, &g).unwrap().check_consistency();
+        assert_eq!(consistency(&bytes[..len]), Ok(()));
+        let p = Packet::new_checked(&bytes[..len], &g).unwrap();
+        assert!((p.time() - (5.0 + 100.0 * 97_656e-9)).abs() < 1e-9);
+        // Column 2 of 4 says measurement id 150: not a neighbour.
+        let mut gap = bytes;
+        gap[2 * 44 + 8..2 * 44 + 10].copy_from_slice(&150u16.to_le_bytes());
+        assert_eq!(consistency(&gap[..len]), Err(DecodeError::AzimuthOrder(2)));
+        // Column 3 in another frame.
+        let mut frame = bytes;
+        frame[3 * 44 + 10..3 * 44 + 12].copy_from_slice(&8u16.to_le_bytes());
+        assert_eq!(consistency(&frame[..len]), Err(DecodeError::BadHeader));
+        // Column 1 earlier than column 0; column 3 a second late.
+        let mut back = bytes;
+        back[44..52].copy_from_slice(&4_000_000_000u64.to_le_bytes());
+        assert_eq!(consistency(&back[..len]), Err(DecodeError::BadTimestamp));
+        let mut late = bytes;
+        late[3 * 44..3 * 44 + 8].copy_from_slice(&6_000_000_000u64.to_le_bytes());
+        assert_eq!(consistency(&late[..len]), Err(DecodeError::BadTimestamp));
+        // An invalid column (status 0) is not asked to agree: outside the column window a
+        // unit may leave it zeroed.
+        let mut off = bytes;
+        off[2 * 44..2 * 44 + 12].fill(0);
+        off[2 * 44 + 40..2 * 44 + 44].fill(0);
+        assert_eq!(consistency(&off[..len]), Ok(()));
+        // Azimuths grow with the measurement id (column 0 at id 100 of 1024, clockwise).
+        assert!(p.azimuth(1) > p.azimuth(0));
     }
 
     #[test]

@@ -6,7 +6,8 @@
 //! unknown, truncated, oversized and corrupted payloads are counted and dropped.
 //!
 //! One packet never moves the sweep's clock far: a packet must be consistent in itself
-//! (azimuths advancing block by block, a real date; the views' `check_consistency`), and
+//! (azimuths advancing block by block — an Ouster's measurement ids column by column —, a
+//! real date; the views' `check_consistency`), and
 //! with the stream — its time within [`FORWARD_WINDOW_S`] after or [`REORDER_WINDOW_S`]
 //! before the last packet's, its azimuth no further on than the sensor can turn in between
 //! and, across a gap, where the sensor's measured turn rate puts it (so a packet with a
@@ -320,10 +321,15 @@ impl<'b> SweepAssembler<'b> {
         let model = self.cal.model;
         let (stamp, returns, period) = if model == Model::Ouster {
             let p = ouster::Packet::new_checked(payload, &self.cal.ouster)?;
-            // Both returns travel in one packet: the period is the packet period. Columns
-            // carry no block azimuth: the stream check uses time alone.
-            let time = p.timestamp(0) as f64 * 1e-9;
-            let stamp = Stamp { time, first_azimuth: 0, last_azimuth: 0 };
+            p.check_consistency()?;
+            // The columns' encoder directions stand for block azimuths. Both returns travel
+            // in one packet: the period is the packet period.
+            let columns = usize::from(self.cal.ouster.columns_per_packet);
+            let stamp = Stamp {
+                time: p.time(),
+                first_azimuth: p.azimuth(0),
+                last_azimuth: p.azimuth(columns - 1),
+            };
             (stamp, 1, ouster::packet_period(&self.cal.ouster))
         } else if model.is_velodyne() {
             let p = velodyne::Packet::new_checked(payload)?;
@@ -374,9 +380,6 @@ impl<'b> SweepAssembler<'b> {
         if dt < 0.0 {
             return Order::Reordered;
         }
-        if self.cal.model == Model::Ouster {
-            return Order::Next { dt };
-        }
         let reach = (dt + period) * MAX_TURN_RATE + AZIMUTH_SLACK;
         if f64::from(advance(last.last_azimuth, next.first_azimuth)) > reach {
             return Order::OutOfSequence;
@@ -397,7 +400,7 @@ impl<'b> SweepAssembler<'b> {
     /// mean over about 16 packets), when the gap is short enough to measure it.
     fn measure_turn_rate(&mut self, stamp: Stamp, dt: f64, period: f64) {
         let Some(last) = self.last else { return };
-        if self.cal.model == Model::Ouster || dt <= 0.0 || dt > RATE_GAP * period {
+        if dt <= 0.0 || dt > RATE_GAP * period {
             return;
         }
         let rate = f64::from(advance(last.first_azimuth, stamp.first_azimuth)) / dt;
