@@ -199,6 +199,34 @@ def check_dids(tag, records, store, states):
     return rec
 
 
+def decode_sensor_table(b):
+    """DID 0xC010: u8 n, n x (u8 kind, u8 name length, name) -> [(kind, name)], or None."""
+    b, out, i = bytes(b), [], 1
+    if not b:
+        return None
+    for _ in range(b[0]):
+        if i + 2 > len(b) or i + 2 + b[i + 1] > len(b):
+            return None
+        out.append((b[i], b[i + 2:i + 2 + b[i + 1]].decode("ascii", "replace")))
+        i += 2 + b[i + 1]
+    return out if i == len(b) else None
+
+
+def check_sensor_dids(tag, uds, records):
+    """The one-pair rig's per-sensor DIDs (0xC010, 0xC200 + i, 0xC300 + i) against the fixed ones."""
+    read = lambda d: uds.client.read_data_by_identifier(d).service_data.values[d]  # noqa: E731
+    table = decode_sensor_table(read(0xC010))
+    check(f"{tag}: 0xC010 sensor table = camera 0 'camera', LiDAR 1 'lidar'",
+          table == [(0, "camera"), (1, "lidar")], str(table))
+    check(f"{tag}: 0xC200 (camera 0) = 0xC002", read(0xC200) == records.get(0xC002), hexs(read(0xC200)))
+    check(f"{tag}: 0xC301 (LiDAR 1 -> camera 0) = 0xC003", read(0xC301) == records.get(0xC003),
+          hexs(read(0xC301)))
+    identity = struct.pack(">7f", 1, 0, 0, 0, 0, 0, 0)
+    check(f"{tag}: 0xC300 (camera 0 to itself) = identity", read(0xC300) == identity, hexs(read(0xC300)))
+    uds.expect_nrc(f"{tag}: 0xC201 (a LiDAR has no intrinsics) -> 0x31", lambda: read(0xC201), 0x31)
+    uds.expect_nrc(f"{tag}: 0xC302 (no sensor 2) -> 0x31", lambda: read(0xC302), 0x31)
+
+
 # ---------------------------------------------------------------- udsoncan side
 
 class Raw(udsoncan.DidCodec):
@@ -240,7 +268,9 @@ class Uds:
         self.conn = PythonIsoTpConnection(isotp.CanStack(bus=self.bus, address=addr, params=params))
         cfg = dict(udsoncan.configs.default_client_config)
         cfg.update({
-            "data_identifiers": {0xC001: Raw(9), 0xC002: Raw(), 0xC003: Raw(28), 0xC004: Raw(9)},
+            "data_identifiers": {0xC001: Raw(9), 0xC002: Raw(), 0xC003: Raw(28), 0xC004: Raw(9),
+                                 0xC010: Raw(), 0xC200: Raw(), 0xC201: Raw(),
+                                 0xC300: Raw(28), 0xC301: Raw(28), 0xC302: Raw(28)},
             "security_algo": lambda level, seed, params: key_for(seed, params),
             "security_algo_params": secret,
             "request_timeout": 10, "p2_timeout": 1, "p2_star_timeout": 6,
@@ -736,7 +766,9 @@ def run(args):
 
     uds = Uds(args.port, secret)
     c = uds.client
-    check_dids("after the run", uds.read_all(), store, (4,))
+    records = uds.read_all()
+    check_dids("after the run", records, store, (4,))
+    check_sensor_dids("after the run", uds, records)
 
     # 5. Roll back: a new generation restoring the one before the run.
     before = rec

@@ -212,7 +212,8 @@ struct QueryArgs {
     /// `socketcand:HOST:PORT[/CHANNEL]` or `socketcan:IFACE`.
     #[arg(long)]
     endpoint: String,
-    /// status, intrinsics, extrinsic, quality, start or rollback.
+    /// status, sensors, intrinsics[:SENSOR], extrinsic[:SENSOR], quality, start or rollback
+    /// (SENSOR: a name or an index from `sensors`).
     #[arg(default_value = "status")]
     command: String,
     /// The vehicle secret (needed for start and rollback).

@@ -13,7 +13,7 @@ use roomcal::daemon::{self, config, CalibrationOutcome, Calibrator, Daemon, RunO
 use roomcal::geometry::CameraModel;
 use roomcal::lidar::{pcd, Point};
 use roomcal::result::{CalibrationResult, CameraResult, Extrinsic, Quality, Status, Uncertainty};
-use roomcal::service::uds::{Backend, DaemonState, Refusal};
+use roomcal::service::uds::{Backend, DaemonState, Refusal, SensorTable};
 use roomcal::store::Store;
 
 fn result(fx: f64, status: Status) -> CalibrationResult {
@@ -243,7 +243,8 @@ fn backend_answers_from_the_store_and_rolls_back() {
         ..Default::default()
     }));
     let (tx, mut rx) = tokio::sync::mpsc::channel(1);
-    let mut b = daemon::DaemonBackend::new(shared.clone(), tx, store.clone());
+    let mut b =
+        daemon::DaemonBackend::new(shared.clone(), tx, store.clone(), SensorTable::one_pair(true));
     let st = b.state();
     assert_eq!((st.state, st.generation, st.time), (DaemonState::Idle, 2, 1_700_000_100));
     let k = b.intrinsics().unwrap();
@@ -260,6 +261,11 @@ fn backend_answers_from_the_store_and_rolls_back() {
     }
     assert_eq!(e.translation, [0.05, 0.42, -0.28]);
     assert_eq!(b.quality().unwrap().boards, 6);
+    // The one-pair rig's per-sensor DIDs serve the same records.
+    assert_eq!(b.sensors(), SensorTable::one_pair(true));
+    assert_eq!(b.sensor_intrinsics(0), Some(k));
+    assert_eq!(b.sensor_extrinsic(1), Some(e));
+    assert_eq!((b.sensor_intrinsics(1), b.sensor_extrinsic(2)), (None, None));
     // Start = a run request; finished once the daemon counts a run.
     b.start_calibration().unwrap();
     assert!(rx.try_recv().is_ok());
@@ -429,7 +435,7 @@ async fn current_json_emptied_while_running_is_restored() {
     let shared =
         Arc::new(std::sync::Mutex::new(daemon::Shared { current: rec, ..Default::default() }));
     let (tx, _rx) = tokio::sync::mpsc::channel(1);
-    let b = daemon::DaemonBackend::new(shared, tx, store);
+    let b = daemon::DaemonBackend::new(shared, tx, store, SensorTable::one_pair(true));
     std::fs::write(dir.join("store/current.json"), b"").unwrap();
     assert_eq!(b.state().generation, 1);
     assert_eq!(current_bytes(&dir).unwrap(), good, "restored before the read was answered");

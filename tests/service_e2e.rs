@@ -115,9 +115,9 @@ async fn query_pieces_print_every_did() {
     let mut opts = QueryOptions::new(&format!("socketcand:{addr}"));
     let status = query(&opts, QueryCommand::Status).await.unwrap();
     assert!(status.contains("generation: 7"), "{status}");
-    let intr = query(&opts, QueryCommand::Intrinsics).await.unwrap();
+    let intr = query(&opts, QueryCommand::Intrinsics(None)).await.unwrap();
     assert!(intr.contains("pinhole-radtan") && intr.contains("1000.000, 1000.500"), "{intr}");
-    let ext = query(&opts, QueryCommand::Extrinsic).await.unwrap();
+    let ext = query(&opts, QueryCommand::Extrinsic(None)).await.unwrap();
     assert!(ext.contains("[0.0500, 0.4200, -0.2800]") && ext.contains("(120.000 deg)"), "{ext}");
     let q = query(&opts, QueryCommand::Quality).await.unwrap();
     assert!(q.contains("boards:     6"), "{q}");
@@ -143,7 +143,7 @@ async fn query_pieces_print_every_did() {
     // Refusals are explained in the daemon's terms: nothing calibrated, nothing older.
     let (addr, stop, _task) = start_server(FakeBackend::empty()).await;
     let mut opts = QueryOptions::new(&format!("socketcand:{addr}"));
-    let err = query(&opts, QueryCommand::Intrinsics).await.unwrap_err();
+    let err = query(&opts, QueryCommand::Intrinsics(None)).await.unwrap_err();
     assert!(matches!(err, ClientError::Refused { service: 0x22, nrc: 0x22, .. }), "{err}");
     assert!(err.to_string().contains("no calibration in force"), "{err}");
     opts.secret_file = Some(dir.join("secret"));
@@ -154,6 +154,42 @@ async fn query_pieces_print_every_did() {
     assert!(err.to_string().contains("secret file does not match"), "{err}");
     stop.send(()).unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[tokio::test]
+async fn query_reads_every_sensor_of_a_rig_by_name_or_index() {
+    let (addr, stop, _task) = start_server(FakeBackend::rig()).await;
+    let opts = QueryOptions::new(&format!("socketcand:{addr}"));
+    let ask = |q: &str| {
+        let cmd = q.parse::<QueryCommand>().unwrap();
+        let opts = opts.clone();
+        async move { query(&opts, cmd).await }
+    };
+    let table = ask("sensors").await.unwrap();
+    assert_eq!(table, "0: front (camera)\n1: wide (camera)\n2: top (LiDAR)\n3: bumper (LiDAR)");
+    let wide = ask("intrinsics:wide").await.unwrap();
+    assert!(wide.starts_with("camera wide (1):") && wide.contains("600.000, 600.250"), "{wide}");
+    assert_eq!(ask("intrinsics:1").await.unwrap(), wide);
+    let top = ask("extrinsic:top").await.unwrap();
+    assert!(
+        top.contains("→ the first camera") && top.contains("[0.0500, 0.4200, -0.2800]"),
+        "{top}"
+    );
+    // A sensor the vehicle lacks is named with the ones it has; a LiDAR has no intrinsics;
+    // an uncalibrated sensor is explained.
+    let err = ask("intrinsics:rear").await.unwrap_err();
+    assert_eq!(
+        err.to_string(),
+        "no sensor `rear` on this vehicle; its sensors: front, wide, top, bumper"
+    );
+    let err = ask("intrinsics:top").await.unwrap_err();
+    assert!(err.to_string().contains("no such sensor (or a LiDAR"), "{err}");
+    let err = ask("extrinsic:bumper").await.unwrap_err();
+    assert!(err.to_string().contains("no calibration in force"), "{err}");
+    for bad in ["quality:top", "intrinsics:", "sensor"] {
+        assert!(bad.parse::<QueryCommand>().is_err(), "{bad}");
+    }
+    stop.send(()).unwrap();
 }
 
 #[tokio::test]

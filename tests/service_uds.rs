@@ -1,14 +1,16 @@
 //! UDS server tests: byte vectors both ways for every service and DID, the NRC cases
 //! and their priority, S3, SecurityAccess lockout, 0x78 while a calibration runs, and a
-//! flood of 10,000 requests through ISO-TP + server (rate printed).
+//! flood of 10,000 requests through ISO-TP + server (rate printed); the per-sensor DIDs of
+//! rigs (sensor table 0xC010, intrinsics 0xC200 + i, extrinsics 0xC300 + i).
 
 use core::time::Duration;
 
 use roomcal::service::fake::FakeBackend;
 use roomcal::service::isotp::{Config, Event, IsoTp};
 use roomcal::service::uds::{
-    security_key, DaemonState, ExtrinsicRecord, IntrinsicsRecord, Nrc, Outcome, QualityRecord,
-    RequestRepr, ResponseRepr, Server, ServerConfig, Session, StateRecord, SEED_LEN,
+    security_key, DaemonState, DecodeError, ExtrinsicRecord, IntrinsicsRecord, Nrc, Outcome,
+    QualityRecord, RequestRepr, ResponseRepr, SensorKind, SensorTable, Server, ServerConfig,
+    Session, StateRecord, MAX_SENSORS, MAX_SENSOR_NAME, SEED_LEN,
 };
 use roomcal::service::Instant;
 
@@ -442,4 +444,119 @@ fn flood_of_requests_through_isotp_and_server() {
         dt.as_secs_f64() * 1e3,
         10_000.0 / dt.as_secs_f64()
     );
+}
+
+/// The response's data after the echoed DID, asserting the DID.
+fn data(s: &mut TestServer, did: u16) -> Vec<u8> {
+    let [hi, lo] = did.to_be_bytes();
+    let r = ask(s, &[0x22, hi, lo], ms(0)).unwrap();
+    assert_eq!(r[..3], [0x62, hi, lo], "DID 0x{did:04X}");
+    r[3..].to_vec()
+}
+
+#[test]
+fn sensor_dids_of_the_one_pair_rig() {
+    let mut s = server(FakeBackend::calibrated());
+    // 0xC010: two sensors, camera "camera" (kind 0) and LiDAR "lidar" (kind 1).
+    let mut want = vec![2, 0, 6];
+    want.extend(b"camera");
+    want.extend([1, 5]);
+    want.extend(b"lidar");
+    assert_eq!(data(&mut s, 0xC010), want);
+    assert_eq!(SensorTable::parse(&want).unwrap(), SensorTable::one_pair(true));
+    // Camera 0's intrinsics are 0xC002's; sensor 1's extrinsic is 0xC003's; the first
+    // camera's own is the identity (w = 1.0 = 0x3F800000).
+    assert_eq!(data(&mut s, 0xC200), data(&mut s, 0xC002));
+    assert_eq!(data(&mut s, 0xC301), data(&mut s, 0xC003));
+    let mut identity = vec![0x3F, 0x80, 0, 0];
+    identity.extend([0u8; 24]);
+    assert_eq!(data(&mut s, 0xC300), identity);
+    // The LiDAR has no intrinsics, there is no sensor 2, and 0xC208 is past the most
+    // sensors: requestOutOfRange, as for any DID not served.
+    for did in [0xC201u16, 0xC202, 0xC302, 0xC208, 0xC2FF, 0xC3FF] {
+        let [hi, lo] = did.to_be_bytes();
+        assert_eq!(nrc(&mut s, &[0x22, hi, lo], ms(0)), 0x31, "DID 0x{did:04X}");
+    }
+    // Among served DIDs, one not served is left out.
+    let r = ask(&mut s, &[0x22, 0xC2, 0x01, 0xC3, 0x00], ms(0)).unwrap();
+    assert_eq!(r[1..3], [0xC3, 0x00]);
+    assert_eq!(r.len(), 3 + ExtrinsicRecord::LEN);
+    // Before the first calibration: the camera's intrinsics are not available (0x22).
+    let mut s = server(FakeBackend::empty());
+    assert_eq!(nrc(&mut s, &[0x22, 0xC2, 0x00], ms(0)), 0x22);
+    assert_eq!(nrc(&mut s, &[0x22, 0xC3, 0x01], ms(0)), 0x22);
+}
+
+#[test]
+fn sensor_dids_of_a_four_sensor_rig() {
+    let mut s = server(FakeBackend::rig());
+    let table = SensorTable::parse(&data(&mut s, 0xC010)).unwrap();
+    let names: Vec<_> = table.sensors.iter().map(|e| (e.kind, e.name.as_str())).collect();
+    assert_eq!(
+        names,
+        [
+            (SensorKind::Camera, "front"),
+            (SensorKind::Camera, "wide"),
+            (SensorKind::Lidar, "top"),
+            (SensorKind::Lidar, "bumper")
+        ]
+    );
+    assert_eq!(
+        table.to_string(),
+        "0: front (camera)\n1: wide (camera)\n2: top (LiDAR)\n3: bumper (LiDAR)"
+    );
+    let wide = IntrinsicsRecord::parse(&data(&mut s, 0xC201)).unwrap();
+    assert_eq!((wide.fx, wide.fy), (600.0, 600.25));
+    let side = ExtrinsicRecord::parse(&data(&mut s, 0xC301)).unwrap();
+    assert_eq!(side.translation, [0.4, 0.0, 0.1]);
+    assert_eq!(data(&mut s, 0xC302), data(&mut s, 0xC003));
+    // LiDARs have no intrinsics; the bumper LiDAR is not calibrated yet.
+    assert_eq!(nrc(&mut s, &[0x22, 0xC2, 0x02], ms(0)), 0x31);
+    assert_eq!(nrc(&mut s, &[0x22, 0xC3, 0x03], ms(0)), 0x22);
+    assert_eq!(nrc(&mut s, &[0x22, 0xC3, 0x04], ms(0)), 0x31);
+}
+
+#[test]
+fn sensor_table_bytes_both_ways_and_malformed() {
+    let mut table = SensorTable::default();
+    table.push(SensorKind::Lidar, "roof-2").unwrap();
+    let mut buf = [0u8; 16];
+    let n = table.emit(&mut buf).unwrap();
+    assert_eq!(buf[..n], [1, 1, 6, b'r', b'o', b'o', b'f', b'-', b'2']);
+    assert_eq!(n, table.buffer_len());
+    assert_eq!(SensorTable::parse(&buf[..n]).unwrap(), table);
+    assert!(table.emit(&mut buf[..5]).is_none(), "too short a buffer");
+    let bad = |bytes: &[u8]| SensorTable::parse(bytes).unwrap_err();
+    assert_eq!(bad(&[9]), DecodeError::BadValue("sensor count"));
+    assert_eq!(bad(&[1, 2, 1, b'a']), DecodeError::BadValue("sensor kind"));
+    assert_eq!(bad(&[1, 0, 1, b'A']), DecodeError::BadValue("sensor name"));
+    assert_eq!(bad(&[1, 0, 0]), DecodeError::BadValue("sensor name"));
+    assert_eq!(bad(&[1, 0, 1, 0xFF]), DecodeError::BadValue("sensor name"));
+    assert!(matches!(bad(&[1, 0, 3, b'a']), DecodeError::Truncated { .. }));
+    assert!(matches!(bad(&[0, 0]), DecodeError::TrailingBytes { .. }));
+    assert_eq!(table.push(SensorKind::Camera, "Front"), Err(DecodeError::BadValue("sensor name")));
+    let long = "a".repeat(MAX_SENSOR_NAME + 1);
+    assert_eq!(table.push(SensorKind::Camera, &long), Err(DecodeError::BadValue("sensor name")));
+    assert_eq!(table.index_of("roof-2"), Some(0));
+    assert_eq!(table.index_of("roof"), None);
+}
+
+#[test]
+fn the_largest_sensor_tables_always_fit_a_response() {
+    // Eight sensors of 32-byte names, asked for eight times in one request: never 0x14.
+    let mut backend = FakeBackend::rig();
+    let rig = backend.rig.as_mut().unwrap();
+    rig.sensors = SensorTable::default();
+    for i in 0..MAX_SENSORS {
+        let name = format!("{i}{}", "x".repeat(MAX_SENSOR_NAME - 1));
+        rig.sensors.push(SensorKind::Camera, &name).unwrap();
+    }
+    assert!(rig.sensors.push(SensorKind::Camera, "ninth").is_err(), "the table is full");
+    let mut s = server(backend);
+    let eight: Vec<u8> = std::iter::once(0x22).chain([0xC0, 0x10].repeat(8)).collect();
+    let r = ask(&mut s, &eight, ms(0)).unwrap();
+    let one = 1 + MAX_SENSORS * (2 + MAX_SENSOR_NAME);
+    assert_eq!(r.len(), 1 + 8 * (2 + one));
+    let table = SensorTable::parse(&r[3..3 + one]).unwrap();
+    assert_eq!(table.sensors.len(), MAX_SENSORS);
 }

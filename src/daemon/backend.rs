@@ -1,5 +1,6 @@
 //! The UDS [`Backend`] on the daemon's state and store: DID 0xC001–0xC004 from the
-//! calibration in force, routine 0xC100 start = a run request, 0xC101 = store rollback;
+//! calibration in force, the sensor table (0xC010) of the room's one-pair rig and its
+//! per-sensor DIDs, routine 0xC100 start = a run request, 0xC101 = store rollback;
 //! and the daemon's service task, which runs the UDS server on the configured transport.
 
 use std::sync::{Arc, Mutex};
@@ -11,7 +12,7 @@ use crate::geometry::CameraModel as GeoModel;
 use crate::service::transport::{CanTransport, Endpoint, TransportError};
 use crate::service::uds::{
     Backend, CameraModel, DaemonState, ExtrinsicRecord, IntrinsicsRecord, Outcome, QualityRecord,
-    Refusal, StateRecord,
+    Refusal, SensorTable, StateRecord,
 };
 use crate::service::{driver, isotp, socketcand::SocketcandServer, uds};
 use crate::store::{Lockout, Record, Store};
@@ -42,12 +43,20 @@ pub struct DaemonBackend {
     store: Store,
     /// `runs` when the service started a run.
     pending: Option<u64>,
+    /// The vehicle's sensors (DID 0xC010).
+    sensors: SensorTable,
 }
 
 impl DaemonBackend {
-    /// A backend reading `shared`, requesting runs on `requests`, rolling back `store`.
-    pub fn new(shared: Arc<Mutex<Shared>>, requests: mpsc::Sender<()>, store: Store) -> Self {
-        DaemonBackend { shared, requests, store, pending: None }
+    /// A backend reading `shared`, requesting runs on `requests`, rolling back `store`,
+    /// describing the vehicle as `sensors`.
+    pub fn new(
+        shared: Arc<Mutex<Shared>>,
+        requests: mpsc::Sender<()>,
+        store: Store,
+        sensors: SensorTable,
+    ) -> Self {
+        DaemonBackend { shared, requests, store, pending: None, sensors }
     }
 
     fn snapshot(&self) -> Shared {
@@ -107,6 +116,10 @@ impl Backend for DaemonBackend {
             hole_rms_px: q.hole_rms_px as f32,
             boards: q.boards.min(255) as u8,
         })
+    }
+
+    fn sensors(&self) -> SensorTable {
+        self.sensors.clone()
     }
 
     fn start_calibration(&mut self) -> Result<(), Refusal> {

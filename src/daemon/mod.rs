@@ -374,7 +374,9 @@ async fn run_daemon<C: Calibrator>(
     tasks.spawn(camera_task(config.clone(), frame_tx));
     tasks.spawn(lidar_task(config.clone(), sweep_tx));
     if let Some(svc) = config.service.clone() {
-        let backend = DaemonBackend::new(shared.clone(), requests_tx.clone(), store.clone());
+        let sensors = crate::service::uds::SensorTable::one_pair(room.lidar.is_some());
+        let backend =
+            DaemonBackend::new(shared.clone(), requests_tx.clone(), store.clone(), sensors);
         tasks.spawn(backend::service_task(svc, backend, stop_rx));
     }
     drop(requests_tx);

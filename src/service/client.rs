@@ -1,5 +1,5 @@
 //! UDS client for roomcal's service interface (std, tokio) and the pieces of
-//! `roomcal query --endpoint ENDPOINT status|intrinsics|extrinsic|quality|start|rollback`.
+//! `roomcal query --endpoint ENDPOINT status|sensors|intrinsics[:SENSOR]|extrinsic[:SENSOR]|quality|start|rollback`.
 
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
@@ -9,7 +9,7 @@ use super::isotp::{self, Event, IsoTp};
 use super::transport::{CanTransport, Endpoint, TransportError};
 use super::uds::{
     did, rid, security_key, sid, DecodeError, ExtrinsicRecord, IntrinsicsRecord, Nrc, Outcome,
-    QualityRecord, RequestRepr, ResponseRepr, Session, StateRecord, SEED_LEN,
+    QualityRecord, RequestRepr, ResponseRepr, SensorTable, Session, StateRecord, SEED_LEN,
 };
 use super::{Instant, DEFAULT_REQUEST_ID, DEFAULT_RESPONSE_ID};
 
@@ -38,9 +38,12 @@ pub enum ClientError {
     #[error("`{0}` needs --secret-file")]
     NeedsSecret(&'static str),
     #[error(
-        "unknown query `{0}`: expected status, intrinsics, extrinsic, quality, start or rollback"
+        "unknown query `{0}`: expected status, sensors, intrinsics[:SENSOR], extrinsic[:SENSOR], \
+         quality, start or rollback (SENSOR: a name or an index of `sensors`)"
     )]
     UnknownQuery(String),
+    #[error("no sensor `{name}` on this vehicle; its sensors: {known}")]
+    UnknownSensor { name: String, known: String },
     #[error("cannot start the async runtime: {0}")]
     Runtime(std::io::Error),
 }
@@ -209,6 +212,44 @@ impl<T: CanTransport> UdsClient<T> {
         QualityRecord::parse(&b).map_err(|error| ClientError::Decode { did: did::QUALITY, error })
     }
 
+    /// DID 0xC010.
+    pub async fn sensors(&mut self) -> Result<SensorTable, ClientError> {
+        let b = self.read_did(did::SENSORS).await?;
+        SensorTable::parse(&b).map_err(|error| ClientError::Decode { did: did::SENSORS, error })
+    }
+
+    /// DID 0xC200 + `index`: camera `index`'s intrinsics.
+    pub async fn sensor_intrinsics(&mut self, index: u8) -> Result<IntrinsicsRecord, ClientError> {
+        let id = did::SENSOR_INTRINSICS + u16::from(index);
+        let b = self.read_did(id).await?;
+        IntrinsicsRecord::parse(&b).map_err(|error| ClientError::Decode { did: id, error })
+    }
+
+    /// DID 0xC300 + `index`: sensor `index` → the first camera.
+    pub async fn sensor_extrinsic(&mut self, index: u8) -> Result<ExtrinsicRecord, ClientError> {
+        let id = did::SENSOR_EXTRINSIC + u16::from(index);
+        let b = self.read_did(id).await?;
+        ExtrinsicRecord::parse(&b).map_err(|error| ClientError::Decode { did: id, error })
+    }
+
+    /// The index and name of `sensor`, from the sensor table (read from the server).
+    pub async fn resolve(&mut self, sensor: &SensorRef) -> Result<(u8, String), ClientError> {
+        let table = self.sensors().await?;
+        let found = match sensor {
+            SensorRef::Index(i) => {
+                table.sensors.get(usize::from(*i)).map(|s| (*i, s.name.to_string()))
+            }
+            SensorRef::Name(name) => table.index_of(name).map(|i| (i, name.clone())),
+        };
+        found.ok_or_else(|| ClientError::UnknownSensor {
+            name: match sensor {
+                SensorRef::Index(i) => i.to_string(),
+                SensorRef::Name(n) => n.clone(),
+            },
+            known: table.sensors.iter().map(|s| s.name.as_str()).collect::<Vec<_>>().join(", "),
+        })
+    }
+
     /// DiagnosticSessionControl; returns the server's (P2, P2*) timing.
     pub async fn session(&mut self, session: Session) -> Result<(Duration, Duration), ClientError> {
         let r =
@@ -279,24 +320,44 @@ impl<T: CanTransport> UdsClient<T> {
 }
 
 /// What `roomcal query` asks.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub enum QueryCommand {
     Status,
-    Intrinsics,
-    Extrinsic,
+    /// The sensor table (DID 0xC010).
+    Sensors,
+    /// DID 0xC002, or a camera's 0xC200 + index.
+    Intrinsics(Option<SensorRef>),
+    /// DID 0xC003 (LiDAR → camera), or a sensor's 0xC300 + index (→ the first camera).
+    Extrinsic(Option<SensorRef>),
     Quality,
     Start,
     Rollback,
+}
+
+/// A sensor named in a query: by its index in the sensor table, or by its rig name.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum SensorRef {
+    Index(u8),
+    Name(String),
 }
 
 impl FromStr for QueryCommand {
     type Err = ClientError;
 
     fn from_str(s: &str) -> Result<Self, ClientError> {
-        Ok(match s {
+        let (what, sensor) = match s.split_once(':') {
+            Some((what, sensor)) if !sensor.is_empty() => (what, Some(sensor)),
+            Some(_) => return Err(ClientError::UnknownQuery(s.to_string())),
+            None => (s, None),
+        };
+        let sensor =
+            sensor.map(|t| t.parse().map_or(SensorRef::Name(t.to_string()), SensorRef::Index));
+        Ok(match what {
+            "intrinsics" => QueryCommand::Intrinsics(sensor),
+            "extrinsic" => QueryCommand::Extrinsic(sensor),
+            _ if sensor.is_some() => return Err(ClientError::UnknownQuery(s.to_string())),
             "status" => QueryCommand::Status,
-            "intrinsics" => QueryCommand::Intrinsics,
-            "extrinsic" => QueryCommand::Extrinsic,
+            "sensors" => QueryCommand::Sensors,
             "quality" => QueryCommand::Quality,
             "start" => QueryCommand::Start,
             "rollback" => QueryCommand::Rollback,
@@ -346,7 +407,7 @@ pub fn read_secret(path: &Path) -> Result<Vec<u8>, ClientError> {
 /// Runs one query and returns the human-readable answer.
 pub async fn query(opts: &QueryOptions, cmd: QueryCommand) -> Result<String, ClientError> {
     // Read the secret before touching the bus: a missing file is the likelier mistake.
-    let secret = match cmd {
+    let secret = match &cmd {
         QueryCommand::Start | QueryCommand::Rollback => {
             let path = opts.secret_file.as_deref().ok_or(ClientError::NeedsSecret(
                 if cmd == QueryCommand::Start { "start" } else { "rollback" },
@@ -358,18 +419,22 @@ pub async fn query(opts: &QueryOptions, cmd: QueryCommand) -> Result<String, Cli
     let transport = Endpoint::parse(&opts.endpoint)?.connect().await?;
     let cfg = isotp::Config::new(opts.request_id, opts.response_id);
     let mut client = UdsClient::new(transport, cfg, opts.timing);
-    run_query(&mut client, cmd, secret.as_deref()).await.map_err(|e| explain(cmd, e))
+    run_query(&mut client, &cmd, secret.as_deref()).await.map_err(|e| explain(&cmd, e))
 }
 
 /// What a refusal means for the daemon, for the few that have one meaning.
-fn explain(cmd: QueryCommand, e: ClientError) -> ClientError {
+fn explain(cmd: &QueryCommand, e: ClientError) -> ClientError {
     let ClientError::Negative { service, nrc } = e else {
         return e;
     };
     let hint = match (cmd, nrc) {
         (_, 0x21) => "a calibration started over UDS is still running",
-        (QueryCommand::Intrinsics | QueryCommand::Extrinsic | QueryCommand::Quality, 0x22) => {
-            "no calibration in force yet (or none of this kind)"
+        (
+            QueryCommand::Intrinsics(_) | QueryCommand::Extrinsic(_) | QueryCommand::Quality,
+            0x22,
+        ) => "no calibration in force yet (or none of this kind)",
+        (QueryCommand::Intrinsics(Some(_)) | QueryCommand::Extrinsic(Some(_)), 0x31) => {
+            "no such sensor (or a LiDAR, which has no intrinsics): see `sensors`"
         }
         (QueryCommand::Start, 0x22) => "a calibration is already running",
         (QueryCommand::Rollback, 0x22) => "no earlier calibration to roll back to, or a run is on",
@@ -384,18 +449,30 @@ fn explain(cmd: QueryCommand, e: ClientError) -> ClientError {
 
 async fn run_query<T: CanTransport>(
     client: &mut UdsClient<T>,
-    cmd: QueryCommand,
+    cmd: &QueryCommand,
     secret: Option<&[u8]>,
 ) -> Result<String, ClientError> {
     let text = match cmd {
         QueryCommand::Status => client.status().await?.to_string(),
-        QueryCommand::Intrinsics => client.intrinsics().await?.to_string(),
-        QueryCommand::Extrinsic => client.extrinsic().await?.to_string(),
+        QueryCommand::Sensors => client.sensors().await?.to_string(),
+        QueryCommand::Intrinsics(None) => client.intrinsics().await?.to_string(),
+        QueryCommand::Extrinsic(None) => client.extrinsic().await?.to_string(),
+        QueryCommand::Intrinsics(Some(sensor)) => {
+            let (index, name) = client.resolve(sensor).await?;
+            format!("camera {name} ({index}):\n{}", client.sensor_intrinsics(index).await?)
+        }
+        QueryCommand::Extrinsic(Some(sensor)) => {
+            let (index, name) = client.resolve(sensor).await?;
+            format!(
+                "sensor {name} ({index}) → the first camera:\n{}",
+                client.sensor_extrinsic(index).await?
+            )
+        }
         QueryCommand::Quality => client.quality().await?.to_string(),
         QueryCommand::Start | QueryCommand::Rollback => {
             client.session(Session::Extended).await?;
             client.unlock(secret.unwrap_or_default()).await?;
-            if cmd == QueryCommand::Start {
+            if *cmd == QueryCommand::Start {
                 client.start_calibration().await?.to_string()
             } else {
                 format!("rolled back; generation in force: {}", client.rollback().await?)

@@ -2,9 +2,10 @@
 //! records, a calibration "run" that finishes after a set number of polls, rollback
 //! through the generations.
 
+use super::uds::{one_pair_extrinsic, one_pair_intrinsics};
 use super::uds::{
     Backend, CameraModel, DaemonState, ExtrinsicRecord, IntrinsicsRecord, Outcome, QualityRecord,
-    Refusal, StateRecord,
+    Refusal, SensorKind, SensorTable, StateRecord, MAX_SENSORS,
 };
 
 /// A backend with a calibration in force (or none), answering from memory.
@@ -25,6 +26,17 @@ pub struct FakeBackend {
     running: Option<u32>,
     /// Runs started so far.
     pub runs_started: u32,
+    /// A rig's sensors and their records; `None`: the one-pair rig of [`Backend`]'s
+    /// defaults (camera 0 = `intrinsics`, LiDAR 1 = `extrinsic`).
+    pub rig: Option<FakeRig>,
+}
+
+/// The sensors of a rig and, by sensor index, their intrinsics and extrinsics.
+#[derive(Clone, Debug, Default)]
+pub struct FakeRig {
+    pub sensors: SensorTable,
+    pub intrinsics: heapless::Vec<Option<IntrinsicsRecord>, MAX_SENSORS>,
+    pub extrinsics: heapless::Vec<Option<ExtrinsicRecord>, MAX_SENSORS>,
 }
 
 impl FakeBackend {
@@ -54,7 +66,34 @@ impl FakeBackend {
             refuse_start: false,
             running: None,
             runs_started: 0,
+            rig: None,
         }
+    }
+
+    /// [`FakeBackend::calibrated`] on a four-sensor rig: cameras `front` (the one-pair
+    /// records) and `wide` (fx 600), LiDARs `top` (the one-pair extrinsic) and `bumper`
+    /// (translation z −0.9 m, not yet calibrated: `None`).
+    pub fn rig() -> Self {
+        let one = Self::calibrated();
+        let mut rig = FakeRig::default();
+        let wide = one.intrinsics.clone().map(|k| IntrinsicsRecord { fx: 600.0, fy: 600.25, ..k });
+        let side = ExtrinsicRecord {
+            rotation: [0.9659258, 0.0, 0.258819, 0.0],
+            translation: [0.4, 0.0, 0.1],
+        };
+        let sensors = [
+            (SensorKind::Camera, "front", one.intrinsics.clone(), Some(ExtrinsicRecord::IDENTITY)),
+            (SensorKind::Camera, "wide", wide, Some(side)),
+            (SensorKind::Lidar, "top", None, one.extrinsic),
+            (SensorKind::Lidar, "bumper", None, None),
+        ];
+        for (kind, name, intrinsics, extrinsic) in sensors {
+            // Four sensors with short valid names fit the table.
+            let _ = rig.sensors.push(kind, name);
+            let _ = rig.intrinsics.push(intrinsics);
+            let _ = rig.extrinsics.push(extrinsic);
+        }
+        FakeBackend { rig: Some(rig), ..one }
     }
 
     /// No calibration in force yet (generation 0, every record `None`).
@@ -89,6 +128,27 @@ impl Backend for FakeBackend {
 
     fn quality(&self) -> Option<QualityRecord> {
         self.quality
+    }
+
+    fn sensors(&self) -> SensorTable {
+        match &self.rig {
+            Some(rig) => rig.sensors.clone(),
+            None => SensorTable::one_pair(true),
+        }
+    }
+
+    fn sensor_intrinsics(&self, index: u8) -> Option<IntrinsicsRecord> {
+        match &self.rig {
+            Some(rig) => rig.intrinsics.get(usize::from(index))?.clone(),
+            None => one_pair_intrinsics(self, index),
+        }
+    }
+
+    fn sensor_extrinsic(&self, index: u8) -> Option<ExtrinsicRecord> {
+        match &self.rig {
+            Some(rig) => *rig.extrinsics.get(usize::from(index))?,
+            None => one_pair_extrinsic(self, index),
+        }
     }
 
     fn start_calibration(&mut self) -> Result<(), Refusal> {

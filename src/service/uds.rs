@@ -15,7 +15,7 @@
 //! | 0x10 | DiagnosticSessionControl | all | 0x01 default, 0x03 extended |
 //! | 0x3E | TesterPresent | all | 0x00 |
 //! | 0x27 | SecurityAccess | extended | 0x01 requestSeed, 0x02 sendKey |
-//! | 0x22 | ReadDataByIdentifier | all | – (DIDs 0xC001–0xC004) |
+//! | 0x22 | ReadDataByIdentifier | all | – (DIDs 0xC001–0xC004, 0xC010, 0xC200 + i, 0xC300 + i) |
 //! | 0x31 | RoutineControl | extended, unlocked | 0x01 start, 0x03 results (RIDs 0xC100, 0xC101) |
 //!
 //! Negative responses follow the NRC evaluation order of ISO 14229-1:2013 (7.5):
@@ -57,6 +57,20 @@ pub mod did {
     pub const EXTRINSIC: u16 = 0xC003;
     /// [`super::QualityRecord`].
     pub const QUALITY: u16 = 0xC004;
+    /// [`super::SensorTable`]: the vehicle's sensors; a sensor's index is its place here.
+    pub const SENSORS: u16 = 0xC010;
+    /// `SENSOR_INTRINSICS + i`: camera `i`'s [`super::IntrinsicsRecord`] (0xC200 = 0xC002's).
+    pub const SENSOR_INTRINSICS: u16 = 0xC200;
+    /// `SENSOR_EXTRINSIC + i`: sensor `i` → the first camera, [`super::ExtrinsicRecord`]
+    /// (0xC300 is the identity; for the one-pair rig 0xC301 = 0xC003).
+    pub const SENSOR_EXTRINSIC: u16 = 0xC300;
+
+    /// The sensor index of `did` if it is `base + i` for a sensor index `i` (one of the
+    /// per-sensor ranges above), else `None`.
+    pub fn sensor_index(did: u16, base: u16) -> Option<u8> {
+        let i = did.checked_sub(base)?;
+        u8::try_from(i).ok().filter(|i| usize::from(*i) < super::MAX_SENSORS)
+    }
 }
 
 /// Routine identifiers served by RoutineControl.
@@ -75,11 +89,18 @@ pub const SEED_LEN: usize = 16;
 pub const MAX_DIDS_PER_REQUEST: usize = 8;
 /// Most distortion coefficients in an intrinsics record.
 pub const MAX_DISTORTION: usize = 8;
+/// Most sensors the sensor table (DID 0xC010) lists.
+pub const MAX_SENSORS: usize = 8;
+/// Longest sensor name in the sensor table, bytes (rig names are `[a-z0-9_-]+`).
+pub const MAX_SENSOR_NAME: usize = 32;
+/// Largest record: the sensor table with every sensor at the longest name (intrinsics with
+/// every distortion coefficient are 18 + 4 · 8 = 50 bytes).
+pub const MAX_RECORD: usize = 1 + MAX_SENSORS * (2 + MAX_SENSOR_NAME);
 /// Largest response the server builds: ReadDataByIdentifier of the most DIDs, each the
-/// largest record (intrinsics with every distortion coefficient). Anything a valid request
-/// asks for fits, so NRC 0x14 (responseTooLong, meant for responses the network layer
-/// cannot carry; ISO-TP carries 4095 bytes) is never answered to one.
-pub const MAX_RESPONSE: usize = 1 + MAX_DIDS_PER_REQUEST * (2 + 18 + 4 * MAX_DISTORTION);
+/// largest record. Anything a valid request asks for fits, so NRC 0x14 (responseTooLong,
+/// meant for responses the network layer cannot carry; ISO-TP carries 4095 bytes) is never
+/// answered to one.
+pub const MAX_RESPONSE: usize = 1 + MAX_DIDS_PER_REQUEST * (2 + MAX_RECORD);
 
 /// A response message.
 pub type Response = heapless::Vec<u8, MAX_RESPONSE>;
@@ -271,6 +292,16 @@ impl<'a> Reader<'a> {
         Ok(f32::from_be_bytes(self.take(need)?))
     }
 
+    fn bytes(&mut self, k: usize) -> Result<&'a [u8], DecodeError> {
+        let got = self.bytes.len();
+        let chunk = self
+            .bytes
+            .get(self.pos..self.pos + k)
+            .ok_or(DecodeError::Truncated { need: self.pos + k, got })?;
+        self.pos += k;
+        Ok(chunk)
+    }
+
     fn finish(&self) -> Result<(), DecodeError> {
         if self.pos == self.bytes.len() {
             Ok(())
@@ -442,6 +473,9 @@ pub struct ExtrinsicRecord {
 impl ExtrinsicRecord {
     /// Encoded length.
     pub const LEN: usize = 28;
+    /// A sensor to itself.
+    pub const IDENTITY: ExtrinsicRecord =
+        ExtrinsicRecord { rotation: [1.0, 0.0, 0.0, 0.0], translation: [0.0; 3] };
 
     /// Decodes the record.
     pub fn parse(bytes: &[u8]) -> Result<Self, DecodeError> {
@@ -520,6 +554,131 @@ impl fmt::Display for QualityRecord {
     }
 }
 
+/// What a sensor of the sensor table is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SensorKind {
+    Camera = 0,
+    Lidar = 1,
+}
+
+/// One sensor of the sensor table: its kind and its rig name.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SensorEntry {
+    pub kind: SensorKind,
+    /// `[a-z0-9_-]{1,32}`.
+    pub name: heapless::String<MAX_SENSOR_NAME>,
+}
+
+/// DID 0xC010: u8 n, then per sensor u8 kind (0 camera, 1 LiDAR), u8 name length, the
+/// name (ASCII `[a-z0-9_-]`). A sensor's index (`i` of DIDs 0xC200 + i and 0xC300 + i) is
+/// its place in the table: the rig's cameras in the rig file's order, then its LiDARs; the
+/// first camera is the vehicle's reference.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct SensorTable {
+    pub sensors: heapless::Vec<SensorEntry, MAX_SENSORS>,
+}
+
+impl SensorTable {
+    /// The one-pair rig of a room file's `[camera]` (and `[lidar]`): `camera` (and `lidar`).
+    pub fn one_pair(lidar: bool) -> Self {
+        let mut table = SensorTable::default();
+        // Two short valid names always fit.
+        let _ = table.push(SensorKind::Camera, "camera");
+        if lidar {
+            let _ = table.push(SensorKind::Lidar, "lidar");
+        }
+        table
+    }
+
+    /// Appends a sensor; `Err` when the table is full or the name is not a rig name.
+    pub fn push(&mut self, kind: SensorKind, name: &str) -> Result<(), DecodeError> {
+        if !is_sensor_name(name.as_bytes()) {
+            return Err(DecodeError::BadValue("sensor name"));
+        }
+        let mut owned = heapless::String::new();
+        owned.push_str(name).map_err(|_| DecodeError::BadValue("sensor name"))?;
+        self.sensors
+            .push(SensorEntry { kind, name: owned })
+            .map_err(|_| DecodeError::BadValue("sensor count"))
+    }
+
+    /// The kind of sensor `index`, `None` past the table.
+    pub fn kind(&self, index: u8) -> Option<SensorKind> {
+        self.sensors.get(usize::from(index)).map(|s| s.kind)
+    }
+
+    /// The index of the sensor called `name`.
+    pub fn index_of(&self, name: &str) -> Option<u8> {
+        self.sensors.iter().position(|s| s.name == name).map(|i| i as u8)
+    }
+
+    /// Encoded length.
+    pub fn buffer_len(&self) -> usize {
+        1 + self.sensors.iter().map(|s| 2 + s.name.len()).sum::<usize>()
+    }
+
+    /// Decodes the record.
+    pub fn parse(bytes: &[u8]) -> Result<Self, DecodeError> {
+        let mut r = Reader::new(bytes);
+        let n = usize::from(r.u8(1)?);
+        if n > MAX_SENSORS {
+            return Err(DecodeError::BadValue("sensor count"));
+        }
+        let mut table = SensorTable::default();
+        for _ in 0..n {
+            let kind = match r.u8(r.pos + 2)? {
+                0 => SensorKind::Camera,
+                1 => SensorKind::Lidar,
+                _ => return Err(DecodeError::BadValue("sensor kind")),
+            };
+            let len = usize::from(r.u8(r.pos + 1)?);
+            let name = r.bytes(len)?;
+            // `is_sensor_name` admits ASCII only: the bytes are UTF-8.
+            let name =
+                core::str::from_utf8(name).map_err(|_| DecodeError::BadValue("sensor name"))?;
+            table.push(kind, name)?;
+        }
+        r.finish()?;
+        Ok(table)
+    }
+
+    /// Encodes into `buf`; returns the bytes written, `None` if `buf` is too short.
+    pub fn emit(&self, buf: &mut [u8]) -> Option<usize> {
+        let mut w = Writer::new(buf);
+        // n <= MAX_SENSORS and names <= MAX_SENSOR_NAME bytes: both fit a byte.
+        w.put(&[self.sensors.len() as u8])?;
+        for s in &self.sensors {
+            w.put(&[s.kind as u8, s.name.len() as u8])?;
+            w.put(s.name.as_bytes())?;
+        }
+        Some(w.pos)
+    }
+}
+
+impl fmt::Display for SensorTable {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for (i, s) in self.sensors.iter().enumerate() {
+            let kind = match s.kind {
+                SensorKind::Camera => "camera",
+                SensorKind::Lidar => "LiDAR",
+            };
+            if i > 0 {
+                writeln!(f)?;
+            }
+            write!(f, "{i}: {} ({kind})", s.name)?;
+        }
+        Ok(())
+    }
+}
+
+/// A rig name: 1 to [`MAX_SENSOR_NAME`] bytes of `[a-z0-9_-]`.
+fn is_sensor_name(name: &[u8]) -> bool {
+    (1..=MAX_SENSOR_NAME).contains(&name.len())
+        && name
+            .iter()
+            .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || *b == b'_' || *b == b'-')
+}
+
 /// Result of a calibration run (routine 0xC100 status record): u8 state (4 accepted,
 /// 5 rejected, 6 error), u32 generation in force afterwards.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -579,6 +738,21 @@ pub trait Backend {
     fn extrinsic(&self) -> Option<ExtrinsicRecord>;
     /// Quality of the calibration in force (DID 0xC004); `None` if there is none.
     fn quality(&self) -> Option<QualityRecord>;
+    /// The vehicle's sensors (DID 0xC010); by default the one-pair rig, camera and LiDAR.
+    fn sensors(&self) -> SensorTable {
+        SensorTable::one_pair(true)
+    }
+    /// Intrinsics in force of camera `index` (DIDs 0xC200 + index); by default camera 0's
+    /// are [`Backend::intrinsics`].
+    fn sensor_intrinsics(&self, index: u8) -> Option<IntrinsicsRecord> {
+        one_pair_intrinsics(self, index)
+    }
+    /// Extrinsic in force of sensor `index` → the first camera (DIDs 0xC300 + index); the
+    /// first camera's own is the identity, and by default sensor 1's is
+    /// [`Backend::extrinsic`].
+    fn sensor_extrinsic(&self, index: u8) -> Option<ExtrinsicRecord> {
+        one_pair_extrinsic(self, index)
+    }
     /// Starts a calibration run (routine 0xC100 start). Returns at once; the server then
     /// polls [`Backend::calibration_finished`] and answers 0x78 meanwhile.
     fn start_calibration(&mut self) -> Result<(), Refusal>;
@@ -591,6 +765,25 @@ pub trait Backend {
     /// `locked_for` from now (`None`: not locked). A backend persists it so that a restart
     /// keeps the lock (see [`Server::restore_security`]); by default it is not kept.
     fn security_changed(&mut self, _failed_attempts: u8, _locked_for: Option<Duration>) {}
+}
+
+/// The one-pair rig's camera intrinsics (DIDs 0xC200 + index): camera 0's are DID
+/// 0xC002's; there is no other camera.
+pub fn one_pair_intrinsics<B: Backend + ?Sized>(
+    backend: &B,
+    index: u8,
+) -> Option<IntrinsicsRecord> {
+    (index == 0).then(|| backend.intrinsics())?
+}
+
+/// The one-pair rig's extrinsics (DIDs 0xC300 + index): the camera's is the identity, the
+/// LiDAR's (sensor 1) DID 0xC003's.
+pub fn one_pair_extrinsic<B: Backend + ?Sized>(backend: &B, index: u8) -> Option<ExtrinsicRecord> {
+    match index {
+        0 => Some(ExtrinsicRecord::IDENTITY),
+        1 => backend.extrinsic(),
+        _ => None,
+    }
 }
 
 /// Source of SecurityAccess seeds; must be unpredictable (an OS or hardware RNG).
@@ -908,7 +1101,8 @@ impl<B: Backend, R: SeedSource> Server<B, R> {
         if ids.is_empty() || ids.len() % 2 != 0 || ids.len() / 2 > MAX_DIDS_PER_REQUEST {
             return Err(Nrc::IncorrectMessageLengthOrInvalidFormat);
         }
-        let known = |d: u16| (did::STATE..=did::QUALITY).contains(&d);
+        let sensors = self.backend.sensors();
+        let known = |d: u16| served(&sensors, d);
         let dids = ids.chunks_exact(2).map(|c| u16::from_be_bytes([c[0], c[1]]));
         if !dids.clone().any(known) {
             return Err(Nrc::RequestOutOfRange);
@@ -916,8 +1110,8 @@ impl<B: Backend, R: SeedSource> Server<B, R> {
         let mut r = positive(sid::READ_DATA_BY_IDENTIFIER);
         // Unsupported DIDs among supported ones are left out (ISO 14229-1 10.2.2).
         for d in dids.filter(|&d| known(d)) {
-            let mut buf = [0u8; 64];
-            let n = self.encode_did(d, &mut buf)?;
+            let mut buf = [0u8; MAX_RECORD];
+            let n = self.encode_did(d, &sensors, &mut buf)?;
             if r.len() + 2 + n > MAX_RESPONSE {
                 return Err(Nrc::ResponseTooLong);
             }
@@ -927,13 +1121,19 @@ impl<B: Backend, R: SeedSource> Server<B, R> {
         Ok(Some(r))
     }
 
-    fn encode_did(&self, d: u16, buf: &mut [u8; 64]) -> Result<usize, Nrc> {
+    fn encode_did(&self, d: u16, sensors: &SensorTable, buf: &mut [u8]) -> Result<usize, Nrc> {
+        let intrinsics = did::sensor_index(d, did::SENSOR_INTRINSICS);
+        let extrinsic = did::sensor_index(d, did::SENSOR_EXTRINSIC);
         let n = match d {
             did::STATE => self.backend.state().emit(buf),
             did::INTRINSICS => self.backend.intrinsics().and_then(|i| i.emit(buf)),
             did::EXTRINSIC => self.backend.extrinsic().and_then(|e| e.emit(buf)),
             did::QUALITY => self.backend.quality().and_then(|q| q.emit(buf)),
-            _ => None,
+            did::SENSORS => sensors.emit(buf),
+            _ if intrinsics.is_some() => {
+                intrinsics.and_then(|i| self.backend.sensor_intrinsics(i)).and_then(|r| r.emit(buf))
+            }
+            _ => extrinsic.and_then(|i| self.backend.sensor_extrinsic(i)).and_then(|r| r.emit(buf)),
         };
         n.ok_or(Nrc::ConditionsNotCorrect)
     }
@@ -1033,6 +1233,17 @@ pub fn negative(service: u8, nrc: Nrc) -> Response {
     let mut r = Response::new();
     push(&mut r, &[sid::NEGATIVE_RESPONSE, service, nrc as u8]);
     r
+}
+
+/// Whether the server answers DID `d` for a vehicle with `sensors`: the fixed DIDs, the
+/// sensor table, intrinsics of each camera and the extrinsic of each sensor in the table.
+fn served(sensors: &SensorTable, d: u16) -> bool {
+    let fixed = (did::STATE..=did::QUALITY).contains(&d) || d == did::SENSORS;
+    let camera = did::sensor_index(d, did::SENSOR_INTRINSICS)
+        .is_some_and(|i| sensors.kind(i) == Some(SensorKind::Camera));
+    let sensor =
+        did::sensor_index(d, did::SENSOR_EXTRINSIC).is_some_and(|i| sensors.kind(i).is_some());
+    fixed || camera || sensor
 }
 
 /// Appends; the server never builds more than `MAX_RESPONSE` bytes (checked in
