@@ -25,9 +25,22 @@ vehicle, a noise-free camera or LiDAR): what would have to change to reach a tar
         --cloud /tmp/s1/cloud.pcd --out /tmp/s1/result.json
     scripts/crb_bound.py --room config/room.toml /tmp/s1 [--what-if]
 
+`--surveyed` takes visit folders of `roomcal simulate --visits N` (room-truth.json one level
+up) and adds the surveyed room (issue 13): one room→camera pose instead of a pose per board,
+the boards (and the room's planes, their LiDAR points read from the visit's cloud.pcd) known
+exactly or with the survey's σ as priors, and a standing vehicle (5 frames + 3 sweeps,
+10 + 10: one pose, the corner noise over √frames, the LiDAR's over √sweeps). `--survey
+SURVEYED.toml` takes every board's and plane's σ from a survey `roomcal survey` wrote (boards
+matched to the truth by position, planes by normal) for rows the solver's σ can be held to.
+
+    roomcal simulate --room config/room.toml --visits 2 --seed 1 --out /tmp/v
+    scripts/crb_bound.py --room config/room.toml --surveyed /tmp/v/visit-02 [--survey S.toml]
+
 Figures: σ fx as % of fx, σ cx and cy in px, rotation and translation as the worst axis
 (what roomcal reports) and, in brackets, the RMS length of the error vector (what an
-error against the truth is compared with).
+error against the truth is compared with); overlay: the RMS over the image of where the
+result draws a LiDAR point at 3, 10 and 30 m depth against the truth (`overlay_px`; its σ from the
+covariance of intrinsics and extrinsic).
 """
 import argparse
 import json
@@ -51,11 +64,21 @@ def main():
                     help="LiDAR hole-centre σ per axis (mm); issue 4 measured 2.9 mm mean error")
     ap.add_argument("--what-if", action="store_true", help="add rows with one assumption changed")
     ap.add_argument("--result", default="result.json", help="roomcal's result file name in each scene")
+    ap.add_argument("--surveyed", action="store_true",
+                    help="the scenes are visits of a simulated room: add the surveyed-room rows")
+    ap.add_argument("--board-sigma", type=float, nargs=2, default=[0.5, 0.01], metavar=("MM", "DEG"),
+                    help="the realistic survey's board σ per axis")
+    ap.add_argument("--plane-sigma", type=float, nargs=2, default=[2.0, 0.01], metavar=("MM", "DEG"),
+                    help="the realistic survey's plane σ")
+    ap.add_argument("--survey", help="a surveyed room file: rows with its σ for every board and plane")
     args = ap.parse_args()
     with open(args.room, "rb") as f:
         board = Board(tomllib.load(f)["board"])
     for scene in args.scenes:
-        report(scene, board, args)
+        if args.surveyed:
+            report_surveyed(scene, board, args)
+        else:
+            report(scene, board, args)
 
 
 class Board:
@@ -69,6 +92,7 @@ class Board:
                                  for r in range(rows) for c in range(cols)])
         self.holes = np.array([[h[0], h[1], 0.0] for h in spec["holes"]])
         w, h, rad = spec["width"], spec["height"], spec["hole_radius"]
+        self.width, self.height = w, h
         self.outline = np.array([[sx * w / 2, sy * h / 2, 0.0] for sx in (-1, 1) for sy in (-1, 1)])
         # The face the plane term uses: inside the outline, clear of the holes (3 cm margins).
         grid = [[x, y, 0.0] for x in np.linspace(-w / 2 + 0.03, w / 2 - 0.03, 12)
@@ -110,6 +134,254 @@ def report(scene, board, args):
             print(f"  {'roomcal actual error':44s} {100 * abs(cam['fx'] / tcam['fx'] - 1):7.3f} "
                   f"{abs(cam['cx'] - tcam['cx']):6.2f} {abs(cam['cy'] - tcam['cy']):6.2f} "
                   f"{'':7s}[{rot:6.3f}] {'':5s} [{1000 * t:5.1f}]")
+
+
+def report_surveyed(scene, board, args):
+    """The surveyed-room rows of one visit: free boards, boards surveyed (exact), + board
+    faces, + planes (exact), the realistic survey, and standing vehicles."""
+    with open(os.path.join(scene, "truth.json")) as f:
+        truth = json.load(f)
+    with open(os.path.join(os.path.dirname(os.path.abspath(scene)), "room-truth.json")) as f:
+        room = json.load(f)
+    result = None
+    if os.path.exists(os.path.join(scene, args.result)):
+        with open(os.path.join(scene, args.result)) as f:
+            result = json.load(f)
+    # The result's corner RMS is of the 2-D error: per axis it is that over √2.
+    noise = Noise(
+        corner_px=result["quality"]["corner_rms_px"] / math.sqrt(2) if result else args.corner_sigma,
+        hole_m=args.hole_sigma_mm / 1000.0,
+        range_m=truth["range_noise_m"],
+    )
+    placed = lidar_placed(truth, result)
+    cloud = read_pcd_xyz(os.path.join(scene, "cloud.pcd"))
+    print(f"{scene}: corners σ {noise.corner_px:.3f} px, boards {len(placed)}, LiDAR holes on "
+          f"{sum(placed)}, holes σ {noise.hole_m * 1000:.1f} mm, range σ {noise.range_m * 100:.1f} cm")
+    print(f"  {'':52s} {'fx %':>6s} {'cx px':>6s} {'cy px':>6s} {'rot °':>6s} {'t mm':>5s}  overlay 3/10/30 m px")
+    survey = load_survey(args.survey, room) if args.survey else None
+    realistic = {"boards": [tuple(args.board_sigma)] * len(room["boards"]),
+                 "planes": [tuple(args.plane_sigma)] * len(room["planes"])}
+    rows = [
+        ("boards free (today)", None),
+        ("board poses surveyed (exact)", dict(faces=False, planes=False)),
+        ("+ face points of every board the LiDAR hits", dict(faces=True, planes=False)),
+        ("+ floor, walls, ceiling surveyed (exact)", dict(faces=True, planes=True)),
+        (f"realistic: boards ±{args.board_sigma[0]} mm/{args.board_sigma[1]}°, "
+         f"planes ±{args.plane_sigma[0]} mm/{args.plane_sigma[1]}°", dict(priors=realistic)),
+        ("  same, standing (5 frames + 3 sweeps)", dict(priors=realistic, frames=5, sweeps=3)),
+        ("  same, standing (10 frames + 10 sweeps)", dict(priors=realistic, frames=10, sweeps=10)),
+    ]
+    if survey:
+        rows += [
+            (f"the survey's σ ({os.path.basename(args.survey)})", dict(priors=survey)),
+            ("  same, standing (5 frames + 3 sweeps)", dict(priors=survey, frames=5, sweeps=3)),
+            ("  same, standing (10 frames + 10 sweeps)", dict(priors=survey, frames=10, sweeps=10)),
+        ]
+    for name, options in rows:
+        s = bound(truth, board, noise, placed) if options is None else \
+            room_bound(truth, room, board, noise, placed, cloud, **options)
+        print_row(name, s)
+    if result:
+        u, cam = result["uncertainty"], result["camera"]
+        print(f"  {'roomcal reported σ':52s} {100 * u['fx'] / cam['fx']:6.3f} {u['cx']:6.2f} {u['cy']:6.2f} "
+              f"{u['rotation_deg']:6.3f} {1000 * u['translation_m']:5.1f}")
+
+
+def print_row(name, s):
+    print(f"  {name:52s} {s['fx']:6.3f} {s['cx']:6.2f} {s['cy']:6.2f} {s['rot']:6.3f} {s['t']:5.1f}  "
+          + " / ".join(f"{s[f'overlay_{d}']:.2f}" for d in OVERLAY_DEPTHS_M))
+
+
+def room_bound(truth, room, board, noise, placed, cloud, faces=True, planes=True, priors=None,
+               frames=1, sweeps=1):
+    """σ of the main parameters of the surveyed-room model at the truth. `priors` (per room
+    board and plane: (σ mm, σ deg), `None` for one the survey lacks) makes boards and planes
+    unknowns held by their survey σ; without it they are exact (`planes` says whether the
+    planes' points count at all). A standing vehicle's frames and sweeps divide the noise."""
+    noise = noise.changed({"scale_corner": 1 / math.sqrt(frames)})
+    noise.hole_m /= math.sqrt(sweeps)
+    noise.range_m /= math.sqrt(sweeps)
+    model = RoomModel(truth, room, board, noise, placed, cloud, faces, planes or priors is not None, priors)
+    keep = list(range(model.size))
+    return summary(truth, fisher_covariance(model, keep), INTRINSICS)
+
+
+def load_survey(path, room):
+    """σ (mm, deg) per room-truth board and plane from a surveyed room file: each surveyed
+    board matched to the truth board nearest it (the file's frame is the nominal LiDAR frame
+    at the visits' mean parking spot, the truth's at the nominal spot: centimetres apart,
+    boards metres apart), each plane to the truth plane of the nearest normal."""
+    with open(path, "rb") as f:
+        survey = tomllib.load(f)["survey"]
+    boards = [None] * len(room["boards"])
+    for b in survey["boards"]:
+        k = min(range(len(room["boards"])),
+                key=lambda i: np.linalg.norm(np.array(room["boards"][i]["translation"]) - b["translation"]))
+        boards[k] = (1000 * b["sigma_m"], b["sigma_deg"])
+    planes = [None] * len(room["planes"])
+    for p in survey.get("planes", []):
+        k = max(range(len(room["planes"])), key=lambda i: np.dot(room["planes"][i]["normal"], p["normal"]))
+        planes[k] = (1000 * p["sigma_m"], p["sigma_deg"])
+    return {"boards": boards, "planes": planes}
+
+
+class RoomModel:
+    """Whitened residuals of one frame in a surveyed room as a function of a perturbation of
+    the truth: [intrinsics (9), LiDAR→camera (6), room→camera (6), then with priors every
+    board's pose in the room (6 each) and every plane (δφ across its normal, δd)], poses
+    perturbed on the left. Measurements: corners of every board, the LiDAR's hole centres of
+    placed boards, face points of every board the LiDAR hits (`faces`), the planes' points
+    (`planes`), and the priors."""
+
+    def __init__(self, truth, room, board, noise, placed, cloud, faces, planes, priors):
+        self.k0 = camera_vector(truth["camera"])
+        self.lidar = pose(truth["lidar_to_camera"])
+        self.room_to_camera = pose(truth["room_to_camera"])
+        self.boards = [pose(b) for b in room["boards"]]
+        self.board, self.noise, self.placed, self.faces = board, noise, placed, faces
+        self.priors = priors
+        self.points = [b["lidar_points"] for b in truth["boards"]]
+        rl, tl = self.lidar
+        poses_c = [compose(self.room_to_camera, b) for b in self.boards]
+        self.holes_l = [(rl.T @ (transform(p, board.holes) - tl).T).T for p in poses_c]
+        self.face_l = [(rl.T @ (transform(p, board.face) - tl).T).T for p in poses_c]
+        self.normal_sigma = [noise.range_m * incidence_cosine(p, self.lidar) for p in poses_c]
+        self.planes = []
+        if planes:
+            room_to_lidar = compose(invert(self.lidar), self.room_to_camera)
+            for i, p in enumerate(room["planes"]):
+                if priors is not None and priors["planes"][i] is None:
+                    continue
+                summary_points = plane_summary(cloud, room_to_lidar, p, poses_c, self.lidar, board, noise.range_m)
+                if summary_points is not None:
+                    self.planes.append((i, np.array(p["normal"]), p["offset"], *summary_points))
+        self.n_boards = len(self.boards) if priors is not None else 0
+        self.n_planes = len(self.planes) if priors is not None else 0
+        self.size = INTRINSICS + 12 + 6 * self.n_boards + 3 * self.n_planes
+
+    def residuals(self, x):
+        k = self.k0 + x[:INTRINSICS]
+        lidar = perturb(self.lidar, x[INTRINSICS:INTRINSICS + 6])
+        room = perturb(self.room_to_camera, x[INTRINSICS + 6:INTRINSICS + 12])
+        at = INTRINSICS + 12
+        out = []
+        for i, b0 in enumerate(self.boards):
+            b = b0
+            if self.n_boards:
+                d = x[at + 6 * i:at + 6 * i + 6]
+                b = perturb(b0, d)
+                sigma = self.priors["boards"][i]
+                if sigma is None:
+                    sigma = (1e3, 1e3)  # a board the survey lacks: free
+                out.append(np.concatenate([d[:3] / math.radians(sigma[1]), d[3:] / (sigma[0] / 1000)]))
+            p = compose(room, b)
+            out.append(project(k, transform(p, self.board.corners)).ravel() / self.noise.corner_px)
+            rl, tl = lidar
+            if self.placed[i]:
+                holes_c = (rl @ self.holes_l[i].T).T + tl
+                out.append((holes_c - transform(p, self.board.holes)).ravel() / self.noise.hole_m)
+            if self.points[i] > 0 and (self.faces or self.placed[i]):
+                weight = math.sqrt(self.points[i] / len(self.board.face))
+                face_c = (rl @ self.face_l[i].T).T + tl
+                normal = p[0][:, 2]
+                out.append(weight * (face_c @ normal - normal @ p[1]) / self.normal_sigma[i])
+        at += 6 * self.n_boards
+        camera_to_room = invert(room)
+        lidar_to_room = compose(camera_to_room, lidar)
+        for j, (i, n0, d0, pts, weights) in enumerate(self.planes):
+            n, d = n0, d0
+            if self.n_planes:
+                delta = x[at + 3 * j:at + 3 * j + 3]
+                n = rodrigues(tangent_basis(n0) @ delta[:2]) @ n0
+                d = d0 + delta[2]
+                sigma = self.priors["planes"][i]
+                out.append(np.array([delta[0], delta[1]]) / math.radians(sigma[1]))
+                out.append(np.array([delta[2] / (sigma[0] / 1000)]))
+            out.append(weights * (transform(lidar_to_room, pts) @ n - d))
+        return np.concatenate(out)
+
+
+def plane_summary(cloud, room_to_lidar, plane, boards_c, lidar, board, range_m):
+    """The sweep's points on one truth plane (within 2.5σ of it, off every board), as six
+    points with weights that carry their count, mean and scatter: the point-to-plane term's
+    information is a function of those alone. Each point's noise along the normal is the
+    range noise times the beam's incidence cosine. `None` when fewer than 50 points."""
+    if cloud is None or len(cloud) == 0:
+        return None
+    r, t = room_to_lidar
+    n = r @ np.array(plane["normal"])
+    d = plane["offset"] + n @ t
+    dist = cloud @ n - d
+    on = np.abs(dist) < 2.5 * range_m
+    rl, tl = lidar
+    for p in boards_c:
+        # Points on or just in front of a board face are the board's, not the plane's.
+        local = (p[0].T @ ((rl @ cloud.T).T + tl - p[1]).T).T
+        inside = (np.abs(local[:, 0]) < board.width / 2 + 0.1) & (np.abs(local[:, 1]) < board.height / 2 + 0.1) \
+            & (np.abs(local[:, 2]) < 0.3)
+        on &= ~inside
+    pts = cloud[on]
+    if len(pts) < 50:
+        return None
+    cosine = np.abs(pts @ n) / np.linalg.norm(pts, axis=1)
+    w = 1.0 / (range_m * np.maximum(cosine, 0.02)) ** 2
+    total = w.sum()
+    mean = (w[:, None] * pts).sum(0) / total
+    centred = pts - mean
+    scatter = (w[:, None, None] * centred[:, :, None] * centred[:, None, :]).sum(0) / total
+    values, vectors = np.linalg.eigh(scatter)
+    six = [mean + sgn * math.sqrt(3 * max(v, 0.0)) * vectors[:, k] for k in range(3) for sgn in (1, -1)
+           for v in [values[k]]]
+    return np.array(six), np.full(6, math.sqrt(total / 6))
+
+
+def tangent_basis(n):
+    axis = np.eye(3)[int(np.argmin(np.abs(n)))]
+    b1 = np.cross(n, axis)
+    b1 /= np.linalg.norm(b1)
+    return np.stack([b1, np.cross(n, b1)], 1)
+
+
+def compose(a, b):
+    return a[0] @ b[0], a[0] @ b[1] + a[1]
+
+
+def invert(a):
+    return a[0].T, -a[0].T @ a[1]
+
+
+def read_pcd_xyz(path):
+    """x y z (float32) of a PCD file, ascii or binary (the simulator writes binary)."""
+    if not os.path.exists(path):
+        return None
+    with open(path, "rb") as f:
+        raw = f.read()
+    header, fields, sizes, types, counts, points = {}, [], [], [], [], 0
+    at = 0
+    while True:
+        end = raw.index(b"\n", at)
+        line = raw[at:end].decode().strip()
+        at = end + 1
+        if not line or line.startswith("#"):
+            continue
+        key, *values = line.split()
+        header[key] = values
+        if key == "DATA":
+            break
+    fields, sizes, types = header["FIELDS"], [int(v) for v in header["SIZE"]], header["TYPE"]
+    counts = [int(v) for v in header.get("COUNT", ["1"] * len(fields))]
+    points = int(header["POINTS"][0])
+    if header["DATA"][0] == "ascii":
+        rows = np.loadtxt(raw[at:].decode().splitlines(), ndmin=2)
+        return rows[:, [fields.index(c) for c in "xyz"]].astype(float)
+    if header["DATA"][0] != "binary":
+        sys.exit(f"{path}: PCD DATA {header['DATA'][0]} is not read here (ascii or binary)")
+    kinds = {("F", 4): "<f4", ("F", 8): "<f8", ("U", 1): "<u1", ("U", 2): "<u2", ("U", 4): "<u4",
+             ("I", 1): "<i1", ("I", 2): "<i2", ("I", 4): "<i4"}
+    dtype = np.dtype([(name, kinds[(ty, size)], (count,)) for name, ty, size, count
+                      in zip(fields, types, sizes, counts)])
+    data = np.frombuffer(raw, dtype=dtype, count=points, offset=at)
+    return np.stack([data[c][:, 0].astype(float) for c in "xyz"], 1)
 
 
 WHAT_IF = [
@@ -162,14 +434,24 @@ def lidar_placed(truth, result):
 def bound(truth, board, noise, placed):
     """σ of the main parameters from the inverse Fisher information at the truth."""
     model = Model(truth, board, noise, placed)
-    x0 = np.zeros(model.size)
-    jac = numeric_jacobian(model.residuals, x0)
     keep = [k for k in range(model.size) if k not in noise.fixed]
+    return summary(truth, fisher_covariance(model, keep), model.size - 6)
+
+
+def fisher_covariance(model, keep):
+    """The inverse of JᵀJ (whitened residuals) over the parameters `keep`, zero elsewhere."""
+    jac = numeric_jacobian(model.residuals, np.zeros(model.size))
     cov = np.zeros((model.size, model.size))
     cov[np.ix_(keep, keep)] = np.linalg.inv(jac[:, keep].T @ jac[:, keep])
+    return cov
+
+
+def summary(truth, cov, ext):
+    """The reported figures from a covariance whose intrinsics are its first 9 parameters
+    and whose LiDAR→camera (δω, δt) starts at `ext`."""
     d = np.diag(cov)
-    rot, t = d[-6:-3], d[-3:]
-    return {
+    rot, t = d[ext:ext + 3], d[ext + 3:ext + 6]
+    out = {
         "fx": 100 * math.sqrt(d[0]) / truth["camera"]["fx"],
         "cx": math.sqrt(d[2]),
         "cy": math.sqrt(d[3]),
@@ -178,6 +460,58 @@ def bound(truth, board, noise, placed):
         "t": 1000 * math.sqrt(t.max()),
         "t_rms": 1000 * math.sqrt(t.sum()),
     }
+    idx = list(range(INTRINSICS)) + list(range(ext, ext + 6))
+    sub = cov[np.ix_(idx, idx)]
+    for depth in OVERLAY_DEPTHS_M:
+        jac = overlay_jacobian(truth, depth)
+        out[f"overlay_{depth}"] = math.sqrt(max(np.trace(jac @ sub @ jac.T), 0.0) / (jac.shape[0] / 2))
+    return out
+
+
+# Depths (m, along the camera's axis) at which the overlay is measured.
+OVERLAY_DEPTHS_M = (3, 10, 30)
+# The overlay's grid over the image (columns, rows).
+OVERLAY_GRID = (16, 10)
+
+
+def overlay_points(camera, depth):
+    """Camera-frame points at `depth` on a grid over the image (the undistorted extent)."""
+    cols, rows = OVERLAY_GRID
+    xs = (np.linspace(0, camera["width"], cols) - camera["cx"]) / camera["fx"]
+    ys = (np.linspace(0, camera["height"], rows) - camera["cy"]) / camera["fy"]
+    return np.array([[x * depth, y * depth, depth] for y in ys for x in xs])
+
+
+def overlay_px(camera, lidar_to_camera, true_camera, true_lidar_to_camera, depth):
+    """Where `camera` and `lidar_to_camera` draw the LiDAR points that lie at `depth` on the
+    truth's grid over the image, against where the truth draws them: RMS over the grid (px)."""
+    k_true = camera_vector(true_camera)
+    pts_c = overlay_points(true_camera, depth)
+    rt, tt = true_lidar_to_camera
+    pts_l = (rt.T @ (pts_c - tt).T).T
+    r, t = lidar_to_camera
+    drawn = project(camera_vector(camera), (r @ pts_l.T).T + t)
+    diff = drawn - project(k_true, pts_c)
+    return float(np.sqrt(np.mean(np.sum(diff * diff, axis=1))))
+
+
+def overlay_jacobian(truth, depth):
+    """∂(overlay pixels)/∂[intrinsics, LiDAR→camera δω δt] at the truth."""
+    cam = truth["camera"]
+    k0 = camera_vector(cam)
+    pts_c = overlay_points(cam, depth)
+    lidar = pose(truth["lidar_to_camera"])
+    pts_l = (lidar[0].T @ (pts_c - lidar[1]).T).T
+
+    def drawn(x):
+        r, t = perturb(lidar, x[INTRINSICS:])
+        return project(k0 + x[:INTRINSICS], (r @ pts_l.T).T + t).ravel()
+
+    return numeric_jacobian(drawn, np.zeros(INTRINSICS + 6))
+
+
+def camera_vector(cam):
+    return np.array([cam["fx"], cam["fy"], cam["cx"], cam["cy"]] + list(cam["distortion"]))
 
 
 class Model:

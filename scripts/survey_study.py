@@ -4,8 +4,8 @@ visits of the design's room (six boards, 1920×1200 camera, Pandar64; every visi
 vehicle parked ±0.3 m / ±5° off; images rendered with --supersample 1). The first N visits
 of one simulation of the largest N are surveyed, so every row sees the same room. Each
 surveyed board and plane is compared with the simulator's room-truth.json expressed in the
-survey's gauge (board 0's frame): board position error (norm, mm) and orientation error
-(angle, deg), RMS over boards 1..; plane offset error (mm) and normal error (deg), RMS over
+survey's frame (the boards' mean, as the σ are): board position error (norm, mm) and
+orientation error (angle, deg), RMS over the boards; plane offset error (mm) and normal error (deg), RMS over
 the surveyed planes; beside them the mean reported σ and the share of errors within 3σ
 (each axis against the largest-axis σ). Wall time is that of the whole `roomcal survey`
 command (load, detect, free-board calibration and plane search per visit on every core,
@@ -72,29 +72,59 @@ def rms(values):
     return math.sqrt(sum(v * v for v in values) / len(values)) if values else float("nan")
 
 
-def gauge_truth(truth_boards, ours):
-    """The truth boards in the survey's gauge, matched to ours: which truth board (and
-    which of its two readings) is board 0, chosen by how well the centres agree."""
-    best = None
-    for k0, t0 in enumerate(truth_boards):
-        for turn in (([[1, 0, 0], [0, 1, 0], [0, 0, 1]], [0, 0, 0]), HALF_TURN):
-            g = inverse(compose(t0, turn))
-            placed = [compose(g, t) for t in truth_boards]
-            matched, cost = [], 0.0
-            for b in ours:
-                d, k = min((norm(sub(p[1], b[1])), k) for k, p in enumerate(placed))
-                matched.append(placed[k])
-                cost += d
-            if best is None or cost < best[0]:
-                best = (cost, matched, inverse(g))
-    _, matched, gauge_to_truth = best
+def so3_log(r):
+    c = max(-1.0, min(1.0, (r[0][0] + r[1][1] + r[2][2] - 1) / 2))
+    angle = math.acos(c)
+    axis = [r[2][1] - r[1][2], r[0][2] - r[2][0], r[1][0] - r[0][1]]
+    s = math.sin(angle)
+    if s < 1e-12:
+        return [0.0, 0.0, 0.0] if angle < 1.0 else None  # a half turn never arises here
+    return [angle * a / (2 * s) for a in axis]
+
+
+def so3_exp(w):
+    angle = norm(w)
+    if angle < 1e-15:
+        return [[1, 0, 0], [0, 1, 0], [0, 0, 1]]
+    k = [x / angle for x in w]
+    kx = [[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]]
+    kk = matmul(kx, kx)
+    return [[(i == j) + math.sin(angle) * kx[i][j] + (1 - math.cos(angle)) * kk[i][j] for j in range(3)]
+            for i in range(3)]
+
+
+def mean_pose(poses):
+    """The boards' mean frame as `roomcal survey` defines it (src/calibrate/survey/gauge.rs):
+    the rotation where the boards' offsets log(R_b Rᵀ) sum to zero, the mean translation."""
+    r = poses[0][0]
+    for _ in range(50):
+        logs = [so3_log(matmul(p[0], transpose(r))) for p in poses]
+        step = [sum(w[i] for w in logs) / len(poses) for i in range(3)]
+        r = matmul(so3_exp(step), r)
+        if norm(step) < 1e-15:
+            break
+    return (r, [sum(p[1][i] for p in poses) / len(poses) for i in range(3)])
+
+
+def matched_truth(truth_boards, ours):
+    """The truth board each of ours is (nearest centre: the file's frame and the truth's are
+    the nominal LiDAR frame at the mean and at the nominal parking spot, centimetres apart,
+    the boards metres apart), read half-turned where ours is."""
     out = []
-    for b, t in zip(ours, matched):
-        # The symmetric board may be read half-turned relative to the truth's frame.
+    for b in ours:
+        _, k = min((norm(sub(t[1], b[1])), k) for k, t in enumerate(truth_boards))
+        t = truth_boards[k]
         if angle_deg(matmul(transpose(t[0]), b[0])) > 90:
             t = compose(t, HALF_TURN)
         out.append(t)
-    return out, gauge_to_truth
+    return out
+
+
+def plane_in(frame, plane):
+    """A plane n · p = d in `frame` (p_old = frame · p_new)."""
+    n = plane["normal"]
+    return {"normal": apply(transpose(frame[0]), n),
+            "offset": plane["offset"] - sum(x * y for x, y in zip(n, frame[1]))}
 
 
 def study(sim_dir, count, work):
@@ -116,18 +146,15 @@ def study(sim_dir, count, work):
     with open(os.path.join(sim_dir, "room-truth.json")) as f:
         truth = json.load(f)
     ours = [(b["rotation"], b["translation"]) for b in survey["boards"]]
-    # The file's frame is the nominal LiDAR frame at the visits' mean parking spot; the
-    # errors are taken in the solve's gauge (board 0's frame), as the σ are.
-    b0 = ours[0]
-    ours = [compose(inverse(b0), b) for b in ours]
-    for plane in survey.get("planes", []):
-        n = plane["normal"]
-        plane["offset"] -= sum(x * y for x, y in zip(n, b0[1]))
-        plane["normal"] = apply(transpose(b0[0]), n)
     truth_boards = [(b["rotation"], b["translation"]) for b in truth["boards"]]
-    matched, gauge_to_truth = gauge_truth(truth_boards, ours)
+    matched = matched_truth(truth_boards, ours)
+    # The σ are relative to the boards' mean frame: the errors are taken there, the
+    # truth's in the mean frame of the same boards.
+    mine_frame, truth_frame = mean_pose(ours), mean_pose(matched)
+    ours = [compose(inverse(mine_frame), b) for b in ours]
+    matched = [compose(inverse(truth_frame), t) for t in matched]
     pos, rot, within, total = [], [], 0, 0
-    for b, t, spec in list(zip(ours, matched, survey["boards"]))[1:]:
+    for b, t, spec in zip(ours, matched, survey["boards"]):
         d = sub(b[1], t[1])
         a = angle_deg(matmul(b[0], transpose(t[0])))
         pos.append(norm(d))
@@ -136,21 +163,20 @@ def study(sim_dir, count, work):
         within += a <= 3 * spec["sigma_deg"] * math.sqrt(3)  # the angle is a norm over 3 axes
         total += 2
     off, turn = [], []
-    r0, t0 = gauge_to_truth
+    truth_planes = [plane_in(truth_frame, tp) for tp in truth["planes"]]
     for plane in survey.get("planes", []):
+        mine = plane_in(mine_frame, plane)
         best = None
-        for tp in truth["planes"]:
-            n = apply(transpose(r0), tp["normal"])
-            d = tp["offset"] - sum(x * y for x, y in zip(tp["normal"], t0))
-            ang = math.degrees(math.acos(max(-1, min(1, sum(x * y for x, y in zip(n, plane["normal"]))))))
+        for tp in truth_planes:
+            ang = math.degrees(math.acos(max(-1, min(1, sum(x * y for x, y in zip(tp["normal"], mine["normal"]))))))
             if best is None or ang < best[0]:
-                best = (ang, abs(d - plane["offset"]))
+                best = (ang, abs(tp["offset"] - mine["offset"]))
         turn.append(best[0])
         off.append(best[1])
         within += best[1] <= 3 * plane["sigma_m"]
         within += best[0] <= 3 * plane["sigma_deg"]
         total += 2
-    boards = survey["boards"][1:]
+    boards = survey["boards"]
     planes = survey.get("planes", [])
     mean = lambda xs: sum(xs) / len(xs) if xs else float("nan")
     return {

@@ -270,7 +270,8 @@ struct SimulateArgs {
     #[arg(long)]
     rig_seed: Option<u64>,
     /// Frames of a standing vehicle: also image-2.png, cloud-2.pcd, … up to N, the same
-    /// room with new sensor noise (for `calibrate --standing`, as the daemon averages them).
+    /// room with new sensor noise (for `calibrate --standing`, as the daemon averages them);
+    /// with --visits, every visit gets N frames.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=100))]
     frames: u16,
     /// LiDAR range noise sigma (m).
@@ -295,7 +296,7 @@ struct SimulateArgs {
     /// A surveyed room instead of one scene: this many vehicles (each its own camera and
     /// LiDAR mounting, each parked ±0.3 m / ±5° off) visit one fixed room; writes
     /// room-truth.json, room.toml and visit-01/, visit-02/, … (for `roomcal survey`).
-    #[arg(long, conflicts_with_all = ["capture", "rig_seed", "frames"],
+    #[arg(long, conflicts_with_all = ["capture", "rig_seed"],
           value_parser = clap::value_parser!(u16).range(1..=99))]
     visits: Option<u16>,
 }
@@ -700,7 +701,7 @@ fn survey(args: SurveyArgs) -> Result<(), Failure> {
     })?;
     let mut solved = survey(&room, &prepared).map_err(bad_input)?;
     // The file's room frame is the nominal LiDAR frame at the visits' mean parking spot
-    // (the parking box's reference), not the solve's board-0 gauge.
+    // (the parking box's reference), not the survey's own frame (the boards' mean).
     let lidar = room.lidar.as_ref().expect("checked above: the room has a LiDAR");
     solved.spec = solved.in_parking_frame(lidar);
     solved.spec.validate(room.board.count).map_err(bad_input)?;

@@ -11,6 +11,7 @@ use roomcal::calibrate::survey::bundle::{
     BundleBoard, BundleVisit, RoomPlane, SurveyProblem, SurveyState, VisitState, VISIT,
 };
 use roomcal::calibrate::survey::chain::half_turn;
+use roomcal::calibrate::survey::gauge::mean_pose;
 use roomcal::calibrate::survey::{
     prepare_visit, survey, Survey, SurveyError, SurveyVisit, VisitBoard,
 };
@@ -229,6 +230,12 @@ fn board_error(found: &Se3, truth: &Se3) -> (f64, f64) {
     (dt, dr.to_degrees())
 }
 
+/// `truth` (board → truth room) in the frame the survey gives its boards in: the boards'
+/// mean (`gauge::mean_pose`).
+fn in_mean_frame(truth: &[Se3], b: usize) -> Se3 {
+    mean_pose(truth).inverse().compose(&truth[b])
+}
+
 /// A truth-room plane in the gauge: `n · (R0 p + t0) = d`.
 fn plane_in_gauge(gauge_to_truth: &Se3, plane: &RoomPlane) -> RoomPlane {
     let normal = gauge_to_truth.rotation.transpose() * plane.normal;
@@ -357,12 +364,14 @@ fn analytic_jacobians_match_numeric_ones() {
     println!("worst relative Jacobian difference {worst:.2e} over {} blocks", analytic.len());
 }
 
-/// Checks a survey against the synthetic truth: every board and plane within 3σ (each
-/// axis of the error against the σ of the largest axis); returns the errors in σ.
+/// Checks a survey against the synthetic truth in the survey's frame (the boards' mean):
+/// every board and plane within 3σ (each axis of the error against the σ of the largest
+/// axis); returns the errors in σ.
 fn check_within_3_sigma(found: &Survey, synthetic: &Synthetic) -> Vec<f64> {
     let mut normalised = Vec::new();
-    for (b, board) in found.spec.boards.iter().enumerate().skip(1) {
-        let truth = in_gauge(&synthetic.boards, b);
+    let mean = mean_pose(&synthetic.boards);
+    for (b, board) in found.spec.boards.iter().enumerate() {
+        let truth = in_mean_frame(&synthetic.boards, b);
         let (dt, dr) = board_error(&board.pose(), &truth);
         assert!(
             dt <= 3.0 * board.sigma_m,
@@ -382,7 +391,7 @@ fn check_within_3_sigma(found: &Survey, synthetic: &Synthetic) -> Vec<f64> {
         let truth = synthetic
             .planes
             .iter()
-            .map(|t| plane_in_gauge(&synthetic.boards[0], t))
+            .map(|t| plane_in_gauge(&mean, t))
             .min_by(|a, b| plane_error(&mine, a).1.total_cmp(&plane_error(&mine, b).1))
             .unwrap();
         let (dd, dn) = plane_error(&mine, &truth);
@@ -470,11 +479,14 @@ fn mistakes_name_the_visit_and_the_board() {
     assert!(message(&visits[..1]).contains("at least 2 visits"));
 }
 
-// Not yet green: on supersample-1 renders (seed 4) every board and plane but board 0
-// comes out turned by the same 0.3–0.47° against the truth (board 0's own orientation is
-// off: the gauge), the wall behind at 3.3σ. Run with `--ignored` to see the figures.
+// Not yet green on supersample-1 renders (seed 4): their corners are off the true ones by
+// 0.3 px RMS, correlated over each board (a board's pose from them turned up to 0.8°, the
+// same way visit after visit), which no per-corner σ describes; in the survey's frame (the
+// boards' mean) boards come out within 2.9σ but the wall ahead, the wall behind and the
+// floor at 3.1–3.2σ. With the true corners plus independent noise every board and plane
+// is within 1.9σ (`tests/survey_gauge.rs`). Run with `--ignored` to see the figures.
 #[test]
-#[ignore = "board 0's orientation is biased beyond its σ on supersample-1 renders (see the comment)"]
+#[ignore = "supersample-1 corners are biased per board beyond their σ (see the comment)"]
 fn a_survey_of_8_simulated_visits_recovers_every_board_and_plane_within_3_sigma() {
     use roomcal::sim::visits::simulate_visits;
     use roomcal::sim::{ImageNoise, SimOptions};
@@ -519,9 +531,10 @@ fn a_survey_of_8_simulated_visits_recovers_every_board_and_plane_within_3_sigma(
         let turned = (truth.rotation.transpose() * in_camera.rotation).trace() < 1.0;
         truth_of.push(if turned { truth_boards[k].compose(&half_turn()) } else { truth_boards[k] });
     }
-    let gauge = truth_of[0];
+    // The survey's frame is its boards' mean: the truth's, over the same boards.
+    let gauge = mean_pose(&truth_of);
     let mut worst: (f64, f64) = (0.0, 0.0);
-    for (b, board) in found.spec.boards.iter().enumerate().skip(1) {
+    for (b, board) in found.spec.boards.iter().enumerate() {
         let truth = gauge.inverse().compose(&truth_of[b]);
         let (dt, dr) = board_error(&board.pose(), &truth);
         println!(

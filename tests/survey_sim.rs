@@ -118,3 +118,31 @@ fn zero_visits_is_an_error_that_says_so() {
     let err = simulate_visits(&small_room(), &options(1), 0).unwrap_err();
     assert!(err.to_string().contains("visits"), "{err}");
 }
+
+#[test]
+fn a_standing_visit_has_its_further_frames_and_the_same_first_frame() {
+    let one = visits(9, 2);
+    let standing =
+        simulate_visits(&small_room(), &SimOptions { standing_frames: 3, ..options(9) }, 2)
+            .unwrap();
+    for (a, b) in one.visits.iter().zip(&standing.visits) {
+        assert!(a.scene.more.is_empty());
+        assert_eq!(b.scene.more.len(), 2, "frames 2 and 3");
+        assert_eq!(a.scene.image, b.scene.image, "the first frame does not depend on the others");
+        assert_eq!(a.scene.cloud, b.scene.cloud);
+        for more in &b.scene.more {
+            // The same scene with new sensor noise: not the same bytes, nearly the same picture.
+            assert_ne!(more.image, b.scene.image);
+            let mean_diff = more
+                .image
+                .iter()
+                .zip(&b.scene.image)
+                .map(|(x, y)| (*x as f64 - *y as f64).abs())
+                .sum::<f64>()
+                / more.image.len() as f64;
+            assert!(mean_diff < 5.0, "mean grey difference {mean_diff:.2}");
+            let cloud = more.cloud.as_ref().unwrap();
+            assert!(cloud.len() * 10 > b.scene.cloud.as_ref().unwrap().len() * 9);
+        }
+    }
+}

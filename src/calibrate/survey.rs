@@ -11,12 +11,13 @@
 //! 4. **Bundle adjustment** ([`bundle`]): boards, planes and every visit's parameters
 //!    jointly, Schur over the visits; σ of boards and planes from the reduced normal
 //!    equations.
-//!
-//! The room frame (the gauge) is board 0's: the first board of the first visit, in its
-//! detector's order ([`FRAME`]).
+//! 5. **Gauge** ([`gauge`]): the bundle fixes the frame on board 0 (the first board of the
+//!    first visit); the solution and its σ are then re-expressed in the boards' mean frame
+//!    ([`FRAME`]), so that no board's σ carries another board's error.
 
 pub mod bundle;
 pub mod chain;
+pub mod gauge;
 pub mod planes;
 
 use crate::detect::planes::{find_planes, FoundPlane, PlaneConfig};
@@ -31,9 +32,8 @@ use chain::{chain_boards, half_turn, ChainError};
 
 pub use bundle::MAX_VISITS;
 
-/// How the survey's room frame is defined (`survey.frame`).
-pub const FRAME: &str = "board 0 (the first visit's first board in the detector's order): origin at \
-                         its centre, x right along its columns, y down along its rows, z into the board";
+/// How the survey's room frame is defined (`survey.frame`, before [`Survey::in_parking_frame`]).
+pub const FRAME: &str = gauge::MEAN_FRAME;
 
 /// Most bundle iterations.
 const MAX_ITERATIONS: usize = 60;
@@ -255,8 +255,12 @@ pub fn survey(room: &Room, visits: &[SurveyVisit]) -> Result<Survey, SurveyError
         state.planes.len(),
     )?;
     let report = bundle::solve(&problem, &mut state, MAX_ITERATIONS)?;
-    let (board_sigma, plane_sigma) = bundle::sigmas(&problem, &state)?;
+    let mut workspace = bundle::Workspace::new(&problem);
+    workspace.build(&problem, &state)?;
+    let covariance = workspace.global_covariance()?;
+    let (board_sigma, plane_sigma) = gauge::mean_frame_sigmas(&state, &covariance);
     let corner_rms_px = problem.corner_rms_px(&state)?;
+    let state = gauge::in_mean_frame(&state);
     let names: Vec<&str> = room_planes.planes.iter().map(|p| p.name.as_str()).collect();
     let spec = survey_spec(visits.len(), &state, &board_sigma, &plane_sigma, &names);
     Ok(Survey {
@@ -272,16 +276,16 @@ pub fn survey(room: &Room, visits: &[SurveyVisit]) -> Result<Survey, SurveyError
 
 /// How the written room file's frame is defined (see [`Survey::in_parking_frame`]).
 pub const PARKING_FRAME: &str = "the nominal LiDAR frame at the visits' mean parking spot (every \
-visit's room→camera pose is the room's [lidar] mounting, on average); σ are relative to board 0";
+visit's room→camera pose is the room's [lidar] mounting, on average); σ are relative to the boards' mean frame";
 
 impl Survey {
     /// The survey in the frame the room file holds: the room's nominal LiDAR frame at the
     /// visits' mean parking spot, so that a vehicle parked as the surveyed ones were has the
     /// room's `[lidar]` mounting as its room→camera pose — the reference of the quality
-    /// gate's parking box. The solve's gauge (board 0) only fixes the frame; this is one
-    /// rigid motion `G` of the whole solution (boards `G⁻¹ B`, planes carried along), which
-    /// leaves every relative pose, and so every measurement, unchanged. The σ stay those of
-    /// the board-0 gauge (board 0's own pose is then exact, as the gauge made it).
+    /// gate's parking box. The survey's frame (the boards' mean, [`gauge`]) only fixes the
+    /// frame; this is one rigid motion `G` of the whole solution (boards `G⁻¹ B`, planes
+    /// carried along), which leaves every relative pose, and so every measurement,
+    /// unchanged. The σ stay those of the boards' mean frame.
     pub fn in_parking_frame(&self, lidar: &crate::target::LidarSpec) -> SurveySpec {
         let nominal = super::association::lidar_nominal(lidar);
         let g = mean_motion(

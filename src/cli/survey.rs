@@ -26,15 +26,12 @@ pub fn lines(survey: &Survey, written: &str) -> Vec<String> {
     out.push(format!("  room frame: {}", spec.frame));
     for (b, (board, visits)) in spec.boards.iter().zip(&survey.board_visits).enumerate() {
         let [x, y, z] = board.translation;
-        out.push(if b == 0 {
-            format!("  board 0: the room frame; seen by {visits} visits")
-        } else {
-            format!(
-                "  board {b}: at ({x:.4}, {y:.4}, {z:.4}) m, σ {:.2} mm / {:.4}°; seen by {visits} visits",
-                board.sigma_m * 1e3,
-                board.sigma_deg
-            )
-        });
+        // Every board, board 0 too, has its σ relative to the boards' mean frame.
+        out.push(format!(
+            "  board {b}: at ({x:.4}, {y:.4}, {z:.4}) m, σ {:.2} mm / {:.4}°; seen by {visits} visits",
+            board.sigma_m * 1e3,
+            board.sigma_deg
+        ));
     }
     for (plane, visits) in spec.planes.iter().zip(&survey.plane_visits) {
         let [x, y, z] = plane.normal;

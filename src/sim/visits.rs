@@ -26,7 +26,7 @@ use super::rng::Rng;
 use super::world::World;
 use super::{
     band_row_px, board_truth, fits_in_room, layout, occluded_corners, raycast, render, true_camera,
-    true_extrinsic, Layout, Scene, SimError, SimOptions, Truth,
+    true_extrinsic, Layout, Scene, SimError, SimOptions, StandingFrame, Truth,
 };
 
 /// Most visits one simulation writes.
@@ -84,8 +84,8 @@ pub struct Visits {
 }
 
 /// Simulates `count` visits of one room (`options.seed` fixes the room and every visit).
-/// `options.rig_seed` and `options.standing_frames` do not apply: every visit is its own
-/// vehicle, one frame each.
+/// `options.rig_seed` does not apply: every visit is its own vehicle;
+/// `options.standing_frames` gives each visit that many frames (a standing vehicle).
 pub fn simulate_visits(
     room: &Room,
     options: &SimOptions,
@@ -263,9 +263,42 @@ impl VehicleContext<'_> {
             boards,
         };
         let (cloud, firings) = cloud.map_or((None, None), |(p, f)| (Some(p), Some(f)));
-        let scene =
-            Scene { room: self.room.clone(), image, cloud, firings, more: Vec::new(), truth };
+        let more = self.standing_frames(&world, &camera, &camera_in_lidar, &mut rng.fork(6))?;
+        let scene = Scene { room: self.room.clone(), image, cloud, firings, more, truth };
         Ok(Visit { scene, room_to_camera })
+    }
+}
+
+impl VehicleContext<'_> {
+    /// The standing vehicle's further frames and sweeps ([`SimOptions::standing_frames`]):
+    /// the same parking, new sensor noise, the sweeps' start azimuths spread over a step
+    /// (as [`super::simulate`] makes them). From their own fork of the visit's generator, so
+    /// a visit's first frame is the same with or without them.
+    fn standing_frames(
+        &self,
+        world: &World,
+        camera: &Camera,
+        camera_in_lidar: &Se3,
+        rng: &mut Rng,
+    ) -> Result<Vec<StandingFrame>, SimError> {
+        let frames = self.options.standing_frames.max(1);
+        let beams = match &self.room.lidar {
+            Some(lidar) if frames > 1 => {
+                Some(raycast::calibration(lidar.model).ok_or(SimError::NoBeamTable(lidar.model))?)
+            }
+            _ => None,
+        };
+        Ok((1..frames)
+            .map(|k| {
+                let image =
+                    render::render(world, camera, camera_in_lidar, &self.options.image, rng);
+                let phase = (k * usize::from(raycast::AZIMUTH_STEP) / frames) as u16;
+                let cloud = beams.as_ref().map(|cal| {
+                    raycast::sweep(world, cal, self.options.range_noise_m, phase, rng).points
+                });
+                StandingFrame { image, cloud }
+            })
+            .collect())
     }
 }
 

@@ -1,0 +1,149 @@
+//! The survey's gauge: the room frame its boards and planes are given in, and their σ.
+//!
+//! The bundle ([`super::bundle`]) fixes the frame on board 0 (it has no unknowns), which
+//! makes every other board's σ that of its pose *relative to board 0*: board 0's own error
+//! (a few tenths of a degree from one board's corners over a few visits) is shared by every
+//! other board and plane, and a calibration that takes each board's σ as an independent
+//! prior then holds the room to board 0's error. The survey is therefore re-expressed in
+//! **the boards' mean frame** ([`mean_pose`]: rotation the mean of every board's rotation,
+//! origin the mean of their centres) — one rigid motion, which leaves every relative pose
+//! and every measurement unchanged — and its covariance carried over to that frame to first
+//! order: `Σ' = L Σ Lᵀ` with `L` the derivative of the mean-frame poses with respect to the
+//! bundle's board-0-gauge parameters (central differences; the map is smooth and cheap).
+//! Every board, board 0 included, then has the σ of its pose relative to the room as a
+//! whole, and no board carries the others' error.
+
+use nalgebra::{DMatrix, DVector, SVector};
+
+use crate::geometry::se3::{so3_exp, so3_log};
+use crate::geometry::{Mat3, Se3, Vec3};
+use crate::solve::linalg::max_eigenvalue3;
+
+use super::bundle::{tangent_basis, RoomPlane, Sigma, SurveyState, VISIT};
+
+/// How the survey's room frame is defined (`survey.frame` before the parking frame).
+pub const MEAN_FRAME: &str = "the boards' mean: rotation the mean of every board's rotation, \
+                              origin the mean of their centres";
+
+/// The mean of board poses: the rotation at which the boards' rotation offsets
+/// `log(R_b Rᵀ)` sum to zero (the Karcher mean, by fixed-point iteration from the first),
+/// and the mean of the translations.
+pub fn mean_pose(boards: &[Se3]) -> Se3 {
+    let Some(first) = boards.first() else { return Se3::identity() };
+    let n = boards.len() as f64;
+    let mut rotation = first.rotation;
+    for _ in 0..MEAN_ITERATIONS {
+        let step = boards
+            .iter()
+            .map(|b| so3_log(&(b.rotation * rotation.transpose())))
+            .fold(Vec3::zeros(), |a, w| a + w)
+            / n;
+        rotation = so3_exp(&step) * rotation;
+        if step.norm() < 1e-15 {
+            break;
+        }
+    }
+    let translation = boards.iter().fold(Vec3::zeros(), |a, b| a + b.translation) / n;
+    Se3 { rotation, translation }
+}
+
+/// `state` re-expressed in its boards' mean frame ([`mean_pose`]): boards `M⁻¹ B`, planes
+/// carried along, every visit's room→camera `T · M`.
+pub fn in_mean_frame(state: &SurveyState) -> SurveyState {
+    let mean = mean_pose(&state.boards);
+    let to_new = mean.inverse();
+    SurveyState {
+        visits: state
+            .visits
+            .iter()
+            .map(|v| super::bundle::VisitState {
+                room_to_camera: v.room_to_camera.compose(&mean),
+                ..v.clone()
+            })
+            .collect(),
+        boards: state.boards.iter().map(|b| to_new.compose(b)).collect(),
+        planes: state.planes.iter().map(|p| plane_in(&mean, p)).collect(),
+    }
+}
+
+/// σ of every board and plane in the boards' mean frame from `cov`, the covariance of the
+/// bundle's global parameters at `state` (board-0 gauge: boards 1.. then planes).
+pub fn mean_frame_sigmas(state: &SurveyState, cov: &DMatrix<f64>) -> (Vec<Sigma>, Vec<Sigma>) {
+    let l = mean_frame_jacobian(state);
+    let full = &l * cov * l.transpose();
+    let block3 = |at: usize| Mat3::from_fn(|i, j| full[(at + i, at + j)]);
+    let boards = (0..state.boards.len())
+        .map(|b| Sigma {
+            m: max_eigenvalue3(&block3(6 * b + 3)).max(0.0).sqrt(),
+            deg: max_eigenvalue3(&block3(6 * b)).max(0.0).sqrt().to_degrees(),
+        })
+        .collect();
+    let at0 = 6 * state.boards.len();
+    let planes = (0..state.planes.len())
+        .map(|p| {
+            let at = at0 + 3 * p;
+            let turn = nalgebra::Matrix2::from_fn(|i, j| full[(at + i, at + j)]);
+            let worst = nalgebra::SymmetricEigen::new(turn).eigenvalues.max();
+            Sigma {
+                m: full[(at + 2, at + 2)].max(0.0).sqrt(),
+                deg: worst.max(0.0).sqrt().to_degrees(),
+            }
+        })
+        .collect();
+    (boards, planes)
+}
+
+/// Rounds of the Karcher mean's fixed-point iteration (it converges in a handful).
+const MEAN_ITERATIONS: usize = 50;
+/// Step of the central differences (rad and m): far above rounding, far below curvature.
+const STEP: f64 = 1e-6;
+
+/// `∂(mean-frame boards and planes)/∂(board-0-gauge parameters)`: rows `[δω δt]` per board
+/// (all of them) then `[δφ δd]` per plane, in the mean frame at `state`; columns the bundle's
+/// global parameters.
+fn mean_frame_jacobian(state: &SurveyState) -> DMatrix<f64> {
+    let (nb, np) = (state.boards.len(), state.planes.len());
+    let columns = 6 * nb.saturating_sub(1) + 3 * np;
+    let at = in_mean_frame(state);
+    let still = vec![SVector::<f64, VISIT>::zeros(); state.visits.len()];
+    let mut l = DMatrix::zeros(6 * nb + 3 * np, columns);
+    for c in 0..columns {
+        let mut step = DVector::zeros(columns);
+        step[c] = STEP;
+        let plus = in_mean_frame(&state.updated(&still, &step));
+        step[c] = -STEP;
+        let minus = in_mean_frame(&state.updated(&still, &step));
+        let d = |a: &SurveyState, b: &SurveyState| difference(&at, a) - difference(&at, b);
+        l.set_column(c, &(d(&plus, &minus) / (2.0 * STEP)));
+    }
+    l
+}
+
+/// The perturbation that takes `base` to `moved` (same frame, same boards and planes), in
+/// the bundle's coordinates: left rotation and additive translation per board, the turn of
+/// each plane's normal in its tangent basis and its offset.
+fn difference(base: &SurveyState, moved: &SurveyState) -> DVector<f64> {
+    let (nb, np) = (base.boards.len(), base.planes.len());
+    let mut out = DVector::zeros(6 * nb + 3 * np);
+    for (b, (x, y)) in base.boards.iter().zip(&moved.boards).enumerate() {
+        let w = so3_log(&(y.rotation * x.rotation.transpose()));
+        let t = y.translation - x.translation;
+        out.fixed_rows_mut::<3>(6 * b).copy_from(&w);
+        out.fixed_rows_mut::<3>(6 * b + 3).copy_from(&t);
+    }
+    for (p, (x, y)) in base.planes.iter().zip(&moved.planes).enumerate() {
+        let turn = tangent_basis(&x.normal).transpose() * x.normal.cross(&y.normal);
+        out[6 * nb + 3 * p] = turn.x;
+        out[6 * nb + 3 * p + 1] = turn.y;
+        out[6 * nb + 3 * p + 2] = y.offset - x.offset;
+    }
+    out
+}
+
+/// A plane `n · p_old = d` in the frame `new` is given in (`p_old = new · p_new`).
+fn plane_in(new: &Se3, plane: &RoomPlane) -> RoomPlane {
+    RoomPlane {
+        normal: new.rotation.transpose() * plane.normal,
+        offset: plane.offset - plane.normal.dot(&new.translation),
+    }
+}
