@@ -5,9 +5,15 @@ board and searching again, from bench_chessboard.py) and runs calibrateCamera wi
 view per board; roomcal runs the whole `calibrate` command (image decode, detection,
 start, joint solve, gate, result files). Both are compared with the scene's truth.
 
+In the same run, the surveyed room against the free boards (issue 13, item 8): the
+surveyed fixture's scene (SURVEYED_DIR, its room file has a `[survey]`) calibrated in the
+surveyed room and again with `--free-boards` (today's model), the same image and cloud,
+alternating run by run; the ratio surveyed / free is the figure (target <= 1).
+
 Usage (from the repository root, after `cargo build --release`):
-    python3 scripts/bench_calibrate.py [SCENE_DIR] [--runs N]
-SCENE_DIR defaults to fixtures/six-boards-pandar64. Needs opencv-python-headless, numpy.
+    python3 scripts/bench_calibrate.py [SCENE_DIR] [--runs N] [--surveyed SURVEYED_DIR]
+SCENE_DIR defaults to fixtures/six-boards-pandar64, SURVEYED_DIR to
+fixtures/surveyed-pandar64. Needs opencv-python-headless, numpy.
 """
 import argparse
 import json
@@ -27,10 +33,13 @@ from bench_chessboard import opencv_all_boards  # noqa: E402
 ROOMCAL = os.path.join("target", "release", "roomcal")
 
 
-def run_roomcal(scene, out, with_cloud):
+def run_roomcal(scene, out, with_cloud, extra=()):
     cmd = [ROOMCAL, "calibrate", "--room", f"{scene}/room.toml", "--image", f"{scene}/image.png", "--out", out]
-    if with_cloud:
+    if with_cloud and os.path.exists(f"{scene}/cloud.pcd"):
         cmd += ["--cloud", f"{scene}/cloud.pcd"]
+    elif with_cloud:  # the surveyed fixture ships its sweep as the capture only
+        cmd += ["--cloud", f"{scene}/cloud.pcap", "--lidar-calibration", f"{scene}/angles.csv"]
+    cmd += list(extra)
     t0 = time.perf_counter()
     subprocess.run(cmd, check=False, capture_output=True)
     return time.perf_counter() - t0, json.load(open(out))
@@ -55,13 +64,18 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("scene", nargs="?", default="fixtures/six-boards-pandar64")
     ap.add_argument("--runs", type=int, default=5)
+    ap.add_argument("--surveyed", default="fixtures/surveyed-pandar64")
     args = ap.parse_args()
     cv2.setNumThreads(1)
     room = tomllib.load(open(f"{args.scene}/room.toml", "rb"))
     truth = json.load(open(f"{args.scene}/truth.json"))["camera"]
     out = os.path.join(tempfile.mkdtemp(), "result.json")
-    ours_i, ours_j, cv = [], [], []
+    ours_i, ours_j, cv, surveyed, free = [], [], [], [], []
     for _ in range(args.runs):
+        t, res_s = run_roomcal(args.surveyed, out, with_cloud=True)
+        surveyed.append(t)
+        t, res_f = run_roomcal(args.surveyed, out, with_cloud=True, extra=["--free-boards"])
+        free.append(t)
         t, res_i = run_roomcal(args.scene, out, with_cloud=False)
         ours_i.append(t)
         t, res_j = run_roomcal(args.scene, out, with_cloud=True)
@@ -80,6 +94,20 @@ def main():
     print(f"OpenCV SB x{n} + calibrateCamera  : {1e3 * np.median(cv):8.1f} ms  {err(K[0, 0], K[1, 1], K[0, 2], K[1, 2])} (RMS {rms:.3f} px)")
     print(f"ratio OpenCV / roomcal (intrinsics only): {np.median(cv) / np.median(ours_i):.1f}x; "
           f"OpenCV / roomcal joint: {np.median(cv) / np.median(ours_j):.1f}x")
+    st = json.load(open(f"{args.surveyed}/truth.json"))["camera"]
+    if "camera_in_room" in res_f:
+        sys.exit("--free-boards gave camera_in_room: the free model was not used")
+    if "camera_in_room" not in res_s:
+        sys.exit(f"{args.surveyed}/room.toml: the calibration did not use a survey (no camera_in_room)")
+
+    def err_s(res):
+        c = res["camera"]
+        return (f"fx {100 * (c['fx'] - st['fx']) / st['fx']:+.3f} %, cx {c['cx'] - st['cx']:+.2f} px, "
+                f"cy {c['cy'] - st['cy']:+.2f} px; {res['status']}")
+    print(f"scene {args.surveyed}, median of {args.runs} runs, alternating")
+    print(f"roomcal calibrate, surveyed room    : {1e3 * np.median(surveyed):8.1f} ms  {err_s(res_s)}")
+    print(f"roomcal calibrate, --free-boards    : {1e3 * np.median(free):8.1f} ms  {err_s(res_f)}")
+    print(f"ratio surveyed / free: {np.median(surveyed) / np.median(free):.2f}")
 
 
 if __name__ == "__main__":

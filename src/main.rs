@@ -295,8 +295,9 @@ struct SimulateArgs {
     capture: bool,
     /// A surveyed room instead of one scene: this many vehicles (each its own camera and
     /// LiDAR mounting, each parked ±0.3 m / ±5° off) visit one fixed room; writes
-    /// room-truth.json, room.toml and visit-01/, visit-02/, … (for `roomcal survey`).
-    #[arg(long, conflicts_with_all = ["capture", "rig_seed"],
+    /// room-truth.json, room.toml and visit-01/, visit-02/, … (for `roomcal survey`);
+    /// with --capture every visit also gets its sweep as the sensor's packets.
+    #[arg(long, conflicts_with_all = ["rig_seed"],
           value_parser = clap::value_parser!(u16).range(1..=99))]
     visits: Option<u16>,
 }
@@ -408,7 +409,8 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
         },
     };
     if let Some(visits) = args.visits {
-        return simulate_visits(&room, &options, usize::from(visits), (&args.room, &args.out));
+        let count = usize::from(visits);
+        return simulate_visits(&room, &options, count, args.capture, (&args.room, &args.out));
     }
     let scene = sim::simulate(&room, &options)
         .with_context(|| format!("simulating {}", args.room.display()))
@@ -447,12 +449,17 @@ fn simulate_visits(
     room: &roomcal::target::Room,
     options: &SimOptions,
     count: usize,
+    capture: bool,
     (room_path, out): (&std::path::Path, &std::path::Path),
 ) -> Result<(), Failure> {
     let visits = sim::visits::simulate_visits(room, options, count)
         .with_context(|| format!("simulating {}", room_path.display()))
         .map_err(bad_input)?;
     sim::visits::write_visits(&visits, out).map_err(bad_input)?;
+    for (k, visit) in visits.visits.iter().enumerate().filter(|_| capture) {
+        let folder = out.join(sim::visits::visit_folder(k));
+        sim::write_capture(&visit.scene, &folder).map_err(bad_input)?;
+    }
     println!(
         "simulated a room of {} boards and {} planes, {} visits -> {}",
         visits.truth.boards.len(),
@@ -834,29 +841,58 @@ fn detect(args: DetectArgs) -> Result<(), Failure> {
         return Err(bad_input(anyhow::anyhow!("give --image, --cloud or both")));
     }
     let mut detectors = roomcal::calibrate::Detectors::new(&room).map_err(bad_input)?;
-    let mut out = Detections::default();
+    let mut frame = roomcal::calibrate::FrameDetections::default();
     if let Some(path) = &args.image {
         let image = load_image(&room, path)?;
-        for board in detectors.detect_image(&image).map_err(bad_input)? {
-            out.boards.push(BoardDetection {
-                frame: 0,
-                corners_px: board.corners.iter().map(|c| [c.x, c.y]).collect(),
-                holes_lidar: Vec::new(),
-            });
-        }
+        frame.camera = detectors.detect_image(&image).map_err(bad_input)?;
     }
     if let Some(path) = &args.cloud {
         let cloud = load_cloud(&room, path, args.lidar_calibration.as_deref())?;
-        for board in detectors.detect_cloud(&cloud) {
-            out.boards.push(BoardDetection {
-                frame: 0,
-                corners_px: Vec::new(),
-                holes_lidar: board.holes.iter().map(|h| [h.x, h.y, h.z]).collect(),
-            });
-        }
+        frame.lidar = detectors.detect_cloud(&cloud);
         for refused in detectors.refused_in_cloud() {
             eprintln!("{}", refused_message(&path.display().to_string(), refused));
         }
+    }
+    // In a surveyed room every board is named by its surveyed board; a frame that cannot
+    // be identified is still reported (its detections without identities), with why.
+    let identities = match (&room.survey, args.image.is_some()) {
+        (Some(survey), true) => {
+            match roomcal::calibrate::identify_detections(&room, survey, &frame) {
+                Ok(ids) => Some(ids),
+                Err(reason) => {
+                    eprintln!(
+                        "{}: the boards could not be identified: {reason}",
+                        args.room.display()
+                    );
+                    None
+                }
+            }
+        }
+        (Some(_), false) => {
+            eprintln!("{}: the LiDAR's boards are identified through the camera's room pose: give --image too", args.room.display());
+            None
+        }
+        (None, _) => None,
+    };
+    let mut out = Detections::default();
+    for (i, board) in frame.camera.iter().enumerate() {
+        let id = identities.as_ref().and_then(|ids| ids.camera[i]);
+        out.boards.push(BoardDetection {
+            corners_px: board.corners.iter().map(|c| [c.x, c.y]).collect(),
+            surveyed_board: id.map(|id| id.board as u32),
+            half_turned: id.is_some_and(|id| id.half_turned),
+            ..BoardDetection::default()
+        });
+    }
+    for (l, board) in frame.lidar.iter().enumerate() {
+        out.boards.push(BoardDetection {
+            holes_lidar: board.holes.iter().map(|h| [h.x, h.y, h.z]).collect(),
+            surveyed_board: identities.as_ref().and_then(|ids| ids.lidar[l]).map(|k| k as u32),
+            ..BoardDetection::default()
+        });
+    }
+    for note in identities.iter().flat_map(|ids| &ids.notes) {
+        eprintln!("{note}");
     }
     let json = serde_json::to_string_pretty(&out).expect("detections serialise") + "\n";
     std::fs::write(&args.out, json)
@@ -869,7 +905,34 @@ fn detect(args: DetectArgs) -> Result<(), Failure> {
         out.boards.len() - cameras,
         args.out.display()
     );
+    if identities.is_some() {
+        for line in identity_lines(&out) {
+            println!("{line}");
+        }
+    }
     Ok(())
+}
+
+/// One line per board of a surveyed room's detections: which surveyed board it is.
+fn identity_lines(detections: &roomcal::result::Detections) -> Vec<String> {
+    let mut counts = [0usize; 2];
+    detections
+        .boards
+        .iter()
+        .map(|b| {
+            let sensor = usize::from(b.corners_px.is_empty());
+            let index = counts[sensor];
+            counts[sensor] += 1;
+            let name = ["camera", "LiDAR"][sensor];
+            match b.surveyed_board {
+                Some(k) if b.half_turned => {
+                    format!("  {name} board {index}: surveyed board {k} (read half-turned)")
+                }
+                Some(k) => format!("  {name} board {index}: surveyed board {k}"),
+                None => format!("  {name} board {index}: matches no surveyed board"),
+            }
+        })
+        .collect()
 }
 
 /// Resolves on SIGINT (a terminal) or SIGTERM (`systemctl stop`): either stops the daemon

@@ -90,6 +90,18 @@ pub struct BoardDetection {
     pub corners_px: Vec<[f64; 2]>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub holes_lidar: Vec<[f64; 3]>,
+    /// In a surveyed room (`roomcal detect`): which surveyed board (index into
+    /// `[[survey.boards]]`) this detection is; absent when unidentified or not surveyed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub surveyed_board: Option<u32>,
+    /// The camera's corners (in the detector's order) are the surveyed board's turned by
+    /// 180° about its normal (a symmetric board); written only when true.
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub half_turned: bool,
+}
+
+fn is_false(value: &bool) -> bool {
+    !*value
 }
 
 /// `roomcal detect`'s output.

@@ -12,6 +12,8 @@ pub(super) struct Pair {
     pub(super) holes_lidar: Vec<Vec3>,
     pub(super) sigma_m: f64,
     pub(super) plane: Option<PlanePoints>,
+    /// Which of its frame's LiDAR boards it is.
+    pub(super) lidar_index: usize,
 }
 
 pub(super) fn lidar_nominal(lidar: &crate::target::LidarSpec) -> Se3 {
@@ -92,7 +94,12 @@ fn match_boards(
         }
         let lidar = &frames[frame as usize].lidar[l];
         if let Some(holes_lidar) = order_holes(extrinsic, &poses[c], &lidar.holes, holes_board) {
-            pairs[c] = Some(Pair { holes_lidar, sigma_m: lidar.sigma_m, plane: lidar.plane });
+            pairs[c] = Some(Pair {
+                holes_lidar,
+                sigma_m: lidar.sigma_m,
+                plane: lidar.plane,
+                lidar_index: l,
+            });
             lidar_taken.push((frame, l));
         }
     }

@@ -295,6 +295,7 @@ pub(super) fn accepted(
                 } else {
                     Vec::new()
                 },
+                ..BoardDetection::default()
             })
             .collect(),
         camera_in_room: None,

@@ -31,6 +31,7 @@ mod surveyed;
 
 pub use detectors::{plane_points, Detectors};
 pub use gate::coverage;
+pub use surveyed::{identify_detections, FrameIdentities};
 
 use crate::geometry::{Camera, CameraModel, Se3, Vec2, Vec3};
 use crate::result::{CalibrationResult, Status};

@@ -11,7 +11,7 @@
 
 use super::association::{associate, lidar_nominal};
 use super::free::{accepted, intrinsics_start};
-use super::identify::{identify, oriented};
+use super::identify::{identify, oriented, Identity};
 use super::{
     median, solver_reason, CalibrateOptions, Calibration, CameraBoard, FrameDetections, UsedBoard,
     MAX_OBSERVATIONS,
@@ -68,33 +68,8 @@ pub(super) fn solve_surveyed(
     let (camera, poses, mut iterations) = intrinsics_start(room, &object, &seen, corner_sigma)?;
     let surveyed: Vec<Se3> = survey.boards.iter().map(|b| b.pose()).collect();
 
-    // Identification, frame by frame; a standing vehicle's frames share one parking pose.
-    let mut identified: Vec<(u32, CameraBoard, usize, Se3)> = Vec::new();
-    let mut room_to_camera = None;
-    let mut unmatched: Vec<String> = Vec::new();
-    for f in 0..frames.len() as u32 {
-        let in_frame: Vec<usize> = (0..seen.len()).filter(|&i| seen[i].0 == f).collect();
-        if in_frame.is_empty() {
-            continue;
-        }
-        let frame_poses: Vec<Se3> = in_frame.iter().map(|&i| poses[i]).collect();
-        let (ids, pose) =
-            identify(spec, &surveyed, &frame_poses).map_err(|e| format!("frame {f}: {e}"))?;
-        room_to_camera.get_or_insert(pose);
-        for (&i, id) in in_frame.iter().zip(&ids) {
-            let Some(id) = id else {
-                unmatched.push(unmatched_note(f, &poses[i], &pose, &surveyed));
-                continue;
-            };
-            let mut board = seen[i].1.clone();
-            if id.half_turned {
-                board.corners.reverse();
-            }
-            identified.push((f, board, id.board, oriented(&poses[i], id.half_turned)));
-        }
-    }
-    let room_to_camera = room_to_camera.ok_or("no board could be identified")?;
-
+    let (identified, room_to_camera, unmatched) =
+        identify_frames(spec, &surveyed, frames.len(), &seen, &poses)?;
     let lidar = room.lidar.as_ref();
     let camera_boards: Vec<(u32, &CameraBoard)> =
         identified.iter().map(|(f, b, _, _)| (*f, b)).collect();
@@ -183,6 +158,151 @@ pub(super) fn solve_surveyed(
             return Ok(run);
         }
     }
+}
+
+/// Every complete camera board of a frame identified against the survey, and every LiDAR
+/// board (what `roomcal detect` reports in a surveyed room).
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameIdentities {
+    /// Per camera board of the frame, in its order: its surveyed identity (`None`: an
+    /// incomplete board, or one that lands on no surveyed board).
+    pub camera: Vec<Option<Identity>>,
+    /// Per LiDAR board of the frame, in its order: the surveyed board it is.
+    pub lidar: Vec<Option<usize>>,
+    /// Room → camera from the identified boards (start intrinsics, corners only).
+    pub room_to_camera: Se3,
+    /// Why a seen board matched nothing (as the calibration's notes say it).
+    pub notes: Vec<String>,
+}
+
+/// Identifies one frame's detections against the survey, as the surveyed calibration
+/// does before it solves: the camera boards from the arrangement (start intrinsics from
+/// the corners), the LiDAR boards through their camera pair (association under the
+/// nominal mounting, re-estimated), and a LiDAR board without a pair by carrying its hole
+/// centroid into the room with the re-estimated extrinsic onto the nearest surveyed board
+/// within [`super::identify::GATE_M`].
+pub fn identify_detections(
+    room: &Room,
+    survey: &SurveySpec,
+    frame: &FrameDetections,
+) -> Result<FrameIdentities, String> {
+    let spec = &room.board;
+    let object: Vec<Vec3> = (0..spec.corner_count()).map(|i| spec.corner(i)).collect();
+    let holes_board: Vec<Vec3> = (0..spec.holes.len()).map(|h| spec.hole(h)).collect();
+    let complete: Vec<usize> = (0..frame.camera.len())
+        .filter(|&i| frame.camera[i].corners.len() == object.len())
+        .take(MAX_OBSERVATIONS)
+        .collect();
+    let seen: Vec<(u32, &CameraBoard)> = complete.iter().map(|&i| (0, &frame.camera[i])).collect();
+    if seen.is_empty() {
+        return Err("no complete checkerboard was detected in the image".into());
+    }
+    let corner_sigma = median(seen.iter().map(|(_, b)| b.sigma_px)).max(0.02);
+    let (_, poses, _) = intrinsics_start(room, &object, &seen, corner_sigma)?;
+    let surveyed: Vec<Se3> = survey.boards.iter().map(|b| b.pose()).collect();
+    let (ids, room_to_camera) =
+        identify(spec, &surveyed, &poses).map_err(|e| format!("frame 0: {e}"))?;
+    let mut camera = vec![None; frame.camera.len()];
+    let mut notes = Vec::new();
+    for ((&i, id), pose) in complete.iter().zip(&ids).zip(&poses) {
+        camera[i] = *id;
+        if id.is_none() {
+            notes.push(unmatched_note(0, pose, &room_to_camera, &surveyed));
+        }
+    }
+    let mut lidar = vec![None; frame.lidar.len()];
+    let Some(spec_lidar) = room.lidar.as_ref() else {
+        return Ok(FrameIdentities { camera, lidar, room_to_camera, notes });
+    };
+    // The identified camera boards, oriented as the survey's, paired with the LiDAR's.
+    let matched: Vec<(Identity, CameraBoard, Se3)> = complete
+        .iter()
+        .zip(&ids)
+        .zip(&poses)
+        .filter_map(|((&i, id), pose)| {
+            id.map(|id| (id, in_survey_order(&frame.camera[i], id), oriented(pose, id.half_turned)))
+        })
+        .collect();
+    let boards: Vec<(u32, &CameraBoard)> = matched.iter().map(|(_, b, _)| (0, b)).collect();
+    let board_poses: Vec<Se3> = matched.iter().map(|(_, _, p)| *p).collect();
+    let frames = core::slice::from_ref(frame);
+    let pairs = associate(&lidar_nominal(spec_lidar), frames, &boards, &board_poses, &holes_board);
+    for (pair, (id, _, _)) in pairs.iter().zip(&matched) {
+        if let Some(pair) = pair {
+            lidar[pair.lidar_index] = Some(id.board);
+        }
+    }
+    let correspondences = pairs.iter().zip(&board_poses).flat_map(|(pair, pose)| {
+        pair.iter()
+            .flat_map(|p| p.holes_lidar.iter().zip(&holes_board).map(|(l, h)| (*l, pose.act(h))))
+    });
+    let extrinsic =
+        kabsch_from_pairs(correspondences).unwrap_or_else(|_| lidar_nominal(spec_lidar));
+    let lidar_to_room = room_to_camera.inverse().compose(&extrinsic);
+    let centre_board = holes_board.iter().sum::<Vec3>() / holes_board.len().max(1) as f64;
+    for (l, board) in frame.lidar.iter().enumerate() {
+        if lidar[l].is_some() || board.holes.is_empty() {
+            continue;
+        }
+        let centre =
+            lidar_to_room.act(&(board.holes.iter().sum::<Vec3>() / board.holes.len() as f64));
+        let taken = |k: usize| lidar.contains(&Some(k));
+        lidar[l] = surveyed
+            .iter()
+            .enumerate()
+            .filter(|(k, _)| !taken(*k))
+            .map(|(k, b)| (k, (b.act(&centre_board) - centre).norm()))
+            .filter(|(_, d)| *d <= super::identify::GATE_M)
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(k, _)| k);
+    }
+    Ok(FrameIdentities { camera, lidar, room_to_camera, notes })
+}
+
+/// Identification, frame by frame (a standing vehicle's frames share one parking pose):
+/// every identified board (frame, corners in the survey's orientation, surveyed board,
+/// board → camera), the room → camera pose, and a note per board that matched nothing.
+#[allow(clippy::type_complexity)]
+fn identify_frames(
+    spec: &crate::target::BoardSpec,
+    surveyed: &[Se3],
+    frame_count: usize,
+    seen: &[(u32, &CameraBoard)],
+    poses: &[Se3],
+) -> Result<(Vec<(u32, CameraBoard, usize, Se3)>, Se3, Vec<String>), String> {
+    let mut identified: Vec<(u32, CameraBoard, usize, Se3)> = Vec::new();
+    let mut room_to_camera = None;
+    let mut unmatched: Vec<String> = Vec::new();
+    for f in 0..frame_count as u32 {
+        let in_frame: Vec<usize> = (0..seen.len()).filter(|&i| seen[i].0 == f).collect();
+        if in_frame.is_empty() {
+            continue;
+        }
+        let frame_poses: Vec<Se3> = in_frame.iter().map(|&i| poses[i]).collect();
+        let (ids, pose) =
+            identify(spec, surveyed, &frame_poses).map_err(|e| format!("frame {f}: {e}"))?;
+        room_to_camera.get_or_insert(pose);
+        for (&i, id) in in_frame.iter().zip(&ids) {
+            let Some(id) = id else {
+                unmatched.push(unmatched_note(f, &poses[i], &pose, surveyed));
+                continue;
+            };
+            let board = in_survey_order(seen[i].1, *id);
+            identified.push((f, board, id.board, oriented(&poses[i], id.half_turned)));
+        }
+    }
+    let room_to_camera = room_to_camera.ok_or("no board could be identified")?;
+    Ok((identified, room_to_camera, unmatched))
+}
+
+/// The board with its corners in the surveyed board's order (reversed when the detector
+/// read it half-turned).
+fn in_survey_order(board: &CameraBoard, id: Identity) -> CameraBoard {
+    let mut board = board.clone();
+    if id.half_turned {
+        board.corners.reverse();
+    }
+    board
 }
 
 /// What to tell the operator about a seen board that lands on no surveyed board: the

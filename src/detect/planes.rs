@@ -116,6 +116,9 @@ fn best_hypothesis(
 ) -> Option<(Vec3, f64)> {
     const SCORE_POINTS: usize = 4000;
     let stride = (points.len() / SCORE_POINTS).max(1);
+    // Scored on a contiguous copy: every hypothesis reads the same few thousand points,
+    // which then stay in cache instead of being gathered a stride apart each time.
+    let thinned: Vec<Vec3> = points.iter().step_by(stride).copied().collect();
     let mut best: Option<(usize, Vec3, f64)> = None;
     for _ in 0..config.hypotheses {
         let [a, b, c] = [0; 3].map(|_| points[rng.below(points.len())]);
@@ -128,11 +131,7 @@ fn best_hypothesis(
         }
         let n = n / length;
         let d = n.dot(&a);
-        let score = points
-            .iter()
-            .step_by(stride)
-            .filter(|p| (n.dot(p) - d).abs() <= config.inlier_m)
-            .count();
+        let score = thinned.iter().filter(|p| (n.dot(p) - d).abs() <= config.inlier_m).count();
         if best.is_none_or(|(s, _, _)| score > s) {
             best = Some((score, n, d));
         }
