@@ -114,6 +114,10 @@ struct CalibrateArgs {
     /// Print only the status line (no progress line, no refused-plane sentences).
     #[arg(long)]
     quiet: bool,
+    /// A rig file: the vehicle's cameras and LiDARs by name; every --image and --cloud is
+    /// then NAME=PATH (several per name: frames of a standing vehicle).
+    #[arg(long, value_name = "RIG")]
+    rig: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -139,12 +143,15 @@ struct DetectArgs {
     /// The room file.
     #[arg(long)]
     room: PathBuf,
-    /// A camera frame (PNG or JPEG).
+    /// A camera frame (PNG or JPEG); with --rig, NAME=IMG, repeatable.
     #[arg(long)]
-    image: Option<PathBuf>,
-    /// A LiDAR cloud (PCD or pcap/pcapng).
+    image: Vec<PathBuf>,
+    /// A LiDAR cloud (PCD or pcap/pcapng); with --rig, NAME=CLOUD, repeatable.
     #[arg(long)]
-    cloud: Option<PathBuf>,
+    cloud: Vec<PathBuf>,
+    /// A rig file: the inputs are NAME=PATH of its sensors.
+    #[arg(long, value_name = "RIG")]
+    rig: Option<PathBuf>,
     /// The LiDAR unit's angle corrections (Hesai CSV or Velodyne YAML) for clouds given as
     /// packet captures (default: the model's nominal tables).
     #[arg(long)]
@@ -297,6 +304,11 @@ struct SimulateArgs {
     #[arg(long, conflicts_with_all = ["capture", "rig_seed", "frames"],
           value_parser = clap::value_parser!(u16).range(1..=99))]
     visits: Option<u16>,
+    /// A rig file: one vehicle with every camera and LiDAR of the rig, parked once;
+    /// writes NAME.png per camera, NAME.pcd per LiDAR, rig-truth.json, room-truth.json
+    /// and room.toml.
+    #[arg(long, value_name = "RIG", conflicts_with_all = ["capture", "rig_seed", "frames", "visits"])]
+    rig: Option<PathBuf>,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -405,6 +417,24 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
             ..sim::ImageNoise::default()
         },
     };
+    if let Some(rig_path) = &args.rig {
+        let rig = roomcal::rig::load(rig_path).map_err(bad_input)?;
+        let simulated = sim::rig::simulate_rig(&room, &rig, &options)
+            .with_context(|| {
+                format!("simulating {} in {}", rig_path.display(), args.room.display())
+            })
+            .map_err(bad_input)?;
+        let written = sim::rig::write_rig(&simulated, &args.out).map_err(bad_input)?;
+        println!(
+            "simulated a rig of {} cameras and {} LiDARs in a room of {} boards -> {} ({} files)",
+            rig.cameras.len(),
+            rig.lidars.len(),
+            simulated.room_truth.boards.len(),
+            args.out.display(),
+            written.len()
+        );
+        return Ok(());
+    }
     if let Some(visits) = args.visits {
         return simulate_visits(&room, &options, usize::from(visits), (&args.room, &args.out));
     }
@@ -550,6 +580,9 @@ fn load_cloud(
 fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
     use roomcal::calibrate::{CalibrateOptions, Detectors, FrameDetections};
     let room = roomcal::room::load(&args.room).map_err(bad_input)?;
+    if let Some(rig_path) = &args.rig {
+        return calibrate_rig(&room, rig_path, &args);
+    }
     if !args.standing && !args.cloud.is_empty() && args.cloud.len() != args.image.len() {
         return Err(bad_input(anyhow::anyhow!(
             "{} images and {} clouds: image i pairs with cloud i, give as many of each",
@@ -661,6 +694,39 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
         // The status line (or the JSON's status and reason) has said why.
         roomcal::result::Status::Rejected => Err(Failure { code: 3, error: None }),
     }
+}
+
+/// `calibrate --rig`: every sensor of the rig by name (`cli::rig`).
+fn calibrate_rig(
+    room: &roomcal::target::Room,
+    rig_path: &std::path::Path,
+    args: &CalibrateArgs,
+) -> Result<(), Failure> {
+    let rig = roomcal::rig::load(rig_path).map_err(bad_input)?;
+    if !rig.lidars.is_empty() && room.board.holes.is_empty() {
+        return Err(bad_input(anyhow::anyhow!(
+            "{}: the rig has LiDARs but the room's boards have no holes (`board.holes`)",
+            args.room.display()
+        )));
+    }
+    let unsupported = [
+        ("--report", args.report.is_some()),
+        ("--export", args.export.is_some()),
+        ("--current", args.current.is_some()),
+        ("--json", args.json),
+    ];
+    if let Some((flag, _)) = unsupported.iter().find(|(_, given)| *given) {
+        return Err(bad_input(anyhow::anyhow!("{flag} is not available with --rig yet")));
+    }
+    let inputs = cli::rig::inputs(&rig, rig_path, &args.image, &args.cloud, true)?;
+    let detections = cli::rig::detect_all(room, &rig, &inputs, args.lidar_calibration.as_deref())?;
+    let options = roomcal::calibrate::CalibrateOptions {
+        two_stage: args.two_stage,
+        current: None,
+        without_planes: args.without_planes,
+        free_boards: args.free_boards,
+    };
+    cli::rig::calibrate(room, &rig, &detections, &options, &args.out, args.quiet)
 }
 
 fn survey(args: SurveyArgs) -> Result<(), Failure> {
@@ -828,12 +894,33 @@ fn overlay(args: OverlayArgs) -> Result<(), Failure> {
 fn detect(args: DetectArgs) -> Result<(), Failure> {
     use roomcal::result::{BoardDetection, Detections};
     let room = roomcal::room::load(&args.room).map_err(bad_input)?;
-    if args.image.is_none() && args.cloud.is_none() {
+    if args.image.is_empty() && args.cloud.is_empty() {
         return Err(bad_input(anyhow::anyhow!("give --image, --cloud or both")));
+    }
+    if let Some(rig_path) = &args.rig {
+        let rig = roomcal::rig::load(rig_path).map_err(bad_input)?;
+        let inputs = cli::rig::inputs(&rig, rig_path, &args.image, &args.cloud, false)?;
+        let angles = args.lidar_calibration.as_deref();
+        let detections = cli::rig::detect_all(&room, &rig, &inputs, angles)?;
+        let json = cli::rig::detections_json(&rig, &inputs, &detections);
+        std::fs::write(&args.out, json)
+            .with_context(|| format!("writing {}", args.out.display()))
+            .map_err(bad_input)?;
+        println!(
+            "detections of {} sensors -> {}",
+            rig.cameras.len() + rig.lidars.len(),
+            args.out.display()
+        );
+        return Ok(());
+    }
+    if args.image.len() > 1 || args.cloud.len() > 1 {
+        return Err(bad_input(anyhow::anyhow!(
+            "give one --image and one --cloud (several only with --rig, as NAME=PATH)"
+        )));
     }
     let mut detectors = roomcal::calibrate::Detectors::new(&room).map_err(bad_input)?;
     let mut out = Detections::default();
-    if let Some(path) = &args.image {
+    if let Some(path) = args.image.first() {
         let image = load_image(&room, path)?;
         for board in detectors.detect_image(&image).map_err(bad_input)? {
             out.boards.push(BoardDetection {
@@ -843,7 +930,7 @@ fn detect(args: DetectArgs) -> Result<(), Failure> {
             });
         }
     }
-    if let Some(path) = &args.cloud {
+    if let Some(path) = args.cloud.first() {
         let cloud = load_cloud(&room, path, args.lidar_calibration.as_deref())?;
         for board in detectors.detect_cloud(&cloud) {
             out.boards.push(BoardDetection {
