@@ -30,6 +30,7 @@
 
 pub mod geometry;
 pub mod lidar;
+pub mod rig;
 pub mod service;
 pub mod solve;
 pub mod target;

@@ -7,6 +7,22 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
+/// `println!` / `print!` on stdout that tolerate a closed stdout (`roomcal … | head`): the
+/// rest of the output is dropped, the command's work, files and exit status are unchanged
+/// (Rust ignores SIGPIPE, so `println!` would panic on the broken pipe).
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stdout(), $($arg)*);
+    }};
+}
+macro_rules! say_raw {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = write!(std::io::stdout(), $($arg)*);
+    }};
+}
+
 mod cli;
 
 use roomcal::geometry::CameraModel;
@@ -114,6 +130,10 @@ struct CalibrateArgs {
     /// Print only the status line (no progress line, no refused-plane sentences).
     #[arg(long)]
     quiet: bool,
+    /// A rig file: the vehicle's cameras and LiDARs by name; every --image and --cloud is
+    /// then NAME=PATH (several per name: frames of a standing vehicle).
+    #[arg(long, value_name = "RIG")]
+    rig: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -139,12 +159,15 @@ struct DetectArgs {
     /// The room file.
     #[arg(long)]
     room: PathBuf,
-    /// A camera frame (PNG or JPEG).
+    /// A camera frame (PNG or JPEG); with --rig, NAME=IMG, repeatable.
     #[arg(long)]
-    image: Option<PathBuf>,
-    /// A LiDAR cloud (PCD or pcap/pcapng).
+    image: Vec<PathBuf>,
+    /// A LiDAR cloud (PCD or pcap/pcapng); with --rig, NAME=CLOUD, repeatable.
     #[arg(long)]
-    cloud: Option<PathBuf>,
+    cloud: Vec<PathBuf>,
+    /// A rig file: the inputs are NAME=PATH of its sensors.
+    #[arg(long, value_name = "RIG")]
+    rig: Option<PathBuf>,
     /// The LiDAR unit's angle corrections (Hesai CSV or Velodyne YAML) for clouds given as
     /// packet captures (default: the model's nominal tables).
     #[arg(long)]
@@ -300,6 +323,11 @@ struct SimulateArgs {
     #[arg(long, conflicts_with_all = ["rig_seed"],
           value_parser = clap::value_parser!(u16).range(1..=99))]
     visits: Option<u16>,
+    /// A rig file: one vehicle with every camera and LiDAR of the rig, parked once;
+    /// writes NAME.png per camera, NAME.pcd per LiDAR, rig-truth.json, room-truth.json
+    /// and room.toml.
+    #[arg(long, value_name = "RIG", conflicts_with_all = ["capture", "rig_seed", "frames", "visits"])]
+    rig: Option<PathBuf>,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -408,6 +436,24 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
             ..sim::ImageNoise::default()
         },
     };
+    if let Some(rig_path) = &args.rig {
+        let rig = roomcal::rig::load(rig_path).map_err(bad_input)?;
+        let simulated = sim::rig::simulate_rig(&room, &rig, &options)
+            .with_context(|| {
+                format!("simulating {} in {}", rig_path.display(), args.room.display())
+            })
+            .map_err(bad_input)?;
+        let written = sim::rig::write_rig(&simulated, &args.out).map_err(bad_input)?;
+        say!(
+            "simulated a rig of {} cameras and {} LiDARs in a room of {} boards -> {} ({} files)",
+            rig.cameras.len(),
+            rig.lidars.len(),
+            simulated.room_truth.boards.len(),
+            args.out.display(),
+            written.len()
+        );
+        return Ok(());
+    }
     if let Some(visits) = args.visits {
         let count = usize::from(visits);
         return simulate_visits(&room, &options, count, args.capture, (&args.room, &args.out));
@@ -417,7 +463,7 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
         .map_err(bad_input)?;
     sim::write_scene(&scene, &args.out).map_err(bad_input)?;
     let t = &scene.truth;
-    println!(
+    say!(
         "simulated {} boards ({} {}x{}, fx {:.2} fy {:.2} cx {:.2} cy {:.2}){} -> {}",
         t.boards.len(),
         match t.camera.model {
@@ -435,7 +481,7 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
     );
     if args.capture {
         let files = sim::write_capture(&scene, &args.out).map_err(bad_input)?;
-        println!(
+        say!(
             "capture: {}{}",
             files.capture.display(),
             files.calibration.map_or(String::new(), |c| format!(" (angles: {})", c.display()))
@@ -460,7 +506,7 @@ fn simulate_visits(
         let folder = out.join(sim::visits::visit_folder(k));
         sim::write_capture(&visit.scene, &folder).map_err(bad_input)?;
     }
-    println!(
+    say!(
         "simulated a room of {} boards and {} planes, {} visits -> {}",
         visits.truth.boards.len(),
         visits.truth.planes.len(),
@@ -489,7 +535,7 @@ fn decode(args: DecodeArgs) -> Result<(), Failure> {
         roomcal::lidar::decode_capture_with(&calibration, &args.capture).map_err(bad_input)?;
     roomcal::lidar::pcd::write(&args.out, &points, roomcal::lidar::pcd::PcdFormat::Binary)
         .map_err(bad_input)?;
-    println!(
+    say!(
         "{}: {} points from {} packets ({} position, {} dropped; {} UDP datagrams, {} other records) -> {}",
         args.capture.display(),
         points.len(),
@@ -515,7 +561,7 @@ fn query(args: QueryArgs) -> Result<(), Failure> {
     let answer = query_blocking(&options, command)
         .with_context(|| format!("query {} over {}", args.command, args.endpoint))
         .map_err(|error| Failure::new(1, error))?;
-    println!("{answer}");
+    say!("{answer}");
     Ok(())
 }
 
@@ -559,6 +605,9 @@ fn load_cloud(
 fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
     use roomcal::calibrate::{CalibrateOptions, Detectors, FrameDetections};
     let room = roomcal::room::load(&args.room).map_err(bad_input)?;
+    if let Some(rig_path) = &args.rig {
+        return calibrate_rig(&room, rig_path, &args);
+    }
     if !args.standing && !args.cloud.is_empty() && args.cloud.len() != args.image.len() {
         return Err(bad_input(anyhow::anyhow!(
             "{} images and {} clouds: image i pairs with cloud i, give as many of each",
@@ -653,16 +702,16 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
     }
     progress.finish(); // the line is cleared before the summary
     if args.json {
-        print!("{}", result_json(&run.result));
+        say_raw!("{}", result_json(&run.result));
     } else if args.quiet {
-        println!("{}", cli::summary::status_line(&run.result));
+        say!("{}", cli::summary::status_line(&run.result));
     } else {
         let refused_count = refused.iter().map(Vec::len).sum();
         for line in cli::summary::lines(&room, &frames, &run, refused_count, &written) {
-            println!("{line}");
+            say!("{line}");
         }
         if let Some(dir) = args.export.as_ref().filter(|_| !accepted) {
-            println!("  not written {}: a rejected calibration is not exported", dir.display());
+            say!("  not written {}: a rejected calibration is not exported", dir.display());
         }
     }
     match run.result.status {
@@ -670,6 +719,39 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
         // The status line (or the JSON's status and reason) has said why.
         roomcal::result::Status::Rejected => Err(Failure { code: 3, error: None }),
     }
+}
+
+/// `calibrate --rig`: every sensor of the rig by name (`cli::rig`).
+fn calibrate_rig(
+    room: &roomcal::target::Room,
+    rig_path: &std::path::Path,
+    args: &CalibrateArgs,
+) -> Result<(), Failure> {
+    let rig = roomcal::rig::load(rig_path).map_err(bad_input)?;
+    if !rig.lidars.is_empty() && room.board.holes.is_empty() {
+        return Err(bad_input(anyhow::anyhow!(
+            "{}: the rig has LiDARs but the room's boards have no holes (`board.holes`)",
+            args.room.display()
+        )));
+    }
+    let unsupported = [
+        ("--report", args.report.is_some()),
+        ("--export", args.export.is_some()),
+        ("--current", args.current.is_some()),
+        ("--json", args.json),
+    ];
+    if let Some((flag, _)) = unsupported.iter().find(|(_, given)| *given) {
+        return Err(bad_input(anyhow::anyhow!("{flag} is not available with --rig yet")));
+    }
+    let inputs = cli::rig::inputs(&rig, rig_path, &args.image, &args.cloud, true)?;
+    let detections = cli::rig::detect_all(room, &rig, &inputs, args.lidar_calibration.as_deref())?;
+    let options = roomcal::calibrate::CalibrateOptions {
+        two_stage: args.two_stage,
+        current: None,
+        without_planes: args.without_planes,
+        free_boards: args.free_boards,
+    };
+    cli::rig::calibrate(room, &rig, &detections, &options, &args.out, args.quiet)
 }
 
 fn survey(args: SurveyArgs) -> Result<(), Failure> {
@@ -718,7 +800,7 @@ fn survey(args: SurveyArgs) -> Result<(), Failure> {
         .with_context(|| format!("writing {}", args.out.display()))
         .map_err(|e| Failure::new(1, e))?;
     for line in cli::survey::lines(&solved, &args.out.display().to_string()) {
-        println!("{line}");
+        say!("{line}");
     }
     Ok(())
 }
@@ -830,23 +912,44 @@ fn overlay(args: OverlayArgs) -> Result<(), Failure> {
         .save(&args.out)
         .with_context(|| format!("writing the overlay {}", args.out.display()))
         .map_err(bad_input)?;
-    println!("overlay of {} points written to {}", cloud.len(), args.out.display());
+    say!("overlay of {} points written to {}", cloud.len(), args.out.display());
     Ok(())
 }
 
 fn detect(args: DetectArgs) -> Result<(), Failure> {
     use roomcal::result::{BoardDetection, Detections};
     let room = roomcal::room::load(&args.room).map_err(bad_input)?;
-    if args.image.is_none() && args.cloud.is_none() {
+    if args.image.is_empty() && args.cloud.is_empty() {
         return Err(bad_input(anyhow::anyhow!("give --image, --cloud or both")));
+    }
+    if let Some(rig_path) = &args.rig {
+        let rig = roomcal::rig::load(rig_path).map_err(bad_input)?;
+        let inputs = cli::rig::inputs(&rig, rig_path, &args.image, &args.cloud, false)?;
+        let angles = args.lidar_calibration.as_deref();
+        let detections = cli::rig::detect_all(&room, &rig, &inputs, angles)?;
+        let json = cli::rig::detections_json(&rig, &inputs, &detections);
+        std::fs::write(&args.out, json)
+            .with_context(|| format!("writing {}", args.out.display()))
+            .map_err(bad_input)?;
+        say!(
+            "detections of {} sensors -> {}",
+            rig.cameras.len() + rig.lidars.len(),
+            args.out.display()
+        );
+        return Ok(());
+    }
+    if args.image.len() > 1 || args.cloud.len() > 1 {
+        return Err(bad_input(anyhow::anyhow!(
+            "give one --image and one --cloud (several only with --rig, as NAME=PATH)"
+        )));
     }
     let mut detectors = roomcal::calibrate::Detectors::new(&room).map_err(bad_input)?;
     let mut frame = roomcal::calibrate::FrameDetections::default();
-    if let Some(path) = &args.image {
+    if let Some(path) = args.image.first() {
         let image = load_image(&room, path)?;
         frame.camera = detectors.detect_image(&image).map_err(bad_input)?;
     }
-    if let Some(path) = &args.cloud {
+    if let Some(path) = args.cloud.first() {
         let cloud = load_cloud(&room, path, args.lidar_calibration.as_deref())?;
         frame.lidar = detectors.detect_cloud(&cloud);
         for refused in detectors.refused_in_cloud() {
@@ -855,7 +958,7 @@ fn detect(args: DetectArgs) -> Result<(), Failure> {
     }
     // In a surveyed room every board is named by its surveyed board; a frame that cannot
     // be identified is still reported (its detections without identities), with why.
-    let identities = match (&room.survey, args.image.is_some()) {
+    let identities = match (&room.survey, !args.image.is_empty()) {
         (Some(survey), true) => {
             match roomcal::calibrate::identify_detections(&room, survey, &frame) {
                 Ok(ids) => Some(ids),
@@ -899,7 +1002,7 @@ fn detect(args: DetectArgs) -> Result<(), Failure> {
         .with_context(|| format!("writing {}", args.out.display()))
         .map_err(bad_input)?;
     let cameras = out.boards.iter().filter(|b| !b.corners_px.is_empty()).count();
-    println!(
+    say!(
         "{} camera boards, {} LiDAR boards -> {}",
         cameras,
         out.boards.len() - cameras,
@@ -907,7 +1010,7 @@ fn detect(args: DetectArgs) -> Result<(), Failure> {
     );
     if identities.is_some() {
         for line in identity_lines(&out) {
-            println!("{line}");
+            say!("{line}");
         }
     }
     Ok(())
@@ -973,9 +1076,13 @@ fn daemon(args: DaemonArgs) -> Result<(), Failure> {
             stop_signal(),
         ))
         .map_err(|e| Failure::new(1, e))?;
-    println!(
+    say!(
         "roomcal daemon: {} run(s): {} accepted, {} rejected, {} failed; generation {} in force",
-        summary.runs, summary.accepted, summary.rejected, summary.failed, summary.generation
+        summary.runs,
+        summary.accepted,
+        summary.rejected,
+        summary.failed,
+        summary.generation
     );
     Ok(())
 }

@@ -281,3 +281,48 @@ fn opencv_matrix(name: &str, rows: usize, cols: usize, data: &[f64]) -> String {
         values.join(", ")
     )
 }
+
+/// A rig's result file (DESIGN.md "Vehicles with several sensors"): the one-pair fields
+/// for the first camera and first LiDAR, plus every sensor and every extrinsic to the
+/// first camera.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RigResult {
+    #[serde(flatten)]
+    pub pair: CalibrationResult,
+    /// Per sensor name.
+    pub sensors: std::collections::BTreeMap<String, SensorResult>,
+    /// One per sensor other than the first camera, `from` it `to` the first camera.
+    pub extrinsics: Vec<RigExtrinsic>,
+}
+
+/// One sensor of a rig's result: a camera's intrinsics with their σ, or `"lidar": true`;
+/// its own gate's verdict.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SensorResult {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera: Option<CameraResult>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub uncertainty: Option<Uncertainty>,
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub lidar: bool,
+    /// Surveyed rooms, cameras: camera → room.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_in_room: Option<Extrinsic>,
+    pub status: Status,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reason: Option<String>,
+    /// The camera (for a LiDAR) or LiDAR (for a camera) whose pair solve gave this sensor.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub solved_with: Option<String>,
+}
+
+/// One extrinsic of a rig: `p_to = rotation · p_from + translation`, with worst-axis 1σ.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RigExtrinsic {
+    pub from: String,
+    pub to: String,
+    pub rotation: [[f64; 3]; 3],
+    pub translation: [f64; 3],
+    pub sigma_rotation_deg: f64,
+    pub sigma_translation_m: f64,
+}

@@ -142,8 +142,9 @@ pub(super) fn solve_all(
     } else {
         covariance(&problem, &params, mask)
     }
-    .map_err(solver_reason)?
-    .uncertainty();
+    .map_err(solver_reason)?;
+    let pose_covariance = lidar_pose_covariance(&sigma);
+    let sigma = sigma.uncertainty();
     let with_lidar = room.lidar.is_some() && problem.has_holes();
     if room.lidar.is_some() && !with_lidar {
         return Err("no LiDAR board could be paired with a camera board".into());
@@ -168,7 +169,20 @@ pub(super) fn solve_all(
         holes_board: holes_board.clone(),
         iterations,
         notes: Vec::new(),
+        pose_covariance: Some(pose_covariance),
     })
+}
+
+/// The extrinsic's 6×6 block of the shared covariance, as [`Calibration::pose_covariance`]
+/// holds it (no room pose in the free-board model).
+fn lidar_pose_covariance(
+    shared: &crate::solve::covariance::SharedCovariance,
+) -> super::PoseCovariance {
+    let mut out = super::PoseCovariance::zeros();
+    let block =
+        shared.matrix.fixed_view::<6, 6>(crate::solve::EXT_ROTATION, crate::solve::EXT_ROTATION);
+    out.fixed_view_mut::<6, 6>(0, 0).copy_from(&block);
+    out
 }
 
 /// The covariance of the intrinsics that the corners of `problem`'s boards alone give at

@@ -90,7 +90,7 @@ pub(super) fn gate(
 /// parking, which is the room's nominal mounting read as room → camera (the survey's room
 /// frame is the nominal LiDAR frame at the nominal spot). The angle is the whole rotation
 /// between the two (on a level floor, the yaw).
-fn check_parking(
+pub(super) fn check_parking(
     q: &crate::target::QualitySpec,
     lidar: &crate::target::LidarSpec,
     camera_in_room: &crate::result::Extrinsic,

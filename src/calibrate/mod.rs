@@ -26,6 +26,7 @@ mod detectors;
 mod free;
 mod gate;
 pub mod identify;
+pub mod rig;
 pub mod survey;
 mod surveyed;
 
@@ -105,7 +106,14 @@ pub struct Calibration {
     pub iterations: usize,
     /// What the run decided on its own (e.g. a board left out), for the operator.
     pub notes: Vec<String>,
+    /// Covariance of the poses' left perturbations `[δω; δt]`: LiDAR → camera (rows
+    /// 0–5) and, in a surveyed room, room → camera (rows 6–11; zero otherwise), for
+    /// composing a rig's extrinsics (`rig.rs`). `None` for a failed run.
+    pub pose_covariance: Option<PoseCovariance>,
 }
+
+/// See [`Calibration::pose_covariance`].
+pub type PoseCovariance = nalgebra::SMatrix<f64, 12, 12>;
 
 impl Calibration {
     /// A used board's hole centres in the camera frame, placed by its solved pose.
@@ -172,6 +180,7 @@ pub fn calibrate_with_clouds(
             holes_board: Vec::new(),
             iterations: 0,
             notes: Vec::new(),
+            pose_covariance: None,
         },
     }
 }

@@ -504,5 +504,21 @@ fn calibration(
         holes_board: holes_board.to_vec(),
         iterations,
         notes,
+        pose_covariance: Some(pose_covariance(sigma)),
     }
+}
+
+/// LiDAR → camera and room → camera blocks of the room covariance (with their cross
+/// terms), as [`Calibration::pose_covariance`] holds them.
+fn pose_covariance(
+    sigma: &nalgebra::SMatrix<f64, ROOM_SHARED, ROOM_SHARED>,
+) -> super::PoseCovariance {
+    use crate::solve::{room::ROOM_ROTATION, EXT_ROTATION};
+    let mut out = super::PoseCovariance::zeros();
+    for (i, a) in [EXT_ROTATION, ROOM_ROTATION].into_iter().enumerate() {
+        for (j, b) in [EXT_ROTATION, ROOM_ROTATION].into_iter().enumerate() {
+            out.fixed_view_mut::<6, 6>(6 * i, 6 * j).copy_from(&sigma.fixed_view::<6, 6>(a, b));
+        }
+    }
+    out
 }

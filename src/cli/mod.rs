@@ -1,5 +1,6 @@
 //! Parts of the command line that outgrew `main.rs`, one file per concern.
 
 pub mod progress;
+pub mod rig;
 pub mod summary;
 pub mod survey;

@@ -13,6 +13,7 @@ pub mod layout;
 pub mod random_room;
 pub mod raycast;
 pub mod render;
+pub mod rig;
 pub mod rng;
 pub mod visits;
 pub mod world;
@@ -379,14 +380,18 @@ fn true_extrinsic(room: &Room, rng: &mut Rng) -> Se3 {
             crate::geometry::Mat3::new(0.0, -1.0, 0.0, 0.0, 0.0, -1.0, 1.0, 0.0, 0.0);
         return Se3 { rotation: looking_forward, translation: Vec3::zeros() };
     };
+    let nominal =
+        Se3 { rotation: lidar.rotation_matrix(), translation: lidar.translation_vector() };
+    perturbed_mounting(&nominal, rng)
+}
+
+/// A sensor's true mounting: `nominal` off by up to [`MOUNTING_ERROR`] per axis.
+fn perturbed_mounting(nominal: &Se3, rng: &mut Rng) -> Se3 {
     let (deg, m) = MOUNTING_ERROR;
     let error = Vec3::new(rng.range(-deg, deg), rng.range(-deg, deg), rng.range(-deg, deg))
         .map(f64::to_radians);
     let shift = Vec3::new(rng.range(-m, m), rng.range(-m, m), rng.range(-m, m));
-    Se3 {
-        rotation: so3_exp(&error) * lidar.rotation_matrix(),
-        translation: lidar.translation_vector() + shift,
-    }
+    Se3 { rotation: so3_exp(&error) * nominal.rotation, translation: nominal.translation + shift }
 }
 
 /// Whether the whole board outline stays at least 10 cm clear of the floor and ceiling.

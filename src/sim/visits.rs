@@ -170,7 +170,7 @@ pub fn visit_folder(index: usize) -> String {
 
 /// Board → room poses: the single-scene layout for the nominal vehicle at the nominal
 /// spot, through a narrower lens.
-fn lay_out_room(
+pub(super) fn lay_out_room(
     room: &Room,
     options: &SimOptions,
     nominal_camera: &Camera,
@@ -304,7 +304,7 @@ impl VehicleContext<'_> {
 
 /// A board's truth; a board this vehicle's camera cannot project (it does not happen with
 /// the parking error's bounds, but nothing here may panic) gets no pixels.
-fn board_truth_visible(
+pub(super) fn board_truth_visible(
     room: &Room,
     camera: &Camera,
     to_camera: &Se3,
@@ -335,7 +335,7 @@ fn board_truth_visible(
 
 /// A vehicle's camera: the nominal one with its own focal length, principal point and
 /// distortion, as units of one camera model differ.
-fn vehicle_camera(nominal: &Camera, rng: &mut Rng) -> Camera {
+pub(super) fn vehicle_camera(nominal: &Camera, rng: &mut Rng) -> Camera {
     let (focal, principal, distortion) = VEHICLE_SPREAD;
     let mut camera = *nominal;
     let scale = 1.0 + rng.range(-focal, focal);
@@ -350,7 +350,7 @@ fn vehicle_camera(nominal: &Camera, rng: &mut Rng) -> Camera {
 }
 
 /// Where a visit parks the vehicle frame in the room.
-fn parking_pose(rng: &mut Rng) -> Se3 {
+pub(super) fn parking_pose(rng: &mut Rng) -> Se3 {
     let (shift, yaw, tilt) = PARKING_ERROR;
     let angles = Vec3::new(
         rng.range(-tilt, tilt).to_radians(),

@@ -1,0 +1,231 @@
+//! `calibrate --rig` and `detect --rig`: a rig's `NAME=PATH` inputs checked against the
+//! rig file (unknown name, a camera's name given to `--cloud` or a LiDAR's to `--image`,
+//! a sensor without data, a missing `NAME=`: exit 2 naming it), each sensor's frames of
+//! the standing vehicle averaged (images) or accumulated (sweeps), detected in the
+//! sensor's own pair room, and calibrated by `calibrate::rig`.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::anyhow;
+
+use roomcal::calibrate::rig::{calibrate_rig, LidarInput};
+use roomcal::calibrate::{CalibrateOptions, CameraBoard, Detectors, LidarBoard};
+use roomcal::lidar::Point;
+use roomcal::result::{BoardDetection, Detections, Status};
+use roomcal::rig::{Rig, SensorKind};
+use roomcal::target::Room;
+
+use crate::{bad_input, load_image_sized, standing_frame, Failure};
+
+/// Every sensor's inputs, in the rig's order.
+pub struct RigInputs {
+    pub images: Vec<Vec<PathBuf>>,
+    pub clouds: Vec<Vec<PathBuf>>,
+}
+
+/// Splits `NAME=PATH` values of `--image` and `--cloud` by sensor and checks them.
+/// `require_all`: every sensor must have data (calibrate; detect takes any subset).
+pub fn inputs(
+    rig: &Rig,
+    rig_path: &Path,
+    images: &[PathBuf],
+    clouds: &[PathBuf],
+    require_all: bool,
+) -> Result<RigInputs, Failure> {
+    let mut out = RigInputs {
+        images: vec![Vec::new(); rig.cameras.len()],
+        clouds: vec![Vec::new(); rig.lidars.len()],
+    };
+    for (flag, values, wanted) in
+        [("--image", images, SensorKind::Camera), ("--cloud", clouds, SensorKind::Lidar)]
+    {
+        for value in values {
+            let text = value.to_string_lossy();
+            let Some((name, path)) = text.split_once('=') else {
+                return Err(bad_input(anyhow!(
+                    "{flag} {text}: with --rig every input is NAME=PATH (a sensor of {})",
+                    rig_path.display()
+                )));
+            };
+            let (kind, index) = rig.find(name).ok_or_else(|| {
+                bad_input(anyhow!(
+                    "{flag} {text}: unknown sensor `{name}`: {} has {}",
+                    rig_path.display(),
+                    sensor_list(rig)
+                ))
+            })?;
+            if kind != wanted {
+                let other = if kind == SensorKind::Camera { "--image" } else { "--cloud" };
+                return Err(bad_input(anyhow!(
+                    "{flag} {text}: `{name}` is a {kind} in {}; give its data to {other}",
+                    rig_path.display()
+                )));
+            }
+            let slot = match kind {
+                SensorKind::Camera => &mut out.images[index],
+                SensorKind::Lidar => &mut out.clouds[index],
+            };
+            slot.push(PathBuf::from(path));
+        }
+    }
+    if require_all {
+        let cameras =
+            rig.cameras.iter().zip(&out.images).map(|(c, v)| ("camera", &c.name, "--image", v));
+        let lidars =
+            rig.lidars.iter().zip(&out.clouds).map(|(l, v)| ("lidar", &l.name, "--cloud", v));
+        if let Some((kind, name, flag, _)) = cameras.chain(lidars).find(|(_, _, _, v)| v.is_empty())
+        {
+            return Err(bad_input(anyhow!(
+                "{kind} `{name}` of {} has no data: give {flag} {name}=PATH",
+                rig_path.display()
+            )));
+        }
+    }
+    Ok(out)
+}
+
+fn sensor_list(rig: &Rig) -> String {
+    let names = |v: Vec<&str>| if v.is_empty() { "none".to_string() } else { v.join(", ") };
+    format!(
+        "cameras {} and LiDARs {}",
+        names(rig.cameras.iter().map(|c| c.name.as_str()).collect()),
+        names(rig.lidars.iter().map(|l| l.name.as_str()).collect())
+    )
+}
+
+/// Each camera's boards and each LiDAR's boards and accumulated sweep.
+pub struct RigDetections {
+    pub cameras: Vec<Vec<CameraBoard>>,
+    pub lidars: Vec<(Vec<LidarBoard>, Vec<Point>)>,
+}
+
+/// Loads and detects every sensor's data (frames averaged, sweeps accumulated).
+pub fn detect_all(
+    room: &Room,
+    rig: &Rig,
+    inputs: &RigInputs,
+    angles: Option<&Path>,
+) -> Result<RigDetections, Failure> {
+    let mut out = RigDetections { cameras: Vec::new(), lidars: Vec::new() };
+    for (c, paths) in inputs.images.iter().enumerate() {
+        let spec = &rig.cameras[c].spec;
+        let whose = format!("camera `{}` of the rig", rig.cameras[c].name);
+        let images = paths
+            .iter()
+            .map(|p| load_image_sized(p, (spec.width, spec.height), &whose))
+            .collect::<Result<Vec<_>, _>>()?;
+        let (frames, _) = standing_frame(images, Vec::new());
+        let mut detectors = Detectors::new(&rig.pair_room(room, c, None)).map_err(bad_input)?;
+        let boards = match frames.first() {
+            Some(frame) => detectors.detect_image(frame).map_err(bad_input)?,
+            None => Vec::new(),
+        };
+        out.cameras.push(boards);
+    }
+    for (l, paths) in inputs.clouds.iter().enumerate() {
+        let model = rig.lidars[l].model.packet_model();
+        let mut cloud = Vec::new();
+        for path in paths {
+            cloud.extend(roomcal::lidar::read_cloud(path, model, angles).map_err(bad_input)?);
+        }
+        let mut detectors = Detectors::new(&rig.pair_room(room, 0, Some(l))).map_err(bad_input)?;
+        let boards = if cloud.is_empty() { Vec::new() } else { detectors.detect_cloud(&cloud) };
+        out.lidars.push((boards, cloud));
+    }
+    Ok(out)
+}
+
+/// `roomcal calibrate --rig`: writes the rig's result file; exit 0 accepted, 3 rejected.
+pub fn calibrate(
+    room: &Room,
+    rig: &Rig,
+    detections: &RigDetections,
+    options: &CalibrateOptions,
+    out: &Path,
+    quiet: bool,
+) -> Result<(), Failure> {
+    let lidars: Vec<LidarInput<'_>> =
+        detections.lidars.iter().map(|(boards, cloud)| LidarInput { boards, cloud }).collect();
+    let run = calibrate_rig(room, rig, &detections.cameras, &lidars, options);
+    let json = serde_json::to_string_pretty(&run.result).expect("results serialise") + "\n";
+    std::fs::write(out, json).map_err(|e| bad_input(anyhow!("writing {}: {e}", out.display())))?;
+    let result = &run.result;
+    match result.pair.status {
+        Status::Accepted => {
+            say!("roomcal calibrate: accepted (rig of {} sensors)", result.sensors.len())
+        }
+        Status::Rejected => say!(
+            "roomcal calibrate: rejected: {}",
+            result.pair.reason.as_deref().unwrap_or("rejected")
+        ),
+    }
+    if !quiet {
+        for (name, sensor) in &result.sensors {
+            let verdict = match sensor.status {
+                Status::Accepted => "accepted".to_string(),
+                Status::Rejected => format!("rejected: {}", sensor.reason.as_deref().unwrap_or("")),
+            };
+            match (&sensor.camera, &sensor.uncertainty) {
+                (Some(c), Some(u)) => say!(
+                    "  camera {name}: fx {:.2} ± {:.2} fy {:.2} cx {:.2} ± {:.2} cy {:.2} ± {:.2} px; {verdict}",
+                    c.fx, u.fx, c.fy, c.cx, u.cx, c.cy, u.cy
+                ),
+                _ => say!("  lidar {name}: {verdict}"),
+            }
+        }
+        for e in &result.extrinsics {
+            let t = e.translation;
+            say!(
+                "  {} → {}: translation [{:.4}, {:.4}, {:.4}] m (σ {:.1} mm), σ rotation {:.3}°",
+                e.from,
+                e.to,
+                t[0],
+                t[1],
+                t[2],
+                e.sigma_translation_m * 1000.0,
+                e.sigma_rotation_deg
+            );
+        }
+        say!("  wrote {}", out.display());
+    }
+    match result.pair.status {
+        Status::Accepted => Ok(()),
+        Status::Rejected => Err(Failure { code: 3, error: None }),
+    }
+}
+
+/// `roomcal detect --rig`: `{"sensors": {NAME: {"boards": [...]}}}`, each sensor's
+/// detections in the one-pair form.
+pub fn detections_json(rig: &Rig, inputs: &RigInputs, detections: &RigDetections) -> String {
+    let mut sensors = serde_json::Map::new();
+    for (c, boards) in detections.cameras.iter().enumerate() {
+        if inputs.images[c].is_empty() {
+            continue;
+        }
+        let boards = boards
+            .iter()
+            .map(|b| BoardDetection {
+                corners_px: b.corners.iter().map(|p| [p.x, p.y]).collect(),
+                ..BoardDetection::default()
+            })
+            .collect();
+        let value = serde_json::to_value(Detections { boards }).expect("detections serialise");
+        sensors.insert(rig.cameras[c].name.to_string(), value);
+    }
+    for (l, (boards, _)) in detections.lidars.iter().enumerate() {
+        if inputs.clouds[l].is_empty() {
+            continue;
+        }
+        let boards = boards
+            .iter()
+            .map(|b| BoardDetection {
+                holes_lidar: b.holes.iter().map(|h| [h.x, h.y, h.z]).collect(),
+                ..BoardDetection::default()
+            })
+            .collect();
+        let value = serde_json::to_value(Detections { boards }).expect("detections serialise");
+        sensors.insert(rig.lidars[l].name.to_string(), value);
+    }
+    let json = serde_json::json!({ "sensors": sensors });
+    serde_json::to_string_pretty(&json).expect("detections serialise") + "\n"
+}
