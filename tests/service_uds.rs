@@ -147,8 +147,8 @@ fn read_data_by_identifier_byte_vectors() {
     assert_eq!(r.len(), 1 + (2 + 9) * 2);
     assert_eq!(r[1..3], [0xC0, 0x04]);
     assert_eq!(r[12..14], [0xC0, 0x01]);
-    // The most DIDs, each the largest record (intrinsics with 8 coefficients): a valid
-    // request always gets its data, never 0x14 responseTooLong.
+    // The most DIDs, each the largest intrinsics record (8 coefficients): the data, never
+    // 0x14 responseTooLong.
     let mut big = FakeBackend::calibrated();
     if let Some(k) = big.intrinsics.as_mut() {
         k.distortion = heapless::Vec::from_slice(&[0.5; 8]).unwrap();
@@ -527,7 +527,7 @@ fn sensor_table_bytes_both_ways_and_malformed() {
     assert_eq!(SensorTable::parse(&buf[..n]).unwrap(), table);
     assert!(table.emit(&mut buf[..5]).is_none(), "too short a buffer");
     let bad = |bytes: &[u8]| SensorTable::parse(bytes).unwrap_err();
-    assert_eq!(bad(&[9]), DecodeError::BadValue("sensor count"));
+    assert_eq!(bad(&[17]), DecodeError::BadValue("sensor count"));
     assert_eq!(bad(&[1, 2, 1, b'a']), DecodeError::BadValue("sensor kind"));
     assert_eq!(bad(&[1, 0, 1, b'A']), DecodeError::BadValue("sensor name"));
     assert_eq!(bad(&[1, 0, 0]), DecodeError::BadValue("sensor name"));
@@ -542,21 +542,25 @@ fn sensor_table_bytes_both_ways_and_malformed() {
 }
 
 #[test]
-fn the_largest_sensor_tables_always_fit_a_response() {
-    // Eight sensors of 32-byte names, asked for eight times in one request: never 0x14.
+fn sensor_tables_fit_a_response_up_to_one_isotp_message() {
+    // A full table (16 sensors of 32-byte names, 545 bytes) seven times in one request fits
+    // one ISO-TP message; eight times (4377 bytes) does not: 0x14, the one such request.
     let mut backend = FakeBackend::rig();
     let rig = backend.rig.as_mut().unwrap();
     rig.sensors = SensorTable::default();
     for i in 0..MAX_SENSORS {
-        let name = format!("{i}{}", "x".repeat(MAX_SENSOR_NAME - 1));
+        let name = format!("{i:02}{}", "x".repeat(MAX_SENSOR_NAME - 2));
         rig.sensors.push(SensorKind::Camera, &name).unwrap();
     }
-    assert!(rig.sensors.push(SensorKind::Camera, "ninth").is_err(), "the table is full");
+    assert!(rig.sensors.push(SensorKind::Camera, "seventeenth").is_err(), "the table is full");
     let mut s = server(backend);
-    let eight: Vec<u8> = std::iter::once(0x22).chain([0xC0, 0x10].repeat(8)).collect();
-    let r = ask(&mut s, &eight, ms(0)).unwrap();
+    let seven: Vec<u8> = std::iter::once(0x22).chain([0xC0, 0x10].repeat(7)).collect();
+    let r = ask(&mut s, &seven, ms(0)).unwrap();
     let one = 1 + MAX_SENSORS * (2 + MAX_SENSOR_NAME);
-    assert_eq!(r.len(), 1 + 8 * (2 + one));
+    assert_eq!((MAX_SENSORS, one), (16, 545));
+    assert_eq!(r.len(), 1 + 7 * (2 + one));
+    let eight: Vec<u8> = std::iter::once(0x22).chain([0xC0, 0x10].repeat(8)).collect();
+    assert_eq!(nrc(&mut s, &eight, ms(0)), 0x14);
     let table = SensorTable::parse(&r[3..3 + one]).unwrap();
     assert_eq!(table.sensors.len(), MAX_SENSORS);
 }

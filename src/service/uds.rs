@@ -89,18 +89,18 @@ pub const SEED_LEN: usize = 16;
 pub const MAX_DIDS_PER_REQUEST: usize = 8;
 /// Most distortion coefficients in an intrinsics record.
 pub const MAX_DISTORTION: usize = 8;
-/// Most sensors the sensor table (DID 0xC010) lists.
-pub const MAX_SENSORS: usize = 8;
+/// Most sensors the sensor table (DID 0xC010) lists: a full rig's cameras and LiDARs.
+pub const MAX_SENSORS: usize = crate::rig::MAX_CAMERAS + crate::rig::MAX_LIDARS;
 /// Longest sensor name in the sensor table, bytes (rig names are `[a-z0-9_-]+`).
-pub const MAX_SENSOR_NAME: usize = 32;
+pub const MAX_SENSOR_NAME: usize = crate::rig::MAX_SENSOR_NAME;
 /// Largest record: the sensor table with every sensor at the longest name (intrinsics with
 /// every distortion coefficient are 18 + 4 · 8 = 50 bytes).
 pub const MAX_RECORD: usize = 1 + MAX_SENSORS * (2 + MAX_SENSOR_NAME);
-/// Largest response the server builds: ReadDataByIdentifier of the most DIDs, each the
-/// largest record. Anything a valid request asks for fits, so NRC 0x14 (responseTooLong,
-/// meant for responses the network layer cannot carry; ISO-TP carries 4095 bytes) is never
-/// answered to one.
-pub const MAX_RESPONSE: usize = 1 + MAX_DIDS_PER_REQUEST * (2 + MAX_RECORD);
+/// Largest response the server builds: what one ISO-TP message carries (4095 bytes). Only
+/// a request for the largest sensor table many times over exceeds it (8 × 545 bytes) and
+/// gets NRC 0x14 (responseTooLong, meant for just that); every other valid request fits
+/// (8 × the largest intrinsics record is 417 bytes).
+pub const MAX_RESPONSE: usize = 4095;
 
 /// A response message.
 pub type Response = heapless::Vec<u8, MAX_RESPONSE>;
@@ -583,9 +583,9 @@ impl SensorTable {
     pub fn one_pair(lidar: bool) -> Self {
         let mut table = SensorTable::default();
         // Two short valid names always fit.
-        let _ = table.push(SensorKind::Camera, "camera");
+        let _ = table.push(SensorKind::Camera, crate::rig::PAIR_CAMERA);
         if lidar {
-            let _ = table.push(SensorKind::Lidar, "lidar");
+            let _ = table.push(SensorKind::Lidar, crate::rig::PAIR_LIDAR);
         }
         table
     }
