@@ -27,8 +27,9 @@
 //!    and gap points in holes, and penalises returns in holes, gap points on solid board
 //!    and anything outside the outline. The coarse grid keeps up to four distinct optima
 //!    (a board whose lines cross one row of holes only has rivals a hole spacing apart);
-//!    each is refined and scored on every point, and the best is kept only when it leads
-//!    every distinct rival by a margin ([`Refusal::Ambiguous`] otherwise). When coplanar
+//!    each is refined on the medium grid and scored on every point there, those near the
+//!    best are refined on and scored again, and the best is kept only when it leads every
+//!    distinct rival by a margin ([`Refusal::Ambiguous`] otherwise). When coplanar
 //!    clutter beside the board (a neighbouring board's edge) widens the points beyond the
 //!    outline, the coarse centres span where the board lies within them.
 //!    **See-through points** weigh in too: returns from behind the plane whose beams
@@ -536,6 +537,8 @@ impl HoleDetector {
         }
         // Every distinct coarse optimum is refined and scored on all points; the best is
         // taken only when no other optimum comes close (the evidence is unambiguous).
+        // The candidates are ranked at their medium-grid poses (5 mm, 0.5° cells); only
+        // those near the best are refined on (the fine grid is most of the cost).
         let candidates = self.coarse();
         let mut first_refusal = None;
         let mut fits: heapless::Vec<(i64, Fit), CANDIDATES> = heapless::Vec::new();
@@ -545,11 +548,19 @@ impl HoleDetector {
                     first_refusal.get_or_insert((r, coarse));
                 }
                 Ok(()) => {
-                    let fit = self.refine(coarse);
+                    let fit = self.medium(coarse);
                     let score = self.full_score(fit.pose);
                     let _ = fits.push((score, fit));
                 }
             }
+        }
+        fits.sort_unstable_by_key(|f| core::cmp::Reverse(f.0));
+        // Candidates the medium grid leaves close to the best are refined on and compared
+        // again: a many-point board gains more from the fine alignment than the margin.
+        let close = fits.first().map_or(i64::MAX, |f| f.0 - 2 * self.margin());
+        for candidate in fits.iter_mut().filter(|f| f.0 >= close) {
+            let fine = self.fine(candidate.1.pose);
+            *candidate = (self.full_score(fine.pose), fine);
         }
         fits.sort_unstable_by_key(|f| core::cmp::Reverse(f.0));
         let Some(&(best_score, fit)) = fits.first() else {
@@ -1039,7 +1050,7 @@ impl HoleDetector {
     }
 
     /// The mask score of every return and gap point at `pose`: what the candidates'
-    /// refined poses are compared by.
+    /// poses are compared by.
     fn full_score(&mut self, pose: [f64; 3]) -> i64 {
         self.mask.turn(&self.flat, pose[2], &mut self.turned);
         self.mask.turn(&self.gaps, pose[2], &mut self.turned_gaps);
@@ -1047,21 +1058,16 @@ impl HoleDetector {
         self.mask.score_turned(self.turned_evidence(), [pose[0], pose[1]], pose[2])
     }
 
-    /// Medium and fine grids around the coarse pose. Only points near an edge of the
-    /// model can change their mask value within a window; the rest add a constant, so
-    /// each grid scores only the points within its window's reach of an edge.
+    /// The medium grid around the coarse pose (5 mm, 0.5° cells, on a subsample): where
+    /// the plateau lies. Only points near an edge of the model can change their mask value
+    /// within a window; the rest add a constant, so each grid scores only the points
+    /// within its window's reach of an edge.
     #[inline(never)]
-    fn refine(&mut self, coarse: [f64; 3]) -> Fit {
+    fn medium(&mut self, coarse: [f64; 3]) -> Fit {
         let medium_step = [0.005, 0.005, 0.5f64.to_radians()];
         self.near_edges(coarse, 0.07);
         // The medium grid only finds the plateau (5 mm, 0.5° cells): a subsample will do.
-        let evidence = self.sample.len() + self.gap_sample.len() + self.through_sample.len();
-        let stride = evidence / MEDIUM_POINTS + 1;
-        if stride > 1 {
-            keep_every(&mut self.sample, stride);
-            keep_every(&mut self.gap_sample, stride);
-            keep_every(&mut self.through_sample, stride);
-        }
+        self.thin_sample(MEDIUM_POINTS);
         let mut medium = self.grid(coarse, medium_step, 4);
         for _ in 0..2 {
             if !medium.at_window_edge {
@@ -1069,20 +1075,48 @@ impl HoleDetector {
             }
             medium = self.grid(medium.pose, medium_step, 4);
         }
+        medium
+    }
+
+    /// The fine grid around the medium pose (every point near an edge), walked on at a
+    /// coarser step while its plateau reaches the window's edge.
+    #[inline(never)]
+    fn fine(&mut self, medium: [f64; 3]) -> Fit {
         // The fine window reaches 9 mm and 0.36° (5 mm at the board's corners).
-        self.near_edges(medium.pose, 0.02);
-        let fine = self.grid(medium.pose, [0.0015, 0.0015, 0.06f64.to_radians()], 6);
+        self.near_edges(medium, 0.02);
+        let fine = self.grid(medium, [0.0015, 0.0015, 0.06f64.to_radians()], 6);
+        if !fine.at_window_edge {
+            return fine;
+        }
         // A plateau wider than the fine window (or a coarse yaw a few degrees off, which
-        // an occluded board can cause): a wide window at a coarser step, walked on.
-        let mut fit = fine;
+        // an occluded board can cause): a wide window at a coarser step, walked on over a
+        // subsample (each step of the walk only recentres), then scored once on every
+        // point near an edge for the plateau and its spread.
+        let walk_step = [0.004, 0.004, 0.3f64.to_radians()];
+        let mut pose = fine.pose;
         for _ in 0..6 {
-            if !fit.at_window_edge {
+            self.near_edges(pose, 0.07);
+            self.thin_sample(MEDIUM_POINTS);
+            let walked = self.grid(pose, walk_step, 8);
+            pose = walked.pose;
+            if !walked.at_window_edge {
                 break;
             }
-            self.near_edges(fit.pose, 0.07);
-            fit = self.grid(fit.pose, [0.004, 0.004, 0.3f64.to_radians()], 8);
         }
-        fit
+        self.near_edges(pose, 0.07);
+        self.grid(pose, walk_step, 8)
+    }
+
+    /// Keeps every k-th of `sample`, `gap_sample` and `through_sample` so that about
+    /// `budget` points of evidence remain.
+    fn thin_sample(&mut self, budget: usize) {
+        let evidence = self.sample.len() + self.gap_sample.len() + self.through_sample.len();
+        let stride = evidence / budget + 1;
+        if stride > 1 {
+            keep_every(&mut self.sample, stride);
+            keep_every(&mut self.gap_sample, stride);
+            keep_every(&mut self.through_sample, stride);
+        }
     }
 
     /// Returns and gap points within `near` of the model's outline or a hole's edge at
@@ -1513,7 +1547,7 @@ fn cut<'a>(counts: impl Iterator<Item = &'a u32>, trim: usize) -> usize {
 const RING_BIN_DEG: f64 = 0.05;
 const RING_BINS: usize = (180.0 / RING_BIN_DEG) as usize + 1;
 
-/// Most points the medium grid scores.
+/// Most points the medium grid (and each step of a walk) scores.
 const MEDIUM_POINTS: usize = 600;
 
 /// Shortest scan-line run kept on a board, as a fraction of its width: a line through a
