@@ -77,21 +77,15 @@ pub(super) fn solve_all(
     frames: &[FrameDetections],
     options: &CalibrateOptions,
 ) -> Result<Calibration, String> {
-    let object: Vec<Vec3> = (0..room.board.corner_count()).map(|i| room.board.corner(i)).collect();
-    let holes_board: Vec<Vec3> = (0..room.board.holes.len()).map(|h| room.board.hole(h)).collect();
-    let camera_boards: Vec<(u32, &CameraBoard)> = frames
-        .iter()
-        .enumerate()
-        .flat_map(|(f, d)| d.camera.iter().map(move |b| (f as u32, b)))
-        .filter(|(_, b)| b.corners.len() == object.len())
-        .take(MAX_OBSERVATIONS)
-        .collect();
-    if camera_boards.is_empty() {
-        return Err("no complete checkerboard was detected in any image".into());
-    }
-    let corner_sigma = median(camera_boards.iter().map(|(_, b)| b.sigma_px)).max(0.02);
-    let (camera, poses, mut iterations) =
-        intrinsics_start(room, &object, &camera_boards, corner_sigma)?;
+    let CameraStart {
+        object,
+        holes_board,
+        boards: camera_boards,
+        corner_sigma,
+        camera,
+        poses,
+        mut iterations,
+    } = camera_start(room, frames)?;
 
     let pairs = match &room.lidar {
         Some(lidar) => {
@@ -203,6 +197,42 @@ fn corner_covariance(
 
 /// Two starts whose final costs agree within this fraction reached the same minimum.
 const SAME_MINIMUM: f64 = 1e-9;
+
+/// What both models (free boards, surveyed room) start a run from: the board's corner and
+/// hole points, the frames' complete camera boards (frame index, board; at most
+/// [`MAX_OBSERVATIONS`]), their median corner σ (at least 0.02 px), and the intrinsics and
+/// board poses from the corners alone ([`intrinsics_start`]).
+pub(super) struct CameraStart<'f> {
+    pub object: Vec<Vec3>,
+    pub holes_board: Vec<Vec3>,
+    pub boards: Vec<(u32, &'f CameraBoard)>,
+    pub corner_sigma: f64,
+    pub camera: Camera,
+    pub poses: Vec<Se3>,
+    pub iterations: usize,
+}
+
+/// The [`CameraStart`] of `frames`; an error when no image holds a complete checkerboard.
+pub(super) fn camera_start<'f>(
+    room: &Room,
+    frames: &'f [FrameDetections],
+) -> Result<CameraStart<'f>, String> {
+    let object: Vec<Vec3> = (0..room.board.corner_count()).map(|i| room.board.corner(i)).collect();
+    let holes_board: Vec<Vec3> = (0..room.board.holes.len()).map(|h| room.board.hole(h)).collect();
+    let boards: Vec<(u32, &CameraBoard)> = frames
+        .iter()
+        .enumerate()
+        .flat_map(|(f, d)| d.camera.iter().map(move |b| (f as u32, b)))
+        .filter(|(_, b)| b.corners.len() == object.len())
+        .take(MAX_OBSERVATIONS)
+        .collect();
+    if boards.is_empty() {
+        return Err("no complete checkerboard was detected in any image".into());
+    }
+    let corner_sigma = median(boards.iter().map(|(_, b)| b.sigma_px)).max(0.02);
+    let (camera, poses, iterations) = intrinsics_start(room, &object, &boards, corner_sigma)?;
+    Ok(CameraStart { object, holes_board, boards, corner_sigma, camera, poses, iterations })
+}
 
 /// Intrinsics and board poses from the corners alone, from the best of several starts,
 /// tried in order until two of them reach the same lowest minimum. (One start fitting the

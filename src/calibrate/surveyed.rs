@@ -10,7 +10,7 @@
 //! named, left out, and the room solved again; two such boards reject the run.
 
 use super::association::{associate, lidar_nominal};
-use super::free::{accepted, intrinsics_start};
+use super::free::{accepted, camera_start, intrinsics_start, CameraStart};
 use super::identify::{identify, oriented, Identity};
 use super::{
     median, solver_reason, CalibrateOptions, Calibration, CameraBoard, FrameDetections, UsedBoard,
@@ -52,20 +52,15 @@ pub(super) fn solve_surveyed(
     _options: &CalibrateOptions,
 ) -> Result<Calibration, String> {
     let spec = &room.board;
-    let object: Vec<Vec3> = (0..spec.corner_count()).map(|i| spec.corner(i)).collect();
-    let holes_board: Vec<Vec3> = (0..spec.holes.len()).map(|h| spec.hole(h)).collect();
-    let seen: Vec<(u32, &CameraBoard)> = frames
-        .iter()
-        .enumerate()
-        .flat_map(|(f, d)| d.camera.iter().map(move |b| (f as u32, b)))
-        .filter(|(_, b)| b.corners.len() == object.len())
-        .take(MAX_OBSERVATIONS)
-        .collect();
-    if seen.is_empty() {
-        return Err("no complete checkerboard was detected in any image".into());
-    }
-    let corner_sigma = median(seen.iter().map(|(_, b)| b.sigma_px)).max(0.02);
-    let (camera, poses, mut iterations) = intrinsics_start(room, &object, &seen, corner_sigma)?;
+    let CameraStart {
+        object,
+        holes_board,
+        boards: seen,
+        corner_sigma,
+        camera,
+        poses,
+        mut iterations,
+    } = camera_start(room, frames)?;
     let surveyed: Vec<Se3> = survey.boards.iter().map(|b| b.pose()).collect();
 
     let (identified, room_to_camera, unmatched) =
