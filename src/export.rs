@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 
 use crate::geometry::se3::{rotation_to_rpy, Se3};
 use crate::geometry::{CameraModel, Mat3};
-use crate::result::{CalibrationResult, Extrinsic};
+use crate::result::{CalibrationResult, CameraResult, Extrinsic, RigResult};
 
 /// The camera's name in the exports for a one-camera room.
 pub const CAMERA_NAME: &str = "camera";
@@ -54,7 +54,7 @@ pub enum ExportError {
 pub fn files(result: &CalibrationResult) -> Vec<ExportFile> {
     let mut out = vec![ExportFile {
         name: format!("{CAMERA_NAME}.camera_info.yaml"),
-        text: camera_info_yaml(result, CAMERA_NAME),
+        text: camera_info_yaml(&result.camera, CAMERA_NAME),
     }];
     if let Some(e) = &result.lidar_to_camera {
         out.push(ExportFile {
@@ -66,28 +66,28 @@ pub fn files(result: &CalibrationResult) -> Vec<ExportFile> {
     out
 }
 
-/// Writes every export of `result` into `dir` through `write` (the store passes its
-/// atomic writer), stopping at the first error.
+/// Writes `files` ([`files`] or [`rig_files`]) into `dir` through `write` (the store
+/// passes its atomic writer), stopping at the first error.
 pub fn write_each<E>(
     dir: &Path,
-    result: &CalibrationResult,
+    files: &[ExportFile],
     mut write: impl FnMut(&Path, &[u8]) -> Result<(), E>,
 ) -> Result<(), E> {
-    for file in files(result) {
+    for file in files {
         write(&dir.join(&file.name), file.text.as_bytes())?;
     }
     Ok(())
 }
 
 /// Creates `dir` if needed and writes the exports there; returns the paths written.
-pub fn write_dir(dir: &Path, result: &CalibrationResult) -> Result<Vec<PathBuf>, ExportError> {
+pub fn write_dir(dir: &Path, files: &[ExportFile]) -> Result<Vec<PathBuf>, ExportError> {
     let io = |path: &Path| {
         let path = path.to_path_buf();
         move |source| ExportError::Io { path, source }
     };
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     let mut written = Vec::new();
-    write_each(dir, result, |path, bytes| {
+    write_each(dir, files, |path, bytes| {
         written.push(path.to_path_buf());
         std::fs::write(path, bytes).map_err(io(path))
     })?;
@@ -108,8 +108,8 @@ pub fn optical_from_link() -> Mat3 {
 }
 
 /// ROS `camera_info` YAML (camera_calibration_parsers' keys and layout).
-pub fn camera_info_yaml(result: &CalibrationResult, camera_name: &str) -> String {
-    let c = &result.camera;
+pub fn camera_info_yaml(camera: &CameraResult, camera_name: &str) -> String {
+    let c = camera;
     let model = match c.model {
         CameraModel::PinholeRadtan => "plumb_bob",
         CameraModel::Fisheye => "equidistant",
@@ -123,49 +123,129 @@ pub fn camera_info_yaml(result: &CalibrationResult, camera_name: &str) -> String
         ros_matrix("camera_matrix", 3, 3, &k),
         ros_matrix("distortion_coefficients", 1, c.distortion.len(), &c.distortion),
         ros_matrix("rectification_matrix", 3, 3, &rect),
-        ros_matrix("projection_matrix", 3, 4, &projection(result)),
+        ros_matrix("projection_matrix", 3, 4, &projection(camera, &Se3::identity())),
     )
 }
 
 /// Autoware's `sensor_kit_calibration.yaml`: the LiDAR as the parent frame (identity) and
 /// the camera's `camera_link` in it.
 pub fn sensor_kit_yaml(lidar_to_camera: &Extrinsic, camera_name: &str, lidar_name: &str) -> String {
-    let camera = camera_link_in_lidar(lidar_to_camera);
-    format!(
-        "# roomcal: the LiDAR-camera extrinsic in Autoware's sensor_kit_calibration.yaml shape.\n\
+    sensor_kit_text(
+        lidar_name,
+        &[
+            (lidar_name.to_string(), Se3::identity()),
+            (format!("{camera_name}/camera_link"), camera_link_in_lidar(lidar_to_camera)),
+        ],
+    )
+}
+
+/// `sensor_kit_calibration.yaml` with `entries` (child frame name, pose in the parent) under
+/// `sensor_kit_base_link`, which is `parent`'s frame.
+fn sensor_kit_text(parent: &str, entries: &[(String, Se3)]) -> String {
+    let mut text = format!(
+        "# roomcal: the sensors' extrinsics in Autoware's sensor_kit_calibration.yaml shape.\n\
          # Each entry is the pose of a child frame in the parent: p_parent = R * p_child + [x, y, z],\n\
          # R = Rz(yaw) * Ry(pitch) * Rx(roll) (URDF fixed-axis roll-pitch-yaw); metres and radians.\n\
-         # The parent sensor_kit_base_link is the LiDAR's own frame ({lidar_name}: identity): roomcal\n\
-         # measures the camera against the LiDAR, not against the vehicle.\n\
-         # {camera_name}/camera_link is the camera BODY frame (x forward, y left, z up), NOT the optical\n\
+         # The parent sensor_kit_base_link is {parent}'s own frame: roomcal measures the sensors\n\
+         # against each other, not against the vehicle.\n\
+         # NAME/camera_link is a camera's BODY frame (x forward, y left, z up), NOT the optical\n\
          # frame (x right, y down, z forward) of camera_info, calib.txt and result.json:\n\
          # p_optical = [[0,-1,0],[0,0,-1],[1,0,0]] * p_link, i.e. camera_link -> camera_optical_link\n\
          # is rpy(-pi/2, 0, -pi/2) as in Autoware's sensor kit descriptions.\n\
-         sensor_kit_base_link:\n{}{}",
-        autoware_entry(lidar_name, &Se3::identity()),
-        autoware_entry(&format!("{camera_name}/camera_link"), &camera),
-    )
+         sensor_kit_base_link:\n"
+    );
+    for (name, pose) in entries {
+        text += &autoware_entry(name, pose);
+    }
+    text
+}
+
+/// Every export of a rig's result: `NAME.camera_info.yaml` per camera;
+/// `sensor_kit_calibration.yaml` with every sensor, its parent the first LiDAR's frame
+/// (the first camera's `camera_link` for a rig without LiDARs); `calib.txt` with `Pi:`
+/// for the i-th camera (`K_i [R | t]` from the first camera's frame, KITTI's convention:
+/// `P0` is the first camera's `[K | 0]`) and `Tr_velo_to_cam:` for the first LiDAR.
+/// Sensors without an extrinsic (a rejected rig's) are left out.
+pub fn rig_files(result: &RigResult) -> Vec<ExportFile> {
+    let sensors = result.in_order();
+    let mut out: Vec<ExportFile> = sensors
+        .iter()
+        .filter_map(|s| {
+            Some(ExportFile {
+                name: format!("{}.camera_info.yaml", s.name),
+                text: camera_info_yaml(s.camera?, s.name),
+            })
+        })
+        .collect();
+    let link = Se3 { rotation: optical_from_link(), translation: Default::default() };
+    let first_lidar = sensors.iter().find(|s| s.camera.is_none());
+    let (parent, parent_to_first) = match first_lidar {
+        Some(l) => (l.name.to_string(), l.to_first),
+        None => (format!("{}/camera_link", sensors.first().map_or("camera", |s| s.name)), link),
+    };
+    let first_to_parent = parent_to_first.inverse();
+    let entries: Vec<(String, Se3)> = sensors
+        .iter()
+        .map(|s| match s.camera {
+            Some(_) => (
+                format!("{}/camera_link", s.name),
+                first_to_parent.compose(&s.to_first).compose(&link),
+            ),
+            None => (s.name.to_string(), first_to_parent.compose(&s.to_first)),
+        })
+        .collect();
+    out.push(ExportFile {
+        name: "sensor_kit_calibration.yaml".into(),
+        text: sensor_kit_text(&parent, &entries),
+    });
+    let mut kitti = String::new();
+    for (i, s) in sensors.iter().filter(|s| s.camera.is_some()).enumerate() {
+        let camera = s.camera.expect("filtered: a camera");
+        kitti += &format!("P{i}: {}\n", numbers(&projection(camera, &s.to_first.inverse())));
+    }
+    if let Some(l) = first_lidar {
+        kitti += &format!("Tr_velo_to_cam: {}\n", numbers(&row_major(&l.to_first)));
+    }
+    out.push(ExportFile { name: "calib.txt".into(), text: kitti });
+    out
 }
 
 /// KITTI `calib.txt`: `P0:` = `[K | 0]`, `Tr_velo_to_cam:` = `[R | t]` (LiDAR → optical
 /// camera frame), both row-major.
 pub fn kitti_calib(result: &CalibrationResult) -> String {
-    let mut text = format!("P0: {}\n", numbers(&projection(result)));
+    let mut text = format!("P0: {}\n", numbers(&projection(&result.camera, &Se3::identity())));
     if let Some(e) = &result.lidar_to_camera {
-        let (r, t) = (&e.rotation, &e.translation);
-        let tr = [
-            r[0][0], r[0][1], r[0][2], t[0], r[1][0], r[1][1], r[1][2], t[1], r[2][0], r[2][1],
-            r[2][2], t[2],
-        ];
-        text += &format!("Tr_velo_to_cam: {}\n", numbers(&tr));
+        text += &format!("Tr_velo_to_cam: {}\n", numbers(&row_major(&e.to_se3())));
     }
     text
 }
 
-/// `[K | 0]`, row-major: the projection of the calibrated (distorted) camera.
-fn projection(result: &CalibrationResult) -> [f64; 12] {
-    let c = &result.camera;
-    [c.fx, 0.0, c.cx, 0.0, 0.0, c.fy, c.cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+/// `[R | t]`, row-major.
+fn row_major(motion: &Se3) -> [f64; 12] {
+    let (r, t) = (&motion.rotation, &motion.translation);
+    [
+        r[(0, 0)],
+        r[(0, 1)],
+        r[(0, 2)],
+        t.x,
+        r[(1, 0)],
+        r[(1, 1)],
+        r[(1, 2)],
+        t.y,
+        r[(2, 0)],
+        r[(2, 1)],
+        r[(2, 2)],
+        t.z,
+    ]
+}
+
+/// `K · [R | t]`, row-major: the projection of a point given in another frame (the
+/// first camera's, through `to_camera` = that frame → this camera) into the calibrated
+/// (distorted) camera; `[K | 0]` for the identity.
+fn projection(camera: &CameraResult, to_camera: &Se3) -> [f64; 12] {
+    let c = camera;
+    let k = Mat3::new(c.fx, 0.0, c.cx, 0.0, c.fy, c.cy, 0.0, 0.0, 1.0);
+    row_major(&Se3 { rotation: k * to_camera.rotation, translation: k * to_camera.translation })
 }
 
 fn ros_matrix(name: &str, rows: usize, cols: usize, data: &[f64]) -> String {

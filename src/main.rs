@@ -697,7 +697,8 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
     }
     let accepted = run.result.status == roomcal::result::Status::Accepted;
     if let Some(dir) = args.export.as_ref().filter(|_| accepted) {
-        let files = roomcal::export::write_dir(dir, &run.result).map_err(bad_input)?;
+        let files = roomcal::export::write_dir(dir, &roomcal::export::files(&run.result))
+            .map_err(bad_input)?;
         written.extend(files.iter().map(|f| f.display().to_string()));
     }
     progress.finish(); // the line is cleared before the summary
@@ -734,12 +735,7 @@ fn calibrate_rig(
             args.room.display()
         )));
     }
-    let unsupported = [
-        ("--report", args.report.is_some()),
-        ("--export", args.export.is_some()),
-        ("--current", args.current.is_some()),
-        ("--json", args.json),
-    ];
+    let unsupported = [("--report", args.report.is_some()), ("--current", args.current.is_some())];
     if let Some((flag, _)) = unsupported.iter().find(|(_, given)| *given) {
         return Err(bad_input(anyhow::anyhow!("{flag} is not available with --rig yet")));
     }
@@ -751,7 +747,13 @@ fn calibrate_rig(
         without_planes: args.without_planes,
         free_boards: args.free_boards,
     };
-    cli::rig::calibrate(room, &rig, &detections, &options, &args.out, args.quiet)
+    let outputs = cli::rig::RigOutputs {
+        out: &args.out,
+        export: args.export.as_deref(),
+        json: args.json,
+        quiet: args.quiet,
+    };
+    cli::rig::calibrate(room, &rig, &detections, &options, outputs)
 }
 
 fn survey(args: SurveyArgs) -> Result<(), Failure> {

@@ -326,3 +326,50 @@ pub struct RigExtrinsic {
     pub sigma_rotation_deg: f64,
     pub sigma_translation_m: f64,
 }
+
+impl RigExtrinsic {
+    /// The rigid motion `from` → `to`.
+    pub fn to_se3(&self) -> crate::geometry::Se3 {
+        Extrinsic { rotation: self.rotation, translation: self.translation }.to_se3()
+    }
+}
+
+/// One sensor of a rig result with its pose on the vehicle: [`RigResult::in_order`].
+#[derive(Clone, Debug)]
+pub struct RigSensor<'a> {
+    pub name: &'a str,
+    /// The intrinsics, for a camera; `None` for a LiDAR.
+    pub camera: Option<&'a CameraResult>,
+    /// This sensor → the first camera (the identity for the first camera).
+    pub to_first: crate::geometry::Se3,
+}
+
+impl RigResult {
+    /// The first camera's name: every extrinsic's `to`, or the only camera of a rig
+    /// without extrinsics.
+    pub fn first_camera(&self) -> Option<&str> {
+        match self.extrinsics.first() {
+            Some(e) => Some(e.to.as_str()),
+            None => self.sensors.iter().find(|(_, s)| s.camera.is_some()).map(|(n, _)| n.as_str()),
+        }
+    }
+
+    /// Every sensor placed on the vehicle, in the rig file's order (the first camera, then
+    /// the extrinsics' order: the other cameras, then the LiDARs); a sensor without an
+    /// extrinsic (rejected) is left out.
+    pub fn in_order(&self) -> Vec<RigSensor<'_>> {
+        let Some(first) = self.first_camera() else { return Vec::new() };
+        let camera = |name: &str| self.sensors.get(name).and_then(|s| s.camera.as_ref());
+        let mut out = vec![RigSensor {
+            name: first,
+            camera: camera(first),
+            to_first: crate::geometry::Se3::identity(),
+        }];
+        out.extend(self.extrinsics.iter().map(|e| RigSensor {
+            name: e.from.as_str(),
+            camera: camera(&e.from),
+            to_first: e.to_se3(),
+        }));
+        out
+    }
+}

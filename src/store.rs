@@ -6,6 +6,9 @@
 //! STORE/current.json            the calibration in force (result schema + generation, time, crc32)
 //! STORE/camera.yaml             OpenCV FileStorage: camera_matrix, distortion_coefficients
 //! STORE/extrinsic.yaml          OpenCV FileStorage: lidar_to_camera rotation/translation (4×4)
+//! STORE/camera-NAME.yaml        rigs: OpenCV FileStorage of each camera NAME
+//! STORE/extrinsics.yaml         rigs: OpenCV FileStorage of every sensor → first camera
+//! STORE/*.camera_info.yaml, sensor_kit_calibration.yaml, calib.txt   exports (crate::export)
 //! STORE/history/gen-000042.json every accepted generation (the newest `keep` kept)
 //! STORE/rejected/run-….json     rejected runs (the newest `keep` kept); never in force
 //! STORE/security.json           the UDS SecurityAccess lockout (wrong keys, locked until)
@@ -42,7 +45,9 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use serde::{Deserialize, Serialize};
 
 use crate::geometry::CameraModel;
-use crate::result::{CalibrationResult, Status};
+use crate::result::{
+    CalibrationResult, CameraResult, RigExtrinsic, RigResult, SensorResult, Status,
+};
 
 /// Generations and rejected runs kept by default.
 pub const DEFAULT_KEEP: usize = 16;
@@ -52,6 +57,9 @@ pub const DEFAULT_KEEP: usize = 16;
 pub struct Record {
     #[serde(flatten)]
     pub result: CalibrationResult,
+    /// A rig's sensors and extrinsics (empty for a one-pair room: its records are unchanged).
+    #[serde(flatten)]
+    pub rig: RigPart,
     /// +1 per accepted run (and per rollback); 0 is never written.
     pub generation: u32,
     /// Unix seconds when the record was written.
@@ -59,6 +67,27 @@ pub struct Record {
     /// Generation whose calibration a rollback copied.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub restored_from: Option<u32>,
+}
+
+/// What a rig's result adds to the one-pair fields (DESIGN.md, "Vehicles with several
+/// sensors"); both empty for a one-pair room.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RigPart {
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub sensors: std::collections::BTreeMap<String, SensorResult>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub extrinsics: Vec<RigExtrinsic>,
+}
+
+impl Record {
+    /// The rig result this record holds, if it is a rig's.
+    pub fn rig_result(&self) -> Option<RigResult> {
+        (!self.rig.sensors.is_empty()).then(|| RigResult {
+            pair: self.result.clone(),
+            sensors: self.rig.sensors.clone(),
+            extrinsics: self.rig.extrinsics.clone(),
+        })
+    }
 }
 
 /// The UDS SecurityAccess lockout, kept in `STORE/security.json` so that wrong keys
@@ -102,6 +131,31 @@ pub fn is_valid_calibration(result: &CalibrationResult) -> Result<(), String> {
         return Err("status is not \"accepted\"".into());
     }
     result.validate().map_err(|e| e.to_string())
+}
+
+/// Why a record cannot be in force: [`is_valid_calibration`] of its one-pair fields, and
+/// for a rig every sensor accepted, every camera valid and every extrinsic a proper
+/// rotation with a translation within the vehicle's size.
+pub fn is_valid_record(record: &Record) -> Result<(), String> {
+    is_valid_calibration(&record.result)?;
+    for (name, sensor) in &record.rig.sensors {
+        if sensor.status != Status::Accepted {
+            return Err(format!("sensor `{name}` is not accepted"));
+        }
+        if let Some(camera) = &sensor.camera {
+            camera.validate().map_err(|e| format!("camera `{name}`: {e}"))?;
+        }
+    }
+    for e in &record.rig.extrinsics {
+        crate::target::validate_mounting(
+            "extrinsics.rotation",
+            &e.rotation,
+            "extrinsics.translation",
+            &e.translation,
+        )
+        .map_err(|err| format!("extrinsic {} → {}: {err}", e.from, e.to))?;
+    }
+    Ok(())
 }
 
 /// The store directory.
@@ -169,7 +223,7 @@ impl Store {
         let problem = match fs::read(&path) {
             Ok(bytes) if bytes == expected => return Ok(Some(held.clone())),
             Ok(bytes) => match decode(&bytes, &path) {
-                Ok(r) => match is_valid_calibration(&r.result) {
+                Ok(r) => match is_valid_record(&r) {
                     Ok(()) if r.generation > held.generation => return Ok(Some(r)),
                     Ok(()) => {
                         format!("held generation {} instead of {}", r.generation, held.generation)
@@ -198,7 +252,7 @@ impl Store {
         let mut out = Vec::new();
         for (_, path) in self.history_files()? {
             match read_record(&path) {
-                Ok(Some(r)) => match is_valid_calibration(&r.result) {
+                Ok(Some(r)) => match is_valid_record(&r) {
                     Ok(()) => out.push(r),
                     Err(why) => tracing::warn!(
                         "{}: not a valid calibration ({why}); skipped",
@@ -227,12 +281,28 @@ impl Store {
     /// Puts an accepted result in force as the next generation, written at `now` (unix
     /// seconds); returns the record written.
     pub fn commit(&self, result: &CalibrationResult, now: u64) -> Result<Record, StoreError> {
+        self.commit_part(result, RigPart::default(), now)
+    }
+
+    /// [`Store::commit`] for a rig: its one-pair fields, sensors and extrinsics in force
+    /// as one record, with a YAML view per camera and one for the rig's extrinsics.
+    pub fn commit_rig(&self, rig: &RigResult, now: u64) -> Result<Record, StoreError> {
+        self.commit_part(&rig.pair, rig_part(rig), now)
+    }
+
+    fn commit_part(
+        &self,
+        result: &CalibrationResult,
+        rig: RigPart,
+        now: u64,
+    ) -> Result<Record, StoreError> {
         if result.status != Status::Accepted {
             return Err(StoreError::NotAccepted);
         }
         let _writing = self.lock();
         let record = Record {
             result: result.clone(),
+            rig,
             generation: self.next_generation_locked()?,
             time: now,
             restored_from: None,
@@ -248,9 +318,24 @@ impl Store {
         result: &CalibrationResult,
         now: u64,
     ) -> Result<PathBuf, StoreError> {
+        self.record_rejected_part(result, RigPart::default(), now)
+    }
+
+    /// [`Store::record_rejected`] for a rig (every sensor's verdict kept).
+    pub fn record_rejected_rig(&self, rig: &RigResult, now: u64) -> Result<PathBuf, StoreError> {
+        self.record_rejected_part(&rig.pair, rig_part(rig), now)
+    }
+
+    fn record_rejected_part(
+        &self,
+        result: &CalibrationResult,
+        rig: RigPart,
+        now: u64,
+    ) -> Result<PathBuf, StoreError> {
         let _writing = self.lock();
         let generation = self.current_locked()?.map_or(0, |r| r.generation);
-        let record = Record { result: result.clone(), generation, time: now, restored_from: None };
+        let record =
+            Record { result: result.clone(), rig, generation, time: now, restored_from: None };
         self.create_dirs()?;
         let mut seq = list_json(&self.rejected_dir())?.len();
         let path = loop {
@@ -282,6 +367,7 @@ impl Store {
             .ok_or_else(no_previous)?;
         let record = Record {
             result: previous.result.clone(),
+            rig: previous.rig.clone(),
             generation: self.next_generation_locked()?,
             time: now,
             restored_from: Some(previous.generation),
@@ -365,7 +451,7 @@ impl Store {
     fn current_locked(&self) -> Result<Option<Record>, StoreError> {
         let path = self.current_path();
         let in_file = match read_record(&path) {
-            Ok(Some(r)) => match is_valid_calibration(&r.result) {
+            Ok(Some(r)) => match is_valid_record(&r) {
                 Ok(()) => Some(r),
                 Err(why) => {
                     tracing::warn!(
@@ -470,14 +556,32 @@ impl Store {
         prune(&files, &self.history_dir(), self.keep)
     }
 
-    /// `current.json` and its YAML views.
+    /// `current.json` and its YAML views (for a rig also one per camera and the rig's
+    /// extrinsics; the first camera's and first LiDAR's stay in `camera.yaml` and
+    /// `extrinsic.yaml` for one-pair consumers).
     fn put_in_force(&self, record: &Record) -> Result<(), StoreError> {
         write_atomic(&self.current_path(), &encode(record))?;
-        write_atomic(&self.dir.join("camera.yaml"), camera_yaml(&record.result).as_bytes())?;
+        write_atomic(&self.dir.join("camera.yaml"), camera_yaml(&record.result.camera).as_bytes())?;
         if let Some(yaml) = extrinsic_yaml(&record.result) {
             write_atomic(&self.dir.join("extrinsic.yaml"), yaml.as_bytes())?;
         }
-        crate::export::write_each(&self.dir, &record.result, write_atomic)?;
+        let exports = match record.rig_result() {
+            Some(rig) => {
+                for sensor in rig.in_order() {
+                    if let Some(camera) = sensor.camera {
+                        let path = self.dir.join(format!("camera-{}.yaml", sensor.name));
+                        write_atomic(&path, camera_yaml(camera).as_bytes())?;
+                    }
+                }
+                write_atomic(
+                    &self.dir.join("extrinsics.yaml"),
+                    rig_extrinsics_yaml(&rig).as_bytes(),
+                )?;
+                crate::export::rig_files(&rig)
+            }
+            None => crate::export::files(&record.result),
+        };
+        crate::export::write_each(&self.dir, &exports, write_atomic)?;
         Ok(())
     }
 }
@@ -651,9 +755,13 @@ fn prune(files: &[PathBuf], dir: &Path, keep: usize) -> Result<(), StoreError> {
     Ok(())
 }
 
-/// OpenCV FileStorage YAML of the camera (as `cv::FileStorage` reads it).
-pub fn camera_yaml(result: &CalibrationResult) -> String {
-    let c = &result.camera;
+fn rig_part(rig: &RigResult) -> RigPart {
+    RigPart { sensors: rig.sensors.clone(), extrinsics: rig.extrinsics.clone() }
+}
+
+/// OpenCV FileStorage YAML of a camera (as `cv::FileStorage` reads it).
+pub fn camera_yaml(camera: &CameraResult) -> String {
+    let c = camera;
     let model = match c.model {
         CameraModel::PinholeRadtan => "pinhole-radtan",
         CameraModel::Fisheye => "fisheye",
@@ -686,10 +794,41 @@ pub fn extrinsic_yaml(result: &CalibrationResult) -> Option<String> {
     ))
 }
 
+/// OpenCV FileStorage YAML of a rig's extrinsics: `first_camera` and a sequence of maps
+/// (`from`, `to`, the 4×4 `transform` with `p_to = R · p_from + t`, worst-axis σ).
+pub fn rig_extrinsics_yaml(rig: &RigResult) -> String {
+    let mut text = format!(
+        "%YAML:1.0\n---\n# every sensor's pose on the vehicle: p_to = R * p_from + t (to = the first camera)\n\
+         first_camera: \"{}\"\nextrinsics:\n",
+        rig.first_camera().unwrap_or("")
+    );
+    for e in &rig.extrinsics {
+        let (r, t) = (&e.rotation, &e.translation);
+        let m = [
+            r[0][0], r[0][1], r[0][2], t[0], r[1][0], r[1][1], r[1][2], t[1], r[2][0], r[2][1],
+            r[2][2], t[2], 0.0, 0.0, 0.0, 1.0,
+        ];
+        text += &format!(
+            "   -\n      from: \"{}\"\n      to: \"{}\"\n{}      sigma_rotation_deg: {:e}\n      sigma_translation_m: {:e}\n",
+            e.from,
+            e.to,
+            indented_matrix("transform", 4, 4, &m, "      "),
+            e.sigma_rotation_deg,
+            e.sigma_translation_m
+        );
+    }
+    text
+}
+
 fn yaml_matrix(name: &str, rows: usize, cols: usize, data: &[f64]) -> String {
+    indented_matrix(name, rows, cols, data, "")
+}
+
+fn indented_matrix(name: &str, rows: usize, cols: usize, data: &[f64], indent: &str) -> String {
     let values: Vec<String> = data.iter().map(|v| format!("{v:e}")).collect();
     format!(
-        "{name}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: [ {} ]\n",
+        "{indent}{name}: !!opencv-matrix\n{indent}   rows: {rows}\n{indent}   cols: {cols}\n\
+         {indent}   dt: d\n{indent}   data: [ {} ]\n",
         values.join(", ")
     )
 }

@@ -9,7 +9,10 @@ use std::process::Command;
 
 use roomcal::geometry::se3::so3_exp;
 use roomcal::geometry::{CameraModel, Vec3};
-use roomcal::result::{CalibrationResult, CameraResult, Extrinsic, Quality, Status, Uncertainty};
+use roomcal::result::{
+    CalibrationResult, CameraResult, Extrinsic, Quality, RigExtrinsic, RigResult, SensorResult,
+    Status, Uncertainty,
+};
 use serde_json::Value;
 use yaml_rust2::{Yaml, YamlLoader};
 
@@ -96,14 +99,18 @@ fn json_extrinsic(j: &Value) -> ([[f64; 3]; 3], [f64; 3]) {
 
 fn check_camera_info(result: &CalibrationResult) {
     let j = json(result);
-    let doc = yaml(&export(result, "camera.camera_info.yaml"));
-    let c = &j["camera"];
+    check_camera_info_of(&export(result, "camera.camera_info.yaml"), &j["camera"], "camera");
+}
+
+/// A camera_info file against the result JSON's camera block `c` named `name`.
+fn check_camera_info_of(text: &str, c: &Value, name: &str) {
+    let doc = yaml(text);
     assert_eq!(doc["image_width"].as_i64(), c["width"].as_i64());
     assert_eq!(doc["image_height"].as_i64(), c["height"].as_i64());
-    assert_eq!(doc["camera_name"].as_str(), Some("camera"));
-    let model = match result.camera.model {
-        CameraModel::PinholeRadtan => "plumb_bob",
-        CameraModel::Fisheye => "equidistant",
+    assert_eq!(doc["camera_name"].as_str(), Some(name));
+    let model = match c["model"].as_str() {
+        Some("fisheye") => "equidistant",
+        _ => "plumb_bob",
     };
     assert_eq!(doc["distortion_model"].as_str(), Some(model));
     let (fx, fy, cx, cy) = (f(&c["fx"]), f(&c["fy"]), f(&c["cx"]), f(&c["cy"]));
@@ -215,7 +222,7 @@ fn a_lidar_mounted_along_the_camera_body_has_zero_angles_in_the_sensor_kit() {
         close(camera[key].as_f64().unwrap(), want, key);
     }
     assert!(export(&result, "sensor_kit_calibration.yaml")
-        .contains("camera_link is the camera BODY frame"));
+        .contains("camera_link is a camera's BODY frame"));
 }
 
 /// `KEY: n n n ...` lines of a KITTI calib.txt.
@@ -321,4 +328,192 @@ fn calibrate_exports_accepted_runs_only() {
     let not_exported = dir.join("rejected-exports");
     assert_eq!(run(seven.to_str().unwrap(), &dir.join("rejected.json"), &not_exported), Some(3));
     assert!(!not_exported.exists(), "a rejected calibration was exported");
+}
+
+/// A rig: `front` (the one-pair fields' camera), a `wide` camera, the `top` LiDAR (the
+/// one-pair extrinsic) and a `bumper` LiDAR, every mounting oblique.
+fn rig_result() -> RigResult {
+    let pair = result(CameraModel::PinholeRadtan);
+    let mut wide = pair.camera.clone();
+    (wide.fx, wide.fy, wide.cx, wide.cy) = (961.25, 960.5, 955.75, 604.125);
+    let matrix = |m: roomcal::geometry::Mat3| [0, 1, 2].map(|i| [0, 1, 2].map(|j| m[(i, j)]));
+    let wide_to_front = matrix(so3_exp(&Vec3::new(0.012, 0.139, -0.021)));
+    let top = pair.lidar_to_camera.clone().unwrap();
+    let bumper = mul(&matrix(so3_exp(&Vec3::new(-0.02, 0.035, 0.011))), &OPTICAL_FROM_LINK);
+    let extrinsic = |from: &str, rotation, translation| RigExtrinsic {
+        from: from.into(),
+        to: "front".into(),
+        rotation,
+        translation,
+        sigma_rotation_deg: 0.01,
+        sigma_translation_m: 0.002,
+    };
+    let sensor = |camera: Option<CameraResult>| SensorResult {
+        lidar: camera.is_none(),
+        uncertainty: camera.as_ref().map(|_| Uncertainty::default()),
+        camera,
+        camera_in_room: None,
+        status: Status::Accepted,
+        reason: None,
+        solved_with: None,
+    };
+    let sensors = [
+        ("front", sensor(Some(pair.camera.clone()))),
+        ("wide", sensor(Some(wide))),
+        ("top", sensor(None)),
+        ("bumper", sensor(None)),
+    ];
+    RigResult {
+        pair,
+        sensors: sensors.into_iter().map(|(n, s)| (n.to_string(), s)).collect(),
+        extrinsics: vec![
+            extrinsic("wide", wide_to_front, [-0.25, 0.012, 0.021]),
+            extrinsic("top", top.rotation, top.translation),
+            extrinsic("bumper", bumper, [0.05, 1.52, 0.72]),
+        ],
+    }
+}
+
+fn rig_export(rig: &RigResult, name: &str) -> String {
+    let files = roomcal::export::rig_files(rig);
+    files.into_iter().find(|f| f.name == name).unwrap_or_else(|| panic!("no {name}")).text
+}
+
+/// (rotation, translation) of a JSON extrinsic block.
+fn json_motion(e: &Value) -> ([[f64; 3]; 3], [f64; 3]) {
+    let r = |i: usize, k: usize| f(&e["rotation"][i][k]);
+    let t = |i: usize| f(&e["translation"][i]);
+    (
+        [[r(0, 0), r(0, 1), r(0, 2)], [r(1, 0), r(1, 1), r(1, 2)], [r(2, 0), r(2, 1), r(2, 2)]],
+        [t(0), t(1), t(2)],
+    )
+}
+
+fn apply(r: &[[f64; 3]; 3], v: &[f64; 3]) -> [f64; 3] {
+    [0, 1, 2].map(|i| (0..3).map(|k| r[i][k] * v[k]).sum())
+}
+
+#[test]
+fn a_rigs_exports_place_every_sensor_as_its_extrinsics_say() {
+    let rig = rig_result();
+    let names: Vec<String> = roomcal::export::rig_files(&rig).into_iter().map(|f| f.name).collect();
+    assert_eq!(
+        names,
+        [
+            "front.camera_info.yaml",
+            "wide.camera_info.yaml",
+            "sensor_kit_calibration.yaml",
+            "calib.txt"
+        ]
+    );
+    let j = serde_json::to_value(&rig).unwrap();
+    for name in ["front", "wide"] {
+        let text = rig_export(&rig, &format!("{name}.camera_info.yaml"));
+        check_camera_info_of(&text, &j["sensors"][name]["camera"], name);
+    }
+
+    // Autoware: parent = the first LiDAR (`top`); every sensor composed with top → front
+    // gives its extrinsic back (a camera's entry is its camera_link: p_top = A p_link + b,
+    // so optical → top is A Mᵀ, b).
+    let doc = yaml(&rig_export(&rig, "sensor_kit_calibration.yaml"));
+    let kit = &doc["sensor_kit_base_link"];
+    let extrinsics = j["extrinsics"].as_array().unwrap();
+    let (top_r, top_t) = json_motion(&extrinsics[1]);
+    let mut expected = vec![("front".to_string(), true, rpy_matrix(0.0, 0.0, 0.0), [0.0; 3])];
+    for e in extrinsics {
+        let name = e["from"].as_str().unwrap();
+        let (r, t) = json_motion(e);
+        expected.push((name.into(), j["sensors"][name].get("camera").is_some(), r, t));
+    }
+    for (name, camera, want_r, want_t) in expected {
+        let key = if camera { format!("{name}/camera_link") } else { name.clone() };
+        let (mut a, b) = autoware_pose(&kit[key.as_str()]);
+        if camera {
+            a = mul(&a, &transpose(&OPTICAL_FROM_LINK));
+        }
+        let r = mul(&top_r, &a);
+        let rb = apply(&top_r, &b);
+        for i in 0..3 {
+            close(rb[i] + top_t[i], want_t[i], &format!("{name} translation"));
+            for k in 0..3 {
+                close(r[i][k], want_r[i][k], &format!("{name} rotation"));
+            }
+        }
+    }
+
+    // KITTI: P0 = [K_front | 0], P1 = K_wide [Rᵀ | −Rᵀ t] (front → wide), Tr = top → front.
+    let lines = kitti(&rig_export(&rig, "calib.txt"));
+    let keys: Vec<&str> = lines.iter().map(|(k, _)| k.as_str()).collect();
+    assert_eq!(keys, ["P0", "P1", "Tr_velo_to_cam"]);
+    let k_of = |c: &Value| {
+        [[f(&c["fx"]), 0.0, f(&c["cx"])], [0.0, f(&c["fy"]), f(&c["cy"])], [0.0, 0.0, 1.0]]
+    };
+    let (wide_r, wide_t) = json_motion(&extrinsics[0]);
+    let front_to_wide = transpose(&wide_r);
+    let minus_t = apply(&front_to_wide, &wide_t).map(|v| -v);
+    let (k0, k1) = (k_of(&j["sensors"]["front"]["camera"]), k_of(&j["sensors"]["wide"]["camera"]));
+    let kr = mul(&k1, &front_to_wide);
+    let kt = apply(&k1, &minus_t);
+    let p1: Vec<f64> = (0..3).flat_map(|i| [kr[i][0], kr[i][1], kr[i][2], kt[i]]).collect();
+    let p0: Vec<f64> = (0..3).flat_map(|i| [k0[i][0], k0[i][1], k0[i][2], 0.0]).collect();
+    let tr: Vec<f64> =
+        (0..3).flat_map(|i| [top_r[i][0], top_r[i][1], top_r[i][2], top_t[i]]).collect();
+    for ((key, want), (_, got)) in [("P0", p0), ("P1", p1), ("Tr", tr)].iter().zip(&lines) {
+        assert_eq!(got.len(), 12, "{key}");
+        for (g, w) in got.iter().zip(want) {
+            close(*g, *w, key);
+        }
+    }
+}
+
+#[test]
+fn the_store_keeps_a_rig_with_its_views_and_rolls_it_back_whole() {
+    let dir = temp_dir("store-rig");
+    let store = roomcal::store::Store::open(&dir, 4).unwrap();
+    let first = rig_result();
+    store.commit_rig(&first, 1_700_000_000).unwrap();
+    let on_disk = |name: &str| std::fs::read_to_string(dir.join(name)).unwrap();
+    let assert_views_of = |rig: &RigResult| {
+        for file in roomcal::export::rig_files(rig) {
+            assert_eq!(on_disk(&file.name), file.text, "{}", file.name);
+        }
+        for (name, camera) in [("front", &rig.sensors["front"]), ("wide", &rig.sensors["wide"])] {
+            let fx = camera.camera.as_ref().unwrap().fx;
+            assert_eq!(
+                on_disk(&format!("camera-{name}.yaml")),
+                roomcal::store::camera_yaml(camera.camera.as_ref().unwrap()),
+                "camera-{name}.yaml (fx {fx})"
+            );
+        }
+        assert_eq!(on_disk("extrinsics.yaml"), roomcal::store::rig_extrinsics_yaml(rig));
+    };
+    assert_views_of(&first);
+    let text = on_disk("extrinsics.yaml");
+    assert!(text.starts_with("%YAML:1.0\n---\n") && text.contains("first_camera: \"front\""));
+    for e in &first.extrinsics {
+        assert!(text.contains(&format!("from: \"{}\"", e.from)), "{}", e.from);
+    }
+    // One-pair consumers keep reading the first camera and first LiDAR.
+    assert_eq!(on_disk("camera.yaml"), roomcal::store::camera_yaml(&first.pair.camera));
+    let in_force = || roomcal::store::Store::open(&dir, 4).unwrap().current().unwrap().unwrap();
+    assert_eq!(in_force().rig_result(), Some(first.clone()));
+
+    let mut second = first.clone();
+    second.sensors.get_mut("wide").unwrap().camera.as_mut().unwrap().fx += 1.5;
+    second.extrinsics[2].translation[0] += 0.01;
+    store.commit_rig(&second, 1_700_000_100).unwrap();
+    assert_views_of(&second);
+    assert_eq!(in_force().rig_result(), Some(second.clone()));
+    store.rollback(1_700_000_200).unwrap();
+    assert_views_of(&first);
+    assert_eq!(in_force().rig_result(), Some(first.clone()));
+
+    // A rig record whose extrinsic is no rotation is never in force.
+    let generation = in_force().generation;
+    let mut bad = first.clone();
+    bad.extrinsics[1].rotation[0][0] = 2.0;
+    store.commit_rig(&bad, 1_700_000_300).unwrap();
+    let current = in_force();
+    assert_eq!(current.generation, generation, "an invalid rig record went in force");
+    assert_eq!(current.rig_result(), Some(first));
 }

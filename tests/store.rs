@@ -139,6 +139,7 @@ fn rollback_goes_back_one_generation_at_a_time() {
 #[test]
 fn encoding_is_checksummed_canonical_json() {
     let store_rec = roomcal::store::Record {
+        rig: Default::default(),
         result: result(0.5, Status::Accepted),
         generation: 7,
         time: 1,
@@ -346,6 +347,7 @@ fn interrupted_update_is_completed_not_skipped() {
     }
     // A kill after the history write of generation 9, before current.json was replaced.
     let nine = roomcal::store::Record {
+        rig: Default::default(),
         result: result(9.0, Status::Accepted),
         generation: 9,
         time: 9,
@@ -411,6 +413,7 @@ fn the_last_generation_is_refused_not_overwritten() {
     let dir = tempdir("u32max");
     let store = Store::open(&dir, 4).unwrap();
     let near = roomcal::store::Record {
+        rig: Default::default(),
         result: result(1.0, Status::Accepted),
         generation: u32::MAX - 1,
         time: 1,
@@ -442,8 +445,13 @@ fn an_invalid_calibration_with_a_valid_checksum_is_not_in_force() {
     store.commit(&result(2.0, Status::Accepted), 2).unwrap();
     let mut bogus = result(0.0, Status::Accepted);
     bogus.camera.fx = -5.0;
-    let hand_made =
-        roomcal::store::Record { result: bogus, generation: 3, time: 3, restored_from: None };
+    let hand_made = roomcal::store::Record {
+        result: bogus,
+        rig: Default::default(),
+        generation: 3,
+        time: 3,
+        restored_from: None,
+    };
     let path = dir.join("current.json");
     std::fs::write(&path, encode(&hand_made)).unwrap();
     assert!(decode(&std::fs::read(&path).unwrap(), &path).is_ok(), "the checksum holds");

@@ -135,21 +135,43 @@ pub fn detect_all(
     Ok(out)
 }
 
-/// `roomcal calibrate --rig`: writes the rig's result file; exit 0 accepted, 3 rejected.
+/// Where `calibrate --rig` writes: the result file, the exports (accepted runs only), the
+/// result on stdout instead of the summary (`json`), or only the status line (`quiet`).
+#[derive(Clone, Copy, Debug)]
+pub struct RigOutputs<'a> {
+    pub out: &'a Path,
+    pub export: Option<&'a Path>,
+    pub json: bool,
+    pub quiet: bool,
+}
+
+/// `roomcal calibrate --rig`: writes the rig's result file (and its exports); exit 0
+/// accepted, 3 rejected.
 pub fn calibrate(
     room: &Room,
     rig: &Rig,
     detections: &RigDetections,
     options: &CalibrateOptions,
-    out: &Path,
-    quiet: bool,
+    outputs: RigOutputs<'_>,
 ) -> Result<(), Failure> {
     let lidars: Vec<LidarInput<'_>> =
         detections.lidars.iter().map(|(boards, cloud)| LidarInput { boards, cloud }).collect();
     let run = calibrate_rig(room, rig, &detections.cameras, &lidars, options);
     let json = serde_json::to_string_pretty(&run.result).expect("results serialise") + "\n";
-    std::fs::write(out, json).map_err(|e| bad_input(anyhow!("writing {}: {e}", out.display())))?;
+    let out = outputs.out;
+    std::fs::write(out, &json).map_err(|e| bad_input(anyhow!("writing {}: {e}", out.display())))?;
     let result = &run.result;
+    let accepted = result.pair.status == Status::Accepted;
+    let mut exported = Vec::new();
+    if let Some(dir) = outputs.export.filter(|_| accepted) {
+        exported = roomcal::export::write_dir(dir, &roomcal::export::rig_files(result))
+            .map_err(bad_input)?;
+    }
+    if outputs.json {
+        say_raw!("{json}");
+        return verdict(result.pair.status);
+    }
+    let quiet = outputs.quiet;
     match result.pair.status {
         Status::Accepted => {
             say!("roomcal calibrate: accepted (rig of {} sensors)", result.sensors.len())
@@ -187,8 +209,16 @@ pub fn calibrate(
             );
         }
         say!("  wrote {}", out.display());
+        for path in &exported {
+            say!("  wrote {}", path.display());
+        }
     }
-    match result.pair.status {
+    verdict(result.pair.status)
+}
+
+/// The exit of a rig run: 0 accepted, 3 rejected.
+fn verdict(status: Status) -> Result<(), Failure> {
+    match status {
         Status::Accepted => Ok(()),
         Status::Rejected => Err(Failure { code: 3, error: None }),
     }
