@@ -325,8 +325,9 @@ struct SimulateArgs {
     visits: Option<u16>,
     /// A rig file: one vehicle with every camera and LiDAR of the rig, parked once;
     /// writes NAME.png per camera, NAME.pcd per LiDAR, rig-truth.json, room-truth.json
-    /// and room.toml.
-    #[arg(long, value_name = "RIG", conflicts_with_all = ["capture", "rig_seed", "frames", "visits"])]
+    /// and room.toml. With --visits: the rig is one more vehicle of the visited room,
+    /// written to DIR/rig/ (survey the visits, then calibrate the rig in the surveyed room).
+    #[arg(long, value_name = "RIG", conflicts_with_all = ["capture", "rig_seed", "frames"])]
     rig: Option<PathBuf>,
 }
 
@@ -436,27 +437,36 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
             ..sim::ImageNoise::default()
         },
     };
+    let mut layout = None;
+    if let Some(visits) = args.visits {
+        let count = usize::from(visits);
+        let visits =
+            simulate_visits(&room, &options, count, args.capture, (&args.room, &args.out))?;
+        layout = Some(visits.layout);
+    }
     if let Some(rig_path) = &args.rig {
         let rig = roomcal::rig::load(rig_path).map_err(bad_input)?;
-        let simulated = sim::rig::simulate_rig(&room, &rig, &options)
+        let simulated = sim::rig::simulate_rig_in(&room, &rig, &options, layout.as_ref())
             .with_context(|| {
                 format!("simulating {} in {}", rig_path.display(), args.room.display())
             })
             .map_err(bad_input)?;
-        let written = sim::rig::write_rig(&simulated, &args.out).map_err(bad_input)?;
+        let out = match layout {
+            Some(_) => args.out.join("rig"),
+            None => args.out.clone(),
+        };
+        let written = sim::rig::write_rig(&simulated, &out).map_err(bad_input)?;
         say!(
             "simulated a rig of {} cameras and {} LiDARs in a room of {} boards -> {} ({} files)",
             rig.cameras.len(),
             rig.lidars.len(),
             simulated.room_truth.boards.len(),
-            args.out.display(),
+            out.display(),
             written.len()
         );
-        return Ok(());
     }
-    if let Some(visits) = args.visits {
-        let count = usize::from(visits);
-        return simulate_visits(&room, &options, count, args.capture, (&args.room, &args.out));
+    if args.visits.is_some() || args.rig.is_some() {
+        return Ok(());
     }
     let scene = sim::simulate(&room, &options)
         .with_context(|| format!("simulating {}", args.room.display()))
@@ -490,14 +500,14 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
     Ok(())
 }
 
-/// `simulate --visits N`: one room, N visiting vehicles.
+/// `simulate --visits N`: one room, N visiting vehicles; returns them.
 fn simulate_visits(
     room: &roomcal::target::Room,
     options: &SimOptions,
     count: usize,
     capture: bool,
     (room_path, out): (&std::path::Path, &std::path::Path),
-) -> Result<(), Failure> {
+) -> Result<sim::visits::Visits, Failure> {
     let visits = sim::visits::simulate_visits(room, options, count)
         .with_context(|| format!("simulating {}", room_path.display()))
         .map_err(bad_input)?;
@@ -513,7 +523,7 @@ fn simulate_visits(
         visits.visits.len(),
         out.display()
     );
-    Ok(())
+    Ok(visits)
 }
 
 fn decode(args: DecodeArgs) -> Result<(), Failure> {

@@ -198,3 +198,93 @@ fn a_simulated_rig_is_detected_and_calibrated_by_name() {
         assert!(error <= 3.0 * 3f64.sqrt() * sigma, "{from}: {error} m outside 3σ ({sigma} m)");
     }
 }
+
+/// `simulate --visits 8 --rig`, `survey` of the visits, `calibrate --rig` of the rig (one
+/// more vehicle of that room) in the surveyed room with `--export` and `--json`: the
+/// whole rig workflow over the binary.
+#[test]
+fn a_rig_is_calibrated_in_the_room_its_visits_surveyed() {
+    let dir = temp_dir("surveyed");
+    let d = dir.to_string_lossy().into_owned();
+    let (room, rig) = (config("room.toml"), config("rig.toml"));
+    let simulate = ["simulate", "--room", &room, "--rig", &rig, "--visits", "8", "--out", &d];
+    let (code, stdout, stderr) =
+        roomcal(&[&simulate[..], &["--seed", "5", "--supersample", "1"]].concat());
+    assert_eq!(code, 0, "{stderr}");
+    println!("{stdout}");
+    let visits: Vec<String> = (1..=8)
+        .flat_map(|k| {
+            let v = dir.join(format!("visit-{k:02}"));
+            [
+                "--visit".into(),
+                v.join("image.png").display().to_string(),
+                v.join("cloud.pcd").display().to_string(),
+            ]
+        })
+        .collect();
+    let surveyed = dir.join("surveyed.toml").display().to_string();
+    let mut args = vec!["survey", "--room", &room, "--out", &surveyed];
+    args.extend(visits.iter().map(String::as_str));
+    let (code, _, stderr) = roomcal(&args);
+    assert_eq!(code, 0, "survey: {stderr}");
+
+    let input = |name: &str, file: &str| format!("{name}={}", dir.join("rig").join(file).display());
+    let inputs = [
+        "--image".to_string(),
+        input("front", "front.png"),
+        "--image".to_string(),
+        input("wide", "wide.png"),
+        "--cloud".to_string(),
+        input("top", "top.pcd"),
+        "--cloud".to_string(),
+        input("bumper", "bumper.pcd"),
+        "--export".to_string(),
+        dir.join("exports").display().to_string(),
+        "--json".to_string(),
+    ];
+    let inputs: Vec<&str> = inputs.iter().map(String::as_str).collect();
+    let out = dir.join("result.json");
+    let (code, stdout, stderr) = calibrate_in(&surveyed, &inputs, &out);
+    assert_eq!(code, 0, "{stdout}{stderr}");
+    // --json: stdout is the result file, nothing else.
+    let text = std::fs::read_to_string(&out).unwrap();
+    assert_eq!(stdout, text);
+    let result: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert!(result["camera_in_room"].is_object(), "not solved in the surveyed room");
+    for name in ["front", "wide"] {
+        assert!(result["sensors"][name]["camera_in_room"].is_object(), "{name}");
+        let text = std::fs::read_to_string(dir.join(format!("exports/{name}.camera_info.yaml")))
+            .unwrap_or_else(|e| panic!("{name}.camera_info.yaml: {e}"));
+        assert!(text.contains(&format!("camera_name: {name}\n")), "{text}");
+    }
+    let kit = std::fs::read_to_string(dir.join("exports/sensor_kit_calibration.yaml")).unwrap();
+    for entry in ["  top:", "  bumper:", "  front/camera_link:", "  wide/camera_link:"] {
+        assert!(kit.contains(entry), "{entry} missing: {kit}");
+    }
+    let calib = std::fs::read_to_string(dir.join("exports/calib.txt")).unwrap();
+    assert!(
+        calib.starts_with("P0: ")
+            && calib.contains("\nP1: ")
+            && calib.contains("\nTr_velo_to_cam: ")
+    );
+
+    // Against the rig's truth: every extrinsic within 3σ per axis-bound (σ is worst-axis).
+    let truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("rig/rig-truth.json")).unwrap())
+            .unwrap();
+    for e in result["extrinsics"].as_array().unwrap() {
+        let from = e["from"].as_str().unwrap();
+        let t = &truth["sensors"][from]["to_reference"]["translation"];
+        let error = (0..3)
+            .map(|i| (e["translation"][i].as_f64().unwrap() - t[i].as_f64().unwrap()).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        let sigma = e["sigma_translation_m"].as_f64().unwrap();
+        println!(
+            "{from} → front: translation error {:.2} mm (σ {:.2} mm)",
+            error * 1e3,
+            sigma * 1e3
+        );
+        assert!(error <= 3.0 * 3f64.sqrt() * sigma, "{from}: {error} m outside 3σ ({sigma} m)");
+    }
+}

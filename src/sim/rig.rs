@@ -25,13 +25,17 @@ use crate::target::{LidarModel, Room};
 
 use super::rng::Rng;
 use super::visits::{
-    board_truth_visible, lay_out_room, parking_pose, vehicle_camera, PlaneTruth, RoomTruth,
+    board_truth_visible, lay_out_room, parking_pose, vehicle_camera, RoomLayout, RoomTruth,
 };
 use super::world::World;
 use super::{
     occluded_corners, perturbed_mounting, raycast, render, true_camera, true_extrinsic, BoardTruth,
     SimError, SimOptions,
 };
+
+/// The fork of the seed's stream a rig parked in a visited room draws from (the visits
+/// draw from 100 + k).
+const RIG_IN_VISITED_ROOM: u64 = 900;
 
 /// A simulated rig: the room, every camera's frame and every LiDAR's sweep, the truth.
 #[derive(Clone, Debug)]
@@ -75,13 +79,30 @@ pub struct SensorTruth {
     pub boards: Vec<BoardTruth>,
 }
 
-/// Simulates `rig` parked once in `room` (`options.seed` fixes everything).
+/// Simulates `rig` parked once in `room` (`options.seed` fixes everything), the boards
+/// laid out for its first camera.
 pub fn simulate_rig(
     room: &Room,
     rig: &Rig,
     options: &SimOptions,
 ) -> Result<RigSimulation, SimError> {
-    let mut rng = Rng::new(options.seed);
+    simulate_rig_in(room, rig, options, None)
+}
+
+/// [`simulate_rig`] in a room already laid out (`layout`, e.g. the one
+/// [`super::visits::simulate_visits`] surveyed with the same options): the rig is one more
+/// vehicle of that room, with a vehicle of its own (its random stream apart from the
+/// visits'). `None`: the boards are laid out for the rig's first camera.
+pub fn simulate_rig_in(
+    room: &Room,
+    rig: &Rig,
+    options: &SimOptions,
+    layout: Option<&RoomLayout>,
+) -> Result<RigSimulation, SimError> {
+    let mut rng = match layout {
+        None => Rng::new(options.seed),
+        Some(_) => Rng::new(options.seed).fork(RIG_IN_VISITED_ROOM),
+    };
     let first_lidar = (!rig.lidars.is_empty()).then_some(0);
     let mut room = rig.pair_room(room, 0, first_lidar);
     room.board.count = options.boards.unwrap_or(room.board.count as usize) as u32;
@@ -90,10 +111,23 @@ pub fn simulate_rig(
         Some(l) => rig.lidars[l].to_reference.inverse(),
         None => true_extrinsic(&room, &mut Rng::new(0)).inverse(),
     };
-    let nominal_first = true_camera(&room, options)?;
-    let boards_in_room =
-        lay_out_room(&room, options, &nominal_first, &reference_in_vehicle, &mut rng.fork(1))?;
-    let world_seed = rng.next_u64();
+    let laid_out = layout.is_some();
+    let layout = match layout {
+        Some(given) => given.clone(),
+        None => {
+            let nominal_first = true_camera(&room, options)?;
+            let boards_in_room = lay_out_room(
+                &room,
+                options,
+                &nominal_first,
+                &reference_in_vehicle,
+                &mut rng.fork(1),
+            )?;
+            RoomLayout { boards_in_room, world_seed: rng.next_u64() }
+        }
+    };
+    room.board.count = layout.boards_in_room.len() as u32;
+    let (boards_in_room, world_seed) = (&layout.boards_in_room, layout.world_seed);
     let vehicle_to_room = parking_pose(&mut rng.fork(2));
     let reference_to_room = vehicle_to_room.compose(&reference_in_vehicle);
     let mut truth = RigTruth {
@@ -101,7 +135,7 @@ pub fn simulate_rig(
         vehicle_to_room: Extrinsic::from_se3(&vehicle_to_room),
         sensors: BTreeMap::new(),
     };
-    let scene = SceneContext { room: &room, options, boards_in_room: &boards_in_room, world_seed };
+    let scene = SceneContext { room: &room, options, boards_in_room, world_seed };
     let mut images = Vec::new();
     for (c, camera) in rig.cameras.iter().enumerate() {
         let mut sensor_rng = rng.fork(10 + c as u64);
@@ -139,22 +173,17 @@ pub fn simulate_rig(
         };
         truth.sensors.insert(lidar.name.to_string(), sensor);
     }
-    let planes = World::new(&room.board, Vec::new(), &mut Rng::new(world_seed)).shell_planes();
-    let room_truth = RoomTruth {
-        seed: options.seed,
-        frame: "the rig's vehicle frame (its first LiDAR's nominal frame) at the nominal \
-                parking spot (x forward, y left, z up)"
-            .into(),
-        boards: boards_in_room.iter().map(Extrinsic::from_se3).collect(),
-        planes: planes
-            .iter()
-            .map(|(name, n, offset)| PlaneTruth {
-                name: (*name).into(),
-                normal: [n.x, n.y, n.z],
-                offset: *offset,
-            })
-            .collect(),
+    let frame = match laid_out {
+        true => {
+            "the visited room's frame: the nominal vehicle's nominal LiDAR frame at the \
+                 nominal parking spot (x forward, y left, z up)"
+        }
+        false => {
+            "the rig's vehicle frame (its first LiDAR's nominal frame) at the nominal \
+                  parking spot (x forward, y left, z up)"
+        }
     };
+    let room_truth = layout.truth(&room, options.seed, frame);
     Ok(RigSimulation { room, rig: rig.clone(), room_truth, images, clouds, truth })
 }
 

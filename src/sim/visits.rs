@@ -81,6 +81,39 @@ pub struct Visits {
     pub room: Room,
     pub truth: RoomTruth,
     pub visits: Vec<Visit>,
+    /// Where the boards stand, the shell's seed: what another vehicle of the same room
+    /// (a rig, [`super::rig::simulate_rig_in`]) sees too.
+    pub layout: RoomLayout,
+}
+
+/// A room as laid out once: its boards (board → room) and the seed of its shell (floor,
+/// walls, ceiling) and clutter.
+#[derive(Clone, Debug)]
+pub struct RoomLayout {
+    pub boards_in_room: Vec<Se3>,
+    pub world_seed: u64,
+}
+
+impl RoomLayout {
+    /// The room's truth (`room-truth.json`) of a simulation seeded `seed`; `frame` says
+    /// what its room frame is.
+    pub fn truth(&self, room: &Room, seed: u64, frame: &str) -> RoomTruth {
+        let planes =
+            World::new(&room.board, Vec::new(), &mut Rng::new(self.world_seed)).shell_planes();
+        RoomTruth {
+            seed,
+            frame: frame.into(),
+            boards: self.boards_in_room.iter().map(Extrinsic::from_se3).collect(),
+            planes: planes
+                .iter()
+                .map(|(name, n, offset)| PlaneTruth {
+                    name: (*name).into(),
+                    normal: [n.x, n.y, n.z],
+                    offset: *offset,
+                })
+                .collect(),
+        }
+    }
 }
 
 /// Simulates `count` visits of one room (`options.seed` fixes the room and every visit).
@@ -104,35 +137,25 @@ pub fn simulate_visits(
     room.board.count = count_boards as u32;
     let boards_in_room =
         lay_out_room(&room, options, &nominal_camera, &camera_in_vehicle, &mut rng)?;
-    let world_seed = rng.next_u64();
-    let planes = World::new(&room.board, Vec::new(), &mut Rng::new(world_seed)).shell_planes();
-    let truth = RoomTruth {
-        seed: options.seed,
-        frame: "the nominal vehicle's nominal LiDAR frame at the nominal parking spot \
-                (x forward, y left, z up)"
-            .into(),
-        boards: boards_in_room.iter().map(Extrinsic::from_se3).collect(),
-        planes: planes
-            .iter()
-            .map(|(name, n, offset)| PlaneTruth {
-                name: (*name).into(),
-                normal: [n.x, n.y, n.z],
-                offset: *offset,
-            })
-            .collect(),
-    };
+    let layout = RoomLayout { boards_in_room, world_seed: rng.next_u64() };
+    let truth = layout.truth(
+        &room,
+        options.seed,
+        "the nominal vehicle's nominal LiDAR frame at the nominal parking spot \
+         (x forward, y left, z up)",
+    );
     let vehicle = VehicleContext {
         room: &room,
         options,
         nominal_camera: &nominal_camera,
         camera_in_vehicle: &camera_in_vehicle,
-        boards_in_room: &boards_in_room,
-        world_seed,
+        boards_in_room: &layout.boards_in_room,
+        world_seed: layout.world_seed,
     };
     let visits = (0..count)
         .map(|k| vehicle.visit(&mut rng.fork(100 + k as u64)))
         .collect::<Result<Vec<_>, _>>()?;
-    Ok(Visits { room, truth, visits })
+    Ok(Visits { room, truth, visits, layout })
 }
 
 /// Writes `room-truth.json`, the simulated `room.toml` and one folder `visit-NN`
