@@ -16,6 +16,9 @@ use roomcal::result::{CalibrationResult, CameraResult, Extrinsic, Quality, Statu
 use roomcal::service::uds::{Backend, DaemonState, Refusal, SensorTable};
 use roomcal::store::Store;
 
+#[path = "common/results.rs"]
+mod results;
+
 fn result(fx: f64, status: Status) -> CalibrationResult {
     CalibrationResult {
         status,
@@ -228,6 +231,49 @@ async fn missing_camera_device_is_named_and_retried() {
     .unwrap();
     assert_eq!(s.runs, 0);
     assert_eq!(counts.load(Ordering::SeqCst), 0, "no frames, no detection");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A rig in force: the sensor table and the per-sensor DIDs describe it (cameras, then
+/// LiDARs, in the rig's order), whatever vehicle the daemon was configured with; the
+/// fixed DIDs keep describing the first camera and first LiDAR.
+#[test]
+fn backend_serves_the_rig_in_force_sensor_by_sensor() {
+    use roomcal::service::uds::SensorKind;
+    let dir = std::env::temp_dir().join(format!("roomcal-daemon-rig-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let store = Store::open(&dir, 4).unwrap();
+    let rig = results::rig_result();
+    let rec = store.commit_rig(&rig, 1_700_000_000).unwrap();
+    let shared = Arc::new(std::sync::Mutex::new(daemon::Shared {
+        current: Some(rec),
+        ..Default::default()
+    }));
+    let (tx, _rx) = tokio::sync::mpsc::channel(1);
+    let b = daemon::DaemonBackend::new(shared, tx, store, SensorTable::one_pair(true));
+    let table = b.sensors();
+    let listed: Vec<(SensorKind, &str)> =
+        table.sensors.iter().map(|s| (s.kind, s.name.as_str())).collect();
+    assert_eq!(
+        listed,
+        [
+            (SensorKind::Camera, "front"),
+            (SensorKind::Camera, "wide"),
+            (SensorKind::Lidar, "top"),
+            (SensorKind::Lidar, "bumper")
+        ]
+    );
+    let wide = b.sensor_intrinsics(1).expect("the wide camera's intrinsics");
+    assert_eq!((wide.fx, wide.cy), (961.25, 604.125));
+    assert_eq!(b.sensor_intrinsics(0), b.intrinsics(), "0xC200 = 0xC002");
+    assert_eq!(b.sensor_intrinsics(2), None, "a LiDAR has no intrinsics");
+    assert_eq!(b.sensor_intrinsics(4), None, "past the table");
+    assert_eq!(b.sensor_extrinsic(2), b.extrinsic(), "0xC302 (top) = 0xC003");
+    let bumper = b.sensor_extrinsic(3).expect("the bumper LiDAR's extrinsic");
+    assert_eq!(bumper.translation, [0.05, 1.52, 0.72]);
+    let front = b.sensor_extrinsic(0).unwrap();
+    assert_eq!((front.rotation, front.translation), ([1.0, 0.0, 0.0, 0.0], [0.0; 3]));
+    assert_eq!(b.sensor_extrinsic(4), None);
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -7,51 +7,16 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use roomcal::geometry::se3::so3_exp;
-use roomcal::geometry::{CameraModel, Vec3};
-use roomcal::result::{
-    CalibrationResult, CameraResult, Extrinsic, Quality, RigExtrinsic, RigResult, SensorResult,
-    Status, Uncertainty,
-};
+use roomcal::geometry::CameraModel;
+use roomcal::result::{CalibrationResult, Extrinsic, RigResult};
 use serde_json::Value;
 use yaml_rust2::{Yaml, YamlLoader};
 
-const TOLERANCE: f64 = 1e-9;
+#[path = "common/results.rs"]
+mod results;
+use results::{result, rig_result};
 
-/// A result with an oblique extrinsic (every matrix entry non-trivial).
-fn result(model: CameraModel) -> CalibrationResult {
-    let distortion = match model {
-        CameraModel::PinholeRadtan => vec![-0.171, 0.0324, 0.00016, -0.00046, 0.0169],
-        CameraModel::Fisheye => vec![0.021, -0.0043, 0.0011, -0.00021],
-    };
-    let nominal = [[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]];
-    let tilt = so3_exp(&Vec3::new(0.031, -0.052, 0.017));
-    let mut rotation = nominal;
-    for (i, row) in rotation.iter_mut().enumerate() {
-        for (j, v) in row.iter_mut().enumerate() {
-            *v = (0..3).map(|k| tilt[(i, k)] * nominal[k][j]).sum();
-        }
-    }
-    CalibrationResult {
-        status: Status::Accepted,
-        reason: None,
-        camera: CameraResult {
-            model,
-            width: 1920,
-            height: 1200,
-            fx: 1482.4735314244765,
-            fy: 1483.7168896297012,
-            cx: 965.1525416799066,
-            cy: 591.9792557587691,
-            distortion,
-        },
-        lidar_to_camera: Some(Extrinsic { rotation, translation: [0.0518, 0.386, -0.2656] }),
-        uncertainty: Uncertainty::default(),
-        quality: Quality::default(),
-        boards: Vec::new(),
-        camera_in_room: None,
-    }
-}
+const TOLERANCE: f64 = 1e-9;
 
 fn json(result: &CalibrationResult) -> Value {
     serde_json::to_value(result).unwrap()
@@ -328,50 +293,6 @@ fn calibrate_exports_accepted_runs_only() {
     let not_exported = dir.join("rejected-exports");
     assert_eq!(run(seven.to_str().unwrap(), &dir.join("rejected.json"), &not_exported), Some(3));
     assert!(!not_exported.exists(), "a rejected calibration was exported");
-}
-
-/// A rig: `front` (the one-pair fields' camera), a `wide` camera, the `top` LiDAR (the
-/// one-pair extrinsic) and a `bumper` LiDAR, every mounting oblique.
-fn rig_result() -> RigResult {
-    let pair = result(CameraModel::PinholeRadtan);
-    let mut wide = pair.camera.clone();
-    (wide.fx, wide.fy, wide.cx, wide.cy) = (961.25, 960.5, 955.75, 604.125);
-    let matrix = |m: roomcal::geometry::Mat3| [0, 1, 2].map(|i| [0, 1, 2].map(|j| m[(i, j)]));
-    let wide_to_front = matrix(so3_exp(&Vec3::new(0.012, 0.139, -0.021)));
-    let top = pair.lidar_to_camera.clone().unwrap();
-    let bumper = mul(&matrix(so3_exp(&Vec3::new(-0.02, 0.035, 0.011))), &OPTICAL_FROM_LINK);
-    let extrinsic = |from: &str, rotation, translation| RigExtrinsic {
-        from: from.into(),
-        to: "front".into(),
-        rotation,
-        translation,
-        sigma_rotation_deg: 0.01,
-        sigma_translation_m: 0.002,
-    };
-    let sensor = |camera: Option<CameraResult>| SensorResult {
-        lidar: camera.is_none(),
-        uncertainty: camera.as_ref().map(|_| Uncertainty::default()),
-        camera,
-        camera_in_room: None,
-        status: Status::Accepted,
-        reason: None,
-        solved_with: None,
-    };
-    let sensors = [
-        ("front", sensor(Some(pair.camera.clone()))),
-        ("wide", sensor(Some(wide))),
-        ("top", sensor(None)),
-        ("bumper", sensor(None)),
-    ];
-    RigResult {
-        pair,
-        sensors: sensors.into_iter().map(|(n, s)| (n.to_string(), s)).collect(),
-        extrinsics: vec![
-            extrinsic("wide", wide_to_front, [-0.25, 0.012, 0.021]),
-            extrinsic("top", top.rotation, top.translation),
-            extrinsic("bumper", bumper, [0.05, 1.52, 0.72]),
-        ],
-    }
 }
 
 fn rig_export(rig: &RigResult, name: &str) -> String {

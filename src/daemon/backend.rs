@@ -1,6 +1,7 @@
 //! The UDS [`Backend`] on the daemon's state and store: DID 0xC001–0xC004 from the
-//! calibration in force, the sensor table (0xC010) of the room's one-pair rig and its
-//! per-sensor DIDs, routine 0xC100 start = a run request, 0xC101 = store rollback;
+//! calibration in force; the sensor table (0xC010) and per-sensor DIDs (0xC200 + i,
+//! 0xC300 + i) of the rig in force when the record is a rig's (its sensors in the rig
+//! file's order: cameras, then LiDARs), else of the configured vehicle; routine 0xC100 start = a run request, 0xC101 = store rollback;
 //! and the daemon's service task, which runs the UDS server on the configured transport.
 
 use std::sync::{Arc, Mutex};
@@ -8,17 +9,60 @@ use std::sync::{Arc, Mutex};
 use tokio::sync::{mpsc, watch};
 
 use crate::geometry::se3::rotation_to_quaternion;
-use crate::geometry::CameraModel as GeoModel;
+use crate::geometry::{CameraModel as GeoModel, Se3};
+use crate::result::{CameraResult, RigResult};
 use crate::service::transport::{CanTransport, Endpoint, TransportError};
 use crate::service::uds::{
     Backend, CameraModel, DaemonState, ExtrinsicRecord, IntrinsicsRecord, Outcome, QualityRecord,
-    Refusal, SensorTable, StateRecord,
+    Refusal, SensorKind, SensorTable, StateRecord,
 };
 use crate::service::{driver, isotp, socketcand::SocketcandServer, uds};
 use crate::store::{Lockout, Record, Store};
 use std::time::Duration;
 
 use super::config::{ServiceConfig, SocketcandRole};
+
+/// DID 0xC002's record of a camera; `None` when its distortion does not fit.
+fn intrinsics_record(c: &CameraResult) -> Option<IntrinsicsRecord> {
+    let mut distortion = heapless::Vec::new();
+    for d in &c.distortion {
+        distortion.push(*d as f32).ok()?;
+    }
+    Some(IntrinsicsRecord {
+        model: match c.model {
+            GeoModel::PinholeRadtan => CameraModel::PinholeRadtan,
+            GeoModel::Fisheye => CameraModel::Fisheye,
+        },
+        fx: c.fx as f32,
+        fy: c.fy as f32,
+        cx: c.cx as f32,
+        cy: c.cy as f32,
+        distortion,
+    })
+}
+
+/// DID 0xC003's record of a rigid motion (quaternion w x y z, translation).
+fn extrinsic_record(e: &Se3) -> ExtrinsicRecord {
+    let q = rotation_to_quaternion(&e.rotation);
+    ExtrinsicRecord {
+        rotation: q.map(|v| v as f32),
+        translation: [e.translation.x as f32, e.translation.y as f32, e.translation.z as f32],
+    }
+}
+
+/// The sensor table of a rig in force, in [`RigResult::in_order`]'s order; `None` when it
+/// does not fit the table (the configured one is served then).
+fn rig_table(rig: &RigResult) -> Option<SensorTable> {
+    let mut table = SensorTable::default();
+    for sensor in rig.in_order() {
+        let kind = match sensor.camera {
+            Some(_) => SensorKind::Camera,
+            None => SensorKind::Lidar,
+        };
+        table.push(kind, sensor.name).ok()?;
+    }
+    Some(table)
+}
 
 /// What the daemon shares with the service and the handle.
 #[derive(Clone, Debug)]
@@ -80,32 +124,12 @@ impl Backend for DaemonBackend {
 
     fn intrinsics(&self) -> Option<IntrinsicsRecord> {
         let s = self.fresh();
-        let c = &s.current.as_ref()?.result.camera;
-        let mut distortion = heapless::Vec::new();
-        for d in &c.distortion {
-            distortion.push(*d as f32).ok()?;
-        }
-        Some(IntrinsicsRecord {
-            model: match c.model {
-                GeoModel::PinholeRadtan => CameraModel::PinholeRadtan,
-                GeoModel::Fisheye => CameraModel::Fisheye,
-            },
-            fx: c.fx as f32,
-            fy: c.fy as f32,
-            cx: c.cx as f32,
-            cy: c.cy as f32,
-            distortion,
-        })
+        intrinsics_record(&s.current.as_ref()?.result.camera)
     }
 
     fn extrinsic(&self) -> Option<ExtrinsicRecord> {
         let s = self.fresh();
-        let e = s.current.as_ref()?.result.lidar_to_camera.as_ref()?.to_se3();
-        let q = rotation_to_quaternion(&e.rotation);
-        Some(ExtrinsicRecord {
-            rotation: q.map(|v| v as f32),
-            translation: [e.translation.x as f32, e.translation.y as f32, e.translation.z as f32],
-        })
+        Some(extrinsic_record(&s.current.as_ref()?.result.lidar_to_camera.as_ref()?.to_se3()))
     }
 
     fn quality(&self) -> Option<QualityRecord> {
@@ -119,7 +143,22 @@ impl Backend for DaemonBackend {
     }
 
     fn sensors(&self) -> SensorTable {
-        self.sensors.clone()
+        let rig = self.fresh().current.as_ref().and_then(Record::rig_result);
+        rig.and_then(|rig| rig_table(&rig)).unwrap_or_else(|| self.sensors.clone())
+    }
+
+    fn sensor_intrinsics(&self, index: u8) -> Option<IntrinsicsRecord> {
+        match self.fresh().current.as_ref().and_then(Record::rig_result) {
+            Some(rig) => intrinsics_record(rig.in_order().get(usize::from(index))?.camera?),
+            None => uds::one_pair_intrinsics(self, index),
+        }
+    }
+
+    fn sensor_extrinsic(&self, index: u8) -> Option<ExtrinsicRecord> {
+        match self.fresh().current.as_ref().and_then(Record::rig_result) {
+            Some(rig) => Some(extrinsic_record(&rig.in_order().get(usize::from(index))?.to_first)),
+            None => uds::one_pair_extrinsic(self, index),
+        }
     }
 
     fn start_calibration(&mut self) -> Result<(), Refusal> {
