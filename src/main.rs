@@ -1074,9 +1074,12 @@ fn daemon(args: DaemonArgs) -> Result<(), Failure> {
     roomcal::daemon::init_logging();
     let config = roomcal::daemon::config::load(&args.config).map_err(bad_input)?;
     let room = roomcal::room::load(&config.room).map_err(bad_input)?;
-    let calibrator = RoomCalibrator::new(room)
-        .map_err(bad_input)?
-        .with_report(config.store.join("last-run.png"));
+    let mut calibrator = RoomCalibrator::new(room).map_err(bad_input)?;
+    match &config.rig {
+        Some(rig) => calibrator = calibrator.with_rig(rig.rig.clone()).map_err(bad_input)?,
+        // A rig's report would be one picture per camera: not drawn yet.
+        None => calibrator = calibrator.with_report(config.store.join("last-run.png")),
+    }
     let runtime = tokio::runtime::Runtime::new()
         .context("starting the async runtime")
         .map_err(|error| Failure::new(1, error))?;

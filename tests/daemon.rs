@@ -560,3 +560,92 @@ fn the_unit_raises_the_file_descriptor_limit() {
     let clients = roomcal::service::socketcand::Limits::default().max_clients as u64;
     assert!(limit >= 1024 && limit > 8 * clients, "LimitNOFILE={limit}");
 }
+
+/// Sees six boards; calibrates rigs only, recording how many cameras' frames and LiDARs'
+/// sweeps each run got.
+struct RigFake {
+    seen: Arc<std::sync::Mutex<Vec<(usize, usize)>>>,
+}
+
+impl Calibrator for RigFake {
+    fn count_boards(&mut self, _frame: &GreyFrame) -> usize {
+        6
+    }
+
+    fn calibrate(
+        &mut self,
+        _frames: &[GreyFrame],
+        _sweeps: &[Vec<Point>],
+        _current: Option<&CalibrationResult>,
+    ) -> CalibrationOutcome {
+        CalibrationOutcome::Failed("a rig's daemon calibrated one pair".into())
+    }
+
+    fn calibrate_rig(
+        &mut self,
+        frames: &[GreyFrame],
+        sweeps: &[Vec<Point>],
+        _current: Option<&roomcal::result::RigResult>,
+    ) -> CalibrationOutcome {
+        self.seen.lock().unwrap().push((frames.len(), sweeps.len()));
+        CalibrationOutcome::DoneRig(Box::new(results::rig_result()))
+    }
+}
+
+/// `scene`'s folder with the example rig (config/rig.toml) and a daemon configuration
+/// naming a source per sensor; `bumper` is the bumper LiDAR's source.
+fn rig_scene(name: &str, bumper: &str) -> (PathBuf, config::Config) {
+    let (dir, _) = scene(name, "");
+    std::fs::copy(concat!(env!("CARGO_MANIFEST_DIR"), "/config/rig.toml"), dir.join("rig.toml"))
+        .unwrap();
+    let text = format!(
+        "room = \"room.toml\"\nstore = \"store\"\nrig = \"rig.toml\"\n\
+         [[camera]]\nname = \"front\"\nsource = \"replay:frames\"\n\
+         [[camera]]\nname = \"wide\"\nsource = \"replay:frames\"\n\
+         [[lidar]]\nname = \"top\"\nsource = \"replay:cloud.pcd\"\n\
+         [[lidar]]\nname = \"bumper\"\nsource = \"{bumper}\"\n\
+         [trigger]\nsettle_s = 2.0\nframes = 3\nsweeps = 2\n"
+    );
+    let path = dir.join("rig-daemon.toml");
+    std::fs::write(&path, text).unwrap();
+    (dir, config::load(&path).unwrap())
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_rig_daemon_captures_every_sensor_and_keeps_the_rig_in_force() {
+    let (dir, cfg) = rig_scene("rig-run", "replay:cloud.pcd");
+    assert_eq!(cfg.rig.as_ref().map(|r| r.cameras.len() + r.lidars.len()), Some(4));
+    let seen = Arc::new(std::sync::Mutex::new(Vec::new()));
+    let cal = RigFake { seen: seen.clone() };
+    let summary =
+        daemon::run(cfg, cal, RunOptions { once: true }, std::future::pending()).await.unwrap();
+    assert_eq!((summary.runs, summary.accepted, summary.generation), (1, 1, 1));
+    assert_eq!(*seen.lock().unwrap(), [(2, 2)], "one frame per camera, one sweep per LiDAR");
+    let record = Store::open(dir.join("store"), 4).unwrap().current().unwrap().unwrap();
+    assert_eq!(record.rig_result(), Some(results::rig_result()));
+    for file in
+        ["camera-front.yaml", "camera-wide.yaml", "extrinsics.yaml", "wide.camera_info.yaml"]
+    {
+        assert!(dir.join("store").join(file).exists(), "{file}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_rig_run_times_out_naming_the_sensor_that_delivered_nothing() {
+    let (dir, cfg) = rig_scene("rig-timeout", "replay:missing.pcd");
+    let seen = Arc::new(std::sync::Mutex::new(Vec::new()));
+    let error = daemon::run(
+        cfg,
+        RigFake { seen: seen.clone() },
+        RunOptions { once: true },
+        std::future::pending(),
+    )
+    .await
+    .unwrap_err()
+    .to_string();
+    assert!(error.contains("0 of 2 sweeps of LiDAR `bumper`"), "{error}");
+    assert!(error.contains("2 of 2 sweeps of LiDAR `top`"), "{error}");
+    assert!(seen.lock().unwrap().is_empty(), "calibrated without the bumper LiDAR");
+    let _ = std::fs::remove_dir_all(&dir);
+}

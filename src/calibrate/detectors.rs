@@ -16,6 +16,29 @@ pub struct Detectors {
     found_holes: Vec<crate::detect::holes::LidarBoard>,
 }
 
+/// The detectors of a rig: one per camera (its own image size, in its pair room); the
+/// LiDARs' boards are the room's, so every LiDAR is detected by the first camera's
+/// hole detector (no chessboard workspace per LiDAR).
+pub struct RigDetectors {
+    pub cameras: Vec<Detectors>,
+}
+
+impl RigDetectors {
+    /// Detectors for every camera of `rig` in `room`.
+    pub fn new(room: &Room, rig: &crate::rig::Rig) -> Result<Self, DetectError> {
+        let cameras = (0..rig.cameras.len())
+            .map(|c| Detectors::new(&rig.pair_room(room, c, None)))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(RigDetectors { cameras })
+    }
+
+    /// Every board LiDAR sweep `points` places (any LiDAR of the rig).
+    pub fn detect_cloud(&mut self, points: &[crate::lidar::Point]) -> Vec<LidarBoard> {
+        // A rig has at least one camera (crate::rig checks it).
+        self.cameras[0].detect_cloud(points)
+    }
+}
+
 impl Detectors {
     /// Detectors for the room's board and camera.
     pub fn new(room: &Room) -> Result<Self, DetectError> {

@@ -11,6 +11,12 @@
 //! `[service] socketcand` (`"listen"`: the daemon serves the socketcand endpoint, a
 //! virtual CAN bus on TCP that service tools connect to; `"connect"`: it connects to a
 //! socketcand server bridging a real bus).
+//!
+//! A rig (DESIGN.md "Vehicles with several sensors"): `rig = "rig.toml"` and one
+//! `[[camera]]` / `[[lidar]]` table per sensor of the rig, each with its `name` and the
+//! keys of `[camera]` / `[lidar]`. Every sensor of the rig needs exactly one source, and
+//! the rig at least one LiDAR (the trigger watches the first LiDAR's motion); the first
+//! camera's and first LiDAR's sources are also [`Config::camera`] / [`Config::lidar`].
 
 use std::net::{Ipv4Addr, SocketAddr};
 use std::path::{Path, PathBuf};
@@ -61,6 +67,35 @@ pub struct ServiceConfig {
     pub secret_file: PathBuf,
 }
 
+/// One camera of a rig and its source.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RigCameraSource {
+    pub name: String,
+    pub source: CameraSource,
+    pub replay_fps: f64,
+}
+
+/// One LiDAR of a rig and its source.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RigLidarSource {
+    pub name: String,
+    pub model: crate::target::LidarModel,
+    pub source: LidarSource,
+    pub multicast: Option<Ipv4Addr>,
+    pub replay_speed: f64,
+    pub calibration: Option<PathBuf>,
+}
+
+/// A rig's sensors and their sources, in the rig file's order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RigSources {
+    /// The rig file, resolved.
+    pub path: PathBuf,
+    pub rig: crate::rig::Rig,
+    pub cameras: Vec<RigCameraSource>,
+    pub lidars: Vec<RigLidarSource>,
+}
+
 /// The whole configuration, paths resolved.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Config {
@@ -83,6 +118,31 @@ pub struct Config {
     pub detect_interval_s: f64,
     pub capture_timeout_s: f64,
     pub service: Option<ServiceConfig>,
+    /// A rig's sensors (`rig = …` with `[[camera]]` / `[[lidar]]`); `None`: the room's
+    /// one-pair vehicle.
+    pub rig: Option<RigSources>,
+    /// The LiDAR model of [`Config::lidar`] when it is not the room file's (a rig's
+    /// LiDAR); `None`: the room's.
+    pub lidar_model: Option<crate::target::LidarModel>,
+}
+
+impl Config {
+    /// This configuration with `camera` as its camera (a rig's camera task).
+    pub fn with_camera(&self, camera: &RigCameraSource) -> Config {
+        Config { camera: camera.source.clone(), replay_fps: camera.replay_fps, ..self.clone() }
+    }
+
+    /// This configuration with `lidar` as its LiDAR (a rig's LiDAR task).
+    pub fn with_lidar(&self, lidar: &RigLidarSource) -> Config {
+        Config {
+            lidar: lidar.source.clone(),
+            multicast: lidar.multicast,
+            replay_speed: lidar.replay_speed,
+            lidar_calibration: lidar.calibration.clone(),
+            lidar_model: Some(lidar.model),
+            ..self.clone()
+        }
+    }
 }
 
 /// Why the configuration cannot be used; names the file.
@@ -101,16 +161,48 @@ struct RawConfig {
     store: PathBuf,
     #[serde(default = "default_keep")]
     keep: usize,
-    camera: RawCamera,
-    lidar: RawLidar,
+    camera: Sensors<RawCamera>,
+    lidar: Sensors<RawLidar>,
+    rig: Option<PathBuf>,
     #[serde(default)]
     trigger: RawTrigger,
     service: Option<RawService>,
 }
 
+/// `[camera]` (the one-pair vehicle) or `[[camera]]` (a rig's sensors, named); the same
+/// for `[lidar]`.
+enum Sensors<T> {
+    One(T),
+    Named(Vec<T>),
+}
+
+impl<'de, T: serde::de::DeserializeOwned> Deserialize<'de> for Sensors<T> {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        // Through a value, so each form keeps its own precise error (an untagged enum
+        // would only say that neither form matched).
+        let value = toml::Value::deserialize(d)?;
+        let parsed = match value {
+            toml::Value::Array(_) => value.try_into().map(Sensors::Named),
+            _ => value.try_into().map(Sensors::One),
+        };
+        parsed.map_err(serde::de::Error::custom)
+    }
+}
+
+impl<T> Sensors<T> {
+    fn all(&self) -> &[T] {
+        match self {
+            Sensors::One(one) => std::slice::from_ref(one),
+            Sensors::Named(many) => many,
+        }
+    }
+}
+
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawCamera {
+    /// A rig's camera: its name in the rig file.
+    name: Option<String>,
     source: String,
     #[serde(default = "default_fps")]
     replay_fps: f64,
@@ -119,6 +211,8 @@ struct RawCamera {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawLidar {
+    /// A rig's LiDAR: its name in the rig file.
+    name: Option<String>,
     source: String,
     multicast: Option<Ipv4Addr>,
     #[serde(default = "one")]
@@ -199,29 +293,35 @@ pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
     let raw: RawConfig = toml::from_str(text).map_err(|e| invalid(e.to_string()))?;
     let base = path.parent().unwrap_or(Path::new("."));
     let resolve = |p: &Path| if p.is_absolute() { p.to_path_buf() } else { base.join(p) };
-    let camera = if let Some(dev) = raw.camera.source.strip_prefix("v4l2:") {
-        CameraSource::V4l2(PathBuf::from(dev))
-    } else if let Some(p) = raw.camera.source.strip_prefix("replay:") {
-        CameraSource::Replay(resolve(Path::new(p)))
-    } else {
-        return Err(invalid(format!(
-            "camera.source `{}`: expected v4l2:DEVICE or replay:PATH",
-            raw.camera.source
-        )));
+    let rig = match &raw.rig {
+        Some(rig) => Some(rig_sources(&resolve(rig), &raw, &resolve).map_err(invalid)?),
+        None => {
+            one_pair_only(&raw).map_err(invalid)?;
+            None
+        }
     };
-    let lidar =
-        if let Some(a) = raw.lidar.source.strip_prefix("udp:") {
-            LidarSource::Udp(a.parse().map_err(|_| {
-                invalid(format!("lidar.source `{}`: bad address", raw.lidar.source))
-            })?)
-        } else if let Some(p) = raw.lidar.source.strip_prefix("replay:") {
-            LidarSource::Replay(resolve(Path::new(p)))
-        } else {
-            return Err(invalid(format!(
-                "lidar.source `{}`: expected udp:ADDR:PORT or replay:PATH",
-                raw.lidar.source
-            )));
-        };
+    // The first camera and LiDAR: the one-pair vehicle's, or the rig's first.
+    let (camera, lidar, lidar_model) = match &rig {
+        Some(r) => (r.cameras[0].clone(), r.lidars[0].clone(), Some(r.lidars[0].model)),
+        None => {
+            let (c, l) = (&raw.camera.all()[0], &raw.lidar.all()[0]);
+            let camera = RigCameraSource {
+                name: crate::rig::PAIR_CAMERA.into(),
+                source: camera_source(&c.source, "camera.source", &resolve).map_err(invalid)?,
+                replay_fps: c.replay_fps,
+            };
+            let lidar = RigLidarSource {
+                name: crate::rig::PAIR_LIDAR.into(),
+                // Not read: `lidar_model` None means the room file's model.
+                model: crate::target::LidarModel::Pandar64,
+                source: lidar_source(&l.source, "lidar.source", &resolve).map_err(invalid)?,
+                multicast: l.multicast,
+                replay_speed: l.replay_speed,
+                calibration: l.calibration.as_deref().map(&resolve),
+            };
+            (camera, lidar, None)
+        }
+    };
     check_numbers(&raw).map_err(|e| invalid(e.to_string()))?;
     check_paths(&raw).map_err(invalid)?;
     let t = raw.trigger;
@@ -234,12 +334,14 @@ pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
         room: resolve(&raw.room),
         store: resolve(&raw.store),
         keep: raw.keep,
-        camera,
-        replay_fps: raw.camera.replay_fps,
-        lidar,
-        multicast: raw.lidar.multicast,
-        replay_speed: raw.lidar.replay_speed,
-        lidar_calibration: raw.lidar.calibration.as_deref().map(resolve),
+        camera: camera.source,
+        replay_fps: camera.replay_fps,
+        lidar: lidar.source,
+        multicast: lidar.multicast,
+        replay_speed: lidar.replay_speed,
+        lidar_calibration: lidar.calibration,
+        lidar_model,
+        rig,
         trigger: TriggerConfig {
             mode: t.mode,
             min_boards: t.min_boards.unwrap_or(0),
@@ -259,6 +361,130 @@ pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
             secret_file: resolve(&s.secret_file),
         }),
     })
+}
+
+fn camera_source(
+    text: &str,
+    key: &str,
+    resolve: &impl Fn(&Path) -> PathBuf,
+) -> Result<CameraSource, String> {
+    if let Some(dev) = text.strip_prefix("v4l2:") {
+        Ok(CameraSource::V4l2(PathBuf::from(dev)))
+    } else if let Some(p) = text.strip_prefix("replay:") {
+        Ok(CameraSource::Replay(resolve(Path::new(p))))
+    } else {
+        Err(format!("{key} `{text}`: expected v4l2:DEVICE or replay:PATH"))
+    }
+}
+
+fn lidar_source(
+    text: &str,
+    key: &str,
+    resolve: &impl Fn(&Path) -> PathBuf,
+) -> Result<LidarSource, String> {
+    if let Some(a) = text.strip_prefix("udp:") {
+        Ok(LidarSource::Udp(a.parse().map_err(|_| format!("{key} `{text}`: bad address"))?))
+    } else if let Some(p) = text.strip_prefix("replay:") {
+        Ok(LidarSource::Replay(resolve(Path::new(p))))
+    } else {
+        Err(format!("{key} `{text}`: expected udp:ADDR:PORT or replay:PATH"))
+    }
+}
+
+/// Without `rig`: one `[camera]` and one `[lidar]`, unnamed.
+fn one_pair_only(raw: &RawConfig) -> Result<(), String> {
+    let (Sensors::One(c), Sensors::One(l)) = (&raw.camera, &raw.lidar) else {
+        return Err("[[camera]] / [[lidar]] tables are a rig's: add rig = \"RIG.toml\" naming \
+                    its sensors, or use one [camera] and one [lidar] table"
+            .into());
+    };
+    if c.name.is_some() || l.name.is_some() {
+        return Err("camera.name / lidar.name: only a rig's [[camera]] / [[lidar]] tables are \
+                    named (add rig = \"RIG.toml\")"
+            .into());
+    }
+    Ok(())
+}
+
+/// With `rig`: the rig file, and exactly one named `[[camera]]` / `[[lidar]]` source per
+/// sensor of it, in its order.
+fn rig_sources(
+    path: &Path,
+    raw: &RawConfig,
+    resolve: &impl Fn(&Path) -> PathBuf,
+) -> Result<RigSources, String> {
+    let rig = crate::rig::load(path).map_err(|e| format!("rig: {e}"))?;
+    let (Sensors::Named(cameras), Sensors::Named(lidars)) = (&raw.camera, &raw.lidar) else {
+        return Err(format!(
+            "rig = {}: name each sensor's source in [[camera]] and [[lidar]] tables \
+             (name = \"…\", source = \"…\"), not in one [camera] / [lidar] table",
+            path.display()
+        ));
+    };
+    if rig.lidars.is_empty() {
+        return Err(format!(
+            "rig {}: the daemon needs at least one LiDAR (its motion drives the trigger)",
+            path.display()
+        ));
+    }
+    let rig_names: Vec<(&str, &str)> = rig
+        .cameras
+        .iter()
+        .map(|c| ("camera", c.name.as_str()))
+        .chain(rig.lidars.iter().map(|l| ("lidar", l.name.as_str())))
+        .collect();
+    let given: Vec<(&str, Option<&str>)> = cameras
+        .iter()
+        .map(|c| ("camera", c.name.as_deref()))
+        .chain(lidars.iter().map(|l| ("lidar", l.name.as_deref())))
+        .collect();
+    for (i, (kind, name)) in given.iter().enumerate() {
+        let Some(name) = name else {
+            return Err(format!("[[{kind}]] table {}: `name` is missing", i + 1));
+        };
+        if !rig_names.contains(&(kind, name)) {
+            return Err(format!(
+                "[[{kind}]] `{name}`: the rig {} has no {kind} of that name",
+                path.display()
+            ));
+        }
+        if given[..i].iter().any(|(k, n)| k == kind && *n == Some(*name)) {
+            return Err(format!("[[{kind}]] `{name}` is given twice"));
+        }
+    }
+    let find = |kind: &str, name: &str| {
+        given.iter().position(|(k, n)| *k == kind && *n == Some(name)).ok_or_else(|| {
+            format!("{kind} `{name}` of the rig {} has no [[{kind}]] source", path.display())
+        })
+    };
+    let mut out = RigSources {
+        path: path.to_owned(),
+        rig: rig.clone(),
+        cameras: Vec::new(),
+        lidars: Vec::new(),
+    };
+    for c in &rig.cameras {
+        let raw = &cameras[find("camera", &c.name)?];
+        let key = format!("camera `{}` source", c.name);
+        out.cameras.push(RigCameraSource {
+            name: c.name.to_string(),
+            source: camera_source(&raw.source, &key, resolve)?,
+            replay_fps: raw.replay_fps,
+        });
+    }
+    for l in &rig.lidars {
+        let raw = &lidars[find("lidar", &l.name)? - cameras.len()];
+        let key = format!("lidar `{}` source", l.name);
+        out.lidars.push(RigLidarSource {
+            name: l.name.to_string(),
+            model: l.model,
+            source: lidar_source(&raw.source, &key, resolve)?,
+            multicast: raw.multicast,
+            replay_speed: raw.replay_speed,
+            calibration: raw.calibration.as_deref().map(resolve),
+        });
+    }
+    Ok(out)
 }
 
 /// Longest time setting (s): an hour; longer waits are typing mistakes.
@@ -281,10 +507,14 @@ fn check_numbers(raw: &RawConfig) -> Result<(), crate::target::RoomError> {
     let positive_seconds = Range::positive(MAX_SECONDS, "s");
     let rate = Range::positive(MAX_REPLAY_RATE, "");
     let count = |max: usize| Range::closed(1.0, max as f64, "");
+    for (i, c) in raw.camera.all().iter().enumerate() {
+        rate.check("camera.replay_fps", sensor_index(&raw.camera, i), c.replay_fps)?;
+    }
+    for (i, l) in raw.lidar.all().iter().enumerate() {
+        rate.check("lidar.replay_speed", sensor_index(&raw.lidar, i), l.replay_speed)?;
+    }
     let numbers = [
         ("keep", raw.keep as f64, count(MAX_KEEP)),
-        ("camera.replay_fps", raw.camera.replay_fps, rate),
-        ("lidar.replay_speed", raw.lidar.replay_speed, rate),
         ("trigger.settle_s", t.settle_s, seconds),
         ("trigger.leave_s", t.leave_s, seconds),
         ("trigger.still_m", f64::from(t.still_m), Range::closed(0.0, MAX_STILL_M, "m")),
@@ -303,18 +533,33 @@ fn check_numbers(raw: &RawConfig) -> Result<(), crate::target::RoomError> {
     Ok(())
 }
 
+/// `[i]` of a rig's `[[camera]]` / `[[lidar]]` table in a key; nothing for `[camera]`.
+fn sensor_index<T>(sensors: &Sensors<T>, i: usize) -> crate::target::Index {
+    match sensors {
+        Sensors::One(_) => crate::target::Index::None,
+        Sensors::Named(_) => crate::target::Index::One(i.min(255) as u8),
+    }
+}
+
 /// Every path given is non-empty (an empty one would resolve to the config's folder).
 fn check_paths(raw: &RawConfig) -> Result<(), String> {
     let mut paths = vec![("room", raw.room.as_os_str()), ("store", raw.store.as_os_str())];
-    if let Some(c) = &raw.lidar.calibration {
+    if let Some(rig) = &raw.rig {
+        paths.push(("rig", rig.as_os_str()));
+    }
+    for c in raw.lidar.all().iter().filter_map(|l| l.calibration.as_ref()) {
         paths.push(("lidar.calibration", c.as_os_str()));
     }
     if let Some(s) = &raw.service {
         paths.push(("service.secret_file", s.secret_file.as_os_str()));
     }
-    for (key, sources) in
-        [("camera.source", &raw.camera.source), ("lidar.source", &raw.lidar.source)]
-    {
+    let sources = raw
+        .camera
+        .all()
+        .iter()
+        .map(|c| ("camera.source", &c.source))
+        .chain(raw.lidar.all().iter().map(|l| ("lidar.source", &l.source)));
+    for (key, sources) in sources {
         if sources.strip_prefix("replay:").is_some_and(str::is_empty) {
             return Err(format!("{key} `{sources}`: the replay path is empty"));
         }
@@ -475,5 +720,66 @@ secret_file = "/etc/roomcal/secret"
             let e = parse(&text, Path::new("x.toml")).unwrap_err().to_string();
             assert!(e.contains("x.toml") && e.contains(expect), "`{expect}` not in: {e}");
         }
+    }
+
+    fn rig_config(sensors: &str) -> String {
+        let rig = concat!(env!("CARGO_MANIFEST_DIR"), "/config/rig.toml");
+        format!("room = \"room.toml\"\nstore = \"store\"\nrig = \"{rig}\"\n{sensors}")
+    }
+
+    const RIG_SOURCES: &str = "[[lidar]]\nname = \"bumper\"\nsource = \"udp:0.0.0.0:2369\"\n\
+        [[camera]]\nname = \"wide\"\nsource = \"replay:wide\"\n\
+        [[camera]]\nname = \"front\"\nsource = \"v4l2:/dev/video0\"\nreplay_fps = 5.0\n\
+        [[lidar]]\nname = \"top\"\nsource = \"udp:0.0.0.0:2368\"\nreplay_speed = 2.0\n";
+
+    #[test]
+    fn a_rigs_sources_are_taken_in_the_rig_files_order() {
+        let c = parse(&rig_config(RIG_SOURCES), Path::new("/etc/roomcal/roomcal.toml")).unwrap();
+        let rig = c.rig.as_ref().unwrap();
+        let cameras: Vec<&str> = rig.cameras.iter().map(|s| s.name.as_str()).collect();
+        let lidars: Vec<&str> = rig.lidars.iter().map(|s| s.name.as_str()).collect();
+        assert_eq!((cameras, lidars), (vec!["front", "wide"], vec!["top", "bumper"]));
+        assert_eq!(rig.cameras[1].source, CameraSource::Replay("/etc/roomcal/wide".into()));
+        // The first camera and first LiDAR are also the one-pair fields.
+        assert_eq!(
+            (c.camera.clone(), c.replay_fps),
+            (CameraSource::V4l2("/dev/video0".into()), 5.0)
+        );
+        assert_eq!(
+            (c.lidar.clone(), c.replay_speed),
+            (LidarSource::Udp("0.0.0.0:2368".parse().unwrap()), 2.0)
+        );
+        assert_eq!(c.lidar_model, Some(crate::target::LidarModel::Pandar64));
+        let bumper = c.with_lidar(&rig.lidars[1]);
+        assert_eq!(bumper.lidar, LidarSource::Udp("0.0.0.0:2369".parse().unwrap()));
+        assert_eq!(bumper.lidar_model, Some(crate::target::LidarModel::Vlp32c));
+    }
+
+    #[test]
+    fn a_rigs_sources_that_do_not_match_it_are_named() {
+        let top = "[[lidar]]\nname = \"top\"\nsource = \"udp:0.0.0.0:2368\"\n";
+        let bumper = "[[lidar]]\nname = \"bumper\"\nsource = \"udp:0.0.0.0:2369\"\n";
+        let front = "[[camera]]\nname = \"front\"\nsource = \"replay:f\"\n";
+        let wide = "[[camera]]\nname = \"wide\"\nsource = \"replay:w\"\n";
+        let cases = [
+            (format!("{front}{top}{bumper}"), "camera `wide` of the rig"),
+            (format!("{front}{wide}{wide}{top}{bumper}"), "[[camera]] `wide` is given twice"),
+            (format!("{front}{wide}{top}{bumper}[[lidar]]\nname = \"roof\"\nsource = \"udp:0.0.0.0:1\"\n"), "[[lidar]] `roof`: the rig"),
+            (format!("{front}{wide}{top}{bumper}").replace("name = \"top\"\n", ""), "`name` is missing"),
+            ("[camera]\nsource = \"replay:f\"\n[lidar]\nsource = \"udp:0.0.0.0:1\"\n".into(), "name each sensor's source in [[camera]]"),
+            (format!("{front}{wide}{top}").replace("udp:0.0.0.0:2368", "tcp:1"), "lidar `top` source `tcp:1`"),
+        ];
+        for (sensors, expect) in cases {
+            let e = parse(&rig_config(&sensors), Path::new("x.toml")).unwrap_err().to_string();
+            assert!(e.contains(expect), "`{expect}` not in: {e}");
+        }
+        let no_rig = format!("room = \"r\"\nstore = \"s\"\n{front}{top}");
+        let e = parse(&no_rig, Path::new("x.toml")).unwrap_err().to_string();
+        assert!(e.contains("add rig = "), "{e}");
+        let named =
+            "room = \"r\"\nstore = \"s\"\n[camera]\nname = \"front\"\nsource = \"replay:f\"\n\
+                     [lidar]\nsource = \"udp:0.0.0.0:1\"\n";
+        let e = parse(named, Path::new("x.toml")).unwrap_err().to_string();
+        assert!(e.contains("only a rig's"), "{e}");
     }
 }

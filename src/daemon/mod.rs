@@ -14,6 +14,11 @@
 //! Every second (and before every UDS read) `current.json` is checked against the record
 //! in force and put back if it was emptied or damaged. With `once`, a run that left nothing
 //! in the store (it failed, or the store could not be written) ends the daemon with an error.
+//! A rig (`rig = …` with `[[camera]]` / `[[lidar]]`): one task per camera and per LiDAR;
+//! the trigger watches the first camera's boards and the first LiDAR's motion, a run
+//! waits for `frames` frames of every camera and `sweeps` sweeps of every LiDAR (its
+//! timeout names the sensors short of them) and calibrates the whole rig
+//! ([`Calibrator::calibrate_rig`]); the store keeps the rig's record.
 //! systemd: READY=1 once the sources are open, STATUS= on every state change, WATCHDOG=1
 //! at half the watchdog interval (all no-ops without `NOTIFY_SOCKET`).
 
@@ -32,7 +37,7 @@ use tokio::sync::{mpsc, watch};
 
 use crate::capture::{average_frames, Backoff, CaptureError, FrameSource, GreyFrame, ImageReplay};
 use crate::lidar::{Calibration, Model, Point};
-use crate::result::{CalibrationResult, Status};
+use crate::result::{CalibrationResult, RigResult, Status};
 use crate::service::uds::{DaemonState, Outcome};
 use crate::store::{Store, StoreError};
 
@@ -55,6 +60,19 @@ pub trait Calibrator: Send + 'static {
         sweeps: &[Vec<Point>],
         current: Option<&CalibrationResult>,
     ) -> CalibrationOutcome;
+
+    /// A rig's run: one averaged frame per camera and one accumulated sweep per LiDAR, in
+    /// the rig file's order; `current` is the rig in force. A calibrator of one camera and
+    /// one LiDAR fails it.
+    fn calibrate_rig(
+        &mut self,
+        frames: &[GreyFrame],
+        sweeps: &[Vec<Point>],
+        current: Option<&RigResult>,
+    ) -> CalibrationOutcome {
+        let _ = (frames, sweeps, current);
+        CalibrationOutcome::Failed("this calibrator calibrates one camera with one LiDAR".into())
+    }
 }
 
 /// How a calibration run ended.
@@ -62,6 +80,8 @@ pub trait Calibrator: Send + 'static {
 pub enum CalibrationOutcome {
     /// A result, accepted or rejected by the quality gate (`status`).
     Done(Box<CalibrationResult>),
+    /// A rig's result, accepted or rejected as a whole (`pair.status`).
+    DoneRig(Box<RigResult>),
     /// The run could not produce a result (too few boards, ...).
     Failed(String),
 }
@@ -217,8 +237,11 @@ fn load_room(config: &Config) -> Result<crate::target::Room, DaemonError> {
 /// The LiDAR calibration for the room's model: the unit's angle file when the
 /// configuration names one, else the model's nominal tables.
 fn lidar_calibration(config: &Config) -> Result<Calibration, DaemonError> {
-    let room = load_room(config)?;
-    let model = room.lidar.and_then(|l| l.model.packet_model()).unwrap_or(Model::Vlp16);
+    let room_model = match config.lidar_model {
+        Some(model) => Some(model),
+        None => load_room(config)?.lidar.map(|l| l.model),
+    };
+    let model = room_model.and_then(|m| m.packet_model()).unwrap_or(Model::Vlp16);
     match &config.lidar_calibration {
         Some(path) => crate::lidar::calibration::load(model, path)
             .map_err(|e| DaemonError::LidarCalibration(e.to_string())),
@@ -262,8 +285,13 @@ async fn wait_after_failure(
     tokio::time::sleep(d).await;
 }
 
-/// Camera task: publishes every frame; reopens a failed source with backoff.
-async fn camera_task(config: Config, tx: watch::Sender<Option<Arc<GreyFrame>>>) {
+/// Camera task: publishes every frame (and says on `news` that camera `index` has one);
+/// reopens a failed source with backoff.
+async fn camera_task(
+    config: Config,
+    tx: watch::Sender<Option<Arc<GreyFrame>>>,
+    (index, news): (usize, mpsc::Sender<usize>),
+) {
     let mut backoff = Backoff::default();
     loop {
         let mut source = match open_camera(&config) {
@@ -294,6 +322,8 @@ async fn camera_task(config: Config, tx: watch::Sender<Option<Arc<GreyFrame>>>) 
                     if tx.send(Some(Arc::new(frame))).is_err() {
                         return;
                     }
+                    // A full queue already holds news: the loop checks every camera then.
+                    let _ = news.try_send(index);
                     if let Some(p) = period {
                         tokio::time::sleep(p).await;
                     }
@@ -307,8 +337,8 @@ async fn camera_task(config: Config, tx: watch::Sender<Option<Arc<GreyFrame>>>) 
     }
 }
 
-/// LiDAR task: forwards sweeps; reopens a failed source with backoff.
-async fn lidar_task(config: Config, tx: mpsc::Sender<OwnedSweep>) {
+/// LiDAR task: forwards sweeps of LiDAR `index`; reopens a failed source with backoff.
+async fn lidar_task(config: Config, tx: mpsc::Sender<(usize, OwnedSweep)>, index: usize) {
     let mut backoff = Backoff::default();
     loop {
         let mut source = match open_lidar(&config).await {
@@ -322,7 +352,7 @@ async fn lidar_task(config: Config, tx: mpsc::Sender<OwnedSweep>) {
             match source.next_sweep().await {
                 Ok(s) => {
                     backoff.reset();
-                    if tx.send(s).await.is_err() {
+                    if tx.send((index, s)).await.is_err() {
                         return;
                     }
                 }
@@ -340,14 +370,92 @@ fn notify(state: &[sd_notify::NotifyState<'_>]) {
     let _ = sd_notify::notify(false, state);
 }
 
-/// What the control loop holds during a run.
+/// What the control loop holds during a run: per camera its frames, per LiDAR its sweeps.
 #[derive(Default)]
 struct RunBuffers {
-    frames: Vec<GreyFrame>,
-    sweeps: Vec<Vec<Point>>,
+    frames: Vec<Vec<GreyFrame>>,
+    sweeps: Vec<Vec<Vec<Point>>>,
     /// The packets of `sweeps`.
     counts: PacketCounts,
     deadline: Option<tokio::time::Instant>,
+}
+
+impl RunBuffers {
+    fn new(cameras: usize, lidars: usize, deadline: tokio::time::Instant) -> Self {
+        RunBuffers {
+            frames: vec![Vec::new(); cameras],
+            sweeps: vec![Vec::new(); lidars],
+            counts: PacketCounts::default(),
+            deadline: Some(deadline),
+        }
+    }
+
+    fn complete(&self, frames: usize, sweeps: usize) -> bool {
+        self.frames.iter().all(|f| f.len() >= frames)
+            && self.sweeps.iter().all(|s| s.len() >= sweeps)
+    }
+
+    /// The timeout's reason: what every sensor delivered.
+    fn shortfall(&self, config: &Config, names: &SensorNames) -> String {
+        let mut parts = Vec::new();
+        for (name, f) in names.cameras.iter().zip(&self.frames) {
+            parts.push(format!("{} of {} frames{name}", f.len(), config.frames));
+        }
+        for (name, s) in names.lidars.iter().zip(&self.sweeps) {
+            parts.push(format!("{} of {} sweeps{name}", s.len(), config.sweeps));
+        }
+        format!("capture timed out with {}", parts.join(" and "))
+    }
+}
+
+/// How the timeout names each sensor: nothing for the one-pair vehicle, " of camera `NAME`"
+/// for a rig's.
+struct SensorNames {
+    cameras: Vec<String>,
+    lidars: Vec<String>,
+}
+
+impl SensorNames {
+    fn of(config: &Config) -> Self {
+        match &config.rig {
+            None => SensorNames { cameras: vec![String::new()], lidars: vec![String::new()] },
+            Some(r) => SensorNames {
+                cameras: r.cameras.iter().map(|c| format!(" of camera `{}`", c.name)).collect(),
+                lidars: r.lidars.iter().map(|l| format!(" of LiDAR `{}`", l.name)).collect(),
+            },
+        }
+    }
+}
+
+/// The configuration of each camera task and each LiDAR task.
+fn sensor_configs(config: &Config) -> (Vec<Config>, Vec<Config>) {
+    match &config.rig {
+        None => (vec![config.clone()], vec![config.clone()]),
+        Some(r) => (
+            r.cameras.iter().map(|c| config.with_camera(c)).collect(),
+            r.lidars.iter().map(|l| config.with_lidar(l)).collect(),
+        ),
+    }
+}
+
+/// The sensor table the service describes before a rig's record is in force.
+fn configured_sensors(
+    config: &Config,
+    room: &crate::target::Room,
+) -> crate::service::uds::SensorTable {
+    use crate::service::uds::{SensorKind, SensorTable};
+    let Some(r) = &config.rig else { return SensorTable::one_pair(room.lidar.is_some()) };
+    let mut table = SensorTable::default();
+    let sensors = r
+        .cameras
+        .iter()
+        .map(|c| (SensorKind::Camera, c.name.as_str()))
+        .chain(r.lidars.iter().map(|l| (SensorKind::Lidar, l.name.as_str())));
+    for (kind, name) in sensors {
+        // A rig holds at most 8 + 8 checked names: they fit the table's 16.
+        let _ = table.push(kind, name);
+    }
+    table
 }
 
 async fn run_daemon<C: Calibrator>(
@@ -367,14 +475,26 @@ async fn run_daemon<C: Calibrator>(
     set_shared(&shared, |s| s.current = current);
     let calibrator = Arc::new(Mutex::new(calibrator));
 
-    let (frame_tx, mut frames) = watch::channel(None::<Arc<GreyFrame>>);
-    let (sweep_tx, mut sweeps) = mpsc::channel::<OwnedSweep>(4);
+    let (camera_configs, lidar_configs) = sensor_configs(&config);
+    let names = SensorNames::of(&config);
+    let (news_tx, mut news) = mpsc::channel::<usize>(2 * camera_configs.len());
+    let (sweep_tx, mut sweeps) = mpsc::channel::<(usize, OwnedSweep)>(4 * lidar_configs.len());
     let (stop_tx, stop_rx) = watch::channel(false);
     let mut tasks = tokio::task::JoinSet::new();
-    tasks.spawn(camera_task(config.clone(), frame_tx));
-    tasks.spawn(lidar_task(config.clone(), sweep_tx));
+    let mut frames = Vec::new();
+    for (i, camera) in camera_configs.into_iter().enumerate() {
+        let (frame_tx, rx) = watch::channel(None::<Arc<GreyFrame>>);
+        frames.push(rx);
+        tasks.spawn(camera_task(camera, frame_tx, (i, news_tx.clone())));
+    }
+    drop(news_tx);
+    let (cameras, lidars) = (frames.len(), lidar_configs.len());
+    for (i, lidar) in lidar_configs.into_iter().enumerate() {
+        tasks.spawn(lidar_task(lidar, sweep_tx.clone(), i));
+    }
+    drop(sweep_tx);
     if let Some(svc) = config.service.clone() {
-        let sensors = crate::service::uds::SensorTable::one_pair(room.lidar.is_some());
+        let sensors = configured_sensors(&config, &room);
         let backend =
             DaemonBackend::new(shared.clone(), requests_tx.clone(), store.clone(), sensors);
         tasks.spawn(backend::service_task(svc, backend, stop_rx));
@@ -419,7 +539,7 @@ async fn run_daemon<C: Calibrator>(
             _ = watchdog.tick(), if watchdog_on => notify(&[sd_notify::NotifyState::Watchdog]),
             _ = store_check.tick() => verify_store(&store, &shared),
             _ = detect.tick(), if !capturing && solving.is_none() => {
-                let frame = frames.borrow().clone();
+                let frame = frames[0].borrow().clone();
                 if let Some(frame) = frame {
                     let cal = calibrator.clone();
                     let boards = tokio::task::spawn_blocking(move || {
@@ -429,32 +549,35 @@ async fn run_daemon<C: Calibrator>(
                 }
             }
             _ = sleep_until_opt(run.deadline), if capturing => {
-                outcome = Some(CalibrationOutcome::Failed(format!(
-                    "capture timed out with {} of {} frames and {} of {} sweeps",
-                    run.frames.len(), config.frames, run.sweeps.len(), config.sweeps
-                )));
+                outcome = Some(CalibrationOutcome::Failed(run.shortfall(&config, &names)));
             }
-            Ok(()) = frames.changed(), if capturing => {
-                let frame = frames.borrow_and_update().clone();
-                if let Some(f) = frame {
-                    if run.frames.len() < config.frames {
-                        run.frames.push((*f).clone());
+            Some(_) = news.recv() => {
+                for (rx, taken) in frames.iter_mut().zip(run.frames.iter_mut()) {
+                    if !capturing || !rx.has_changed().unwrap_or(false) {
+                        continue;
+                    }
+                    let frame = rx.borrow_and_update().clone();
+                    if let Some(f) = frame.filter(|_| taken.len() < config.frames) {
+                        taken.push((*f).clone());
                     }
                 }
             }
-            Some(sweep) = sweeps.recv() => {
-                image_next.fill(&sweep.points);
-                if have_prev {
-                    if let Some(m) = sweep_motion(&image_prev, &image_next, &mut scratch) {
-                        action = trigger.on_motion(now_s(), m);
+            Some((lidar, sweep)) = sweeps.recv() => {
+                if lidar == 0 {
+                    image_next.fill(&sweep.points);
+                    if have_prev {
+                        if let Some(m) = sweep_motion(&image_prev, &image_next, &mut scratch) {
+                            action = trigger.on_motion(now_s(), m);
+                        }
                     }
+                    std::mem::swap(&mut image_prev, &mut image_next);
+                    have_prev = true;
                 }
-                std::mem::swap(&mut image_prev, &mut image_next);
-                have_prev = true;
-                if capturing && run.sweeps.len() < config.sweeps {
-                    log_captured_sweep(&sweep, run.sweeps.len() + 1, config.sweeps);
+                if let Some(taken) = run.sweeps.get_mut(lidar).filter(|t| capturing && t.len() < config.sweeps) {
+                    let of = format!("{}{}", config.sweeps, names.lidars[lidar]);
+                    log_captured_sweep(&sweep, taken.len() + 1, &of);
                     run.counts.add(sweep.counts);
-                    run.sweeps.push(sweep.points);
+                    taken.push(sweep.points);
                 }
             }
             Some(()) = requests.recv() => {
@@ -477,22 +600,21 @@ async fn run_daemon<C: Calibrator>(
         }
         if action == Action::Capture {
             tracing::info!("capturing {} frames and {} sweeps", config.frames, config.sweeps);
-            run = RunBuffers {
-                deadline: Some(
-                    tokio::time::Instant::now() + Duration::from_secs_f64(config.capture_timeout_s),
-                ),
-                ..RunBuffers::default()
-            };
-            // The frame in the channel now may predate the trigger: wait for fresh ones.
-            frames.borrow_and_update();
+            let deadline =
+                tokio::time::Instant::now() + Duration::from_secs_f64(config.capture_timeout_s);
+            run = RunBuffers::new(cameras, lidars, deadline);
+            // The frames in the channels now may predate the trigger: wait for fresh ones.
+            for rx in &mut frames {
+                rx.borrow_and_update();
+            }
         }
         if trigger.phase() == trigger::Phase::Capturing
-            && run.frames.len() >= config.frames
-            && run.sweeps.len() >= config.sweeps
+            && run.complete(config.frames, config.sweeps)
         {
             trigger.on_captured();
             solving_counts = run.counts;
-            solving = Some(start_solve(&calibrator, &shared, std::mem::take(&mut run)));
+            let rig = config.rig.is_some();
+            solving = Some(start_solve(&calibrator, &shared, std::mem::take(&mut run), rig));
         }
         if let Some(outcome) = outcome {
             let (verdict, failure) = finish_run(&store, &shared, outcome, &mut summary).await;
@@ -561,7 +683,7 @@ fn publish_state(shared: &Arc<Mutex<Shared>>, state: DaemonState, last: &mut Dae
 }
 
 /// Logs a sweep taken into a run, with its packet counts.
-fn log_captured_sweep(sweep: &OwnedSweep, n: usize, of: usize) {
+fn log_captured_sweep(sweep: &OwnedSweep, n: usize, of: &str) {
     let points = sweep.points.len();
     match sweep.counts.incomplete() {
         Some(note) => tracing::warn!("sweep {n} of {of}: {points} points; {note}"),
@@ -586,26 +708,43 @@ fn with_sweep_counts(outcome: CalibrationOutcome, counts: &PacketCounts) -> Cali
             });
             CalibrationOutcome::Done(r)
         }
+        CalibrationOutcome::DoneRig(mut r) if r.pair.status != Status::Accepted => {
+            r.pair.reason = Some(match r.pair.reason.take() {
+                Some(why) => format!("{why}; {note}"),
+                None => note,
+            });
+            CalibrationOutcome::DoneRig(r)
+        }
         done => done,
     }
 }
 
-/// Averages the frames, accumulates the sweeps, calibrates on a blocking thread.
+/// Averages each camera's frames, accumulates each LiDAR's sweeps, calibrates (the pair,
+/// or the whole `rig`) on a blocking thread.
 fn start_solve<C: Calibrator>(
     calibrator: &Arc<Mutex<C>>,
     shared: &Arc<Mutex<Shared>>,
     run: RunBuffers,
+    rig: bool,
 ) -> tokio::task::JoinHandle<CalibrationOutcome> {
     let cal = calibrator.clone();
-    let current = shared.lock().ok().and_then(|s| s.current.as_ref().map(|r| r.result.clone()));
+    let current = shared.lock().ok().and_then(|s| s.current.clone());
     tokio::task::spawn_blocking(move || {
-        let Some(frame) = average_frames(&run.frames) else {
+        let Some(frames) = run.frames.iter().map(|f| average_frames(f)).collect::<Option<Vec<_>>>()
+        else {
             return CalibrationOutcome::Failed("frames of different sizes".into());
         };
-        let cloud: Vec<Point> = run.sweeps.into_iter().flatten().collect();
-        match cal.lock() {
-            Ok(mut c) => c.calibrate(&[frame], &[cloud], current.as_ref()),
-            Err(_) => CalibrationOutcome::Failed("calibrator poisoned by an earlier panic".into()),
+        let clouds: Vec<Vec<Point>> =
+            run.sweeps.into_iter().map(|s| s.into_iter().flatten().collect()).collect();
+        let Ok(mut c) = cal.lock() else {
+            return CalibrationOutcome::Failed("calibrator poisoned by an earlier panic".into());
+        };
+        match rig {
+            false => c.calibrate(&frames, &clouds, current.as_ref().map(|r| &r.result)),
+            true => {
+                let in_force = current.as_ref().and_then(crate::store::Record::rig_result);
+                c.calibrate_rig(&frames, &clouds, in_force.as_ref())
+            }
         }
     })
 }
@@ -631,6 +770,16 @@ async fn finish_run(
                 r.reason.as_deref().unwrap_or("no reason given")
             );
             store.record_rejected(&r, now).map(|_| (Verdict::Rejected, Ok(None)))
+        }
+        CalibrationOutcome::DoneRig(r) if r.pair.status == Status::Accepted => {
+            store.commit_rig(&r, now).map(|rec| (Verdict::Accepted, Ok(Some(rec))))
+        }
+        CalibrationOutcome::DoneRig(r) => {
+            tracing::warn!(
+                "rig calibration rejected: {}",
+                r.pair.reason.as_deref().unwrap_or("no reason given")
+            );
+            store.record_rejected_rig(&r, now).map(|_| (Verdict::Rejected, Ok(None)))
         }
         CalibrationOutcome::Failed(why) => {
             tracing::error!("calibration failed: {why}");

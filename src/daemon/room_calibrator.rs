@@ -1,13 +1,19 @@
 //! The daemon's real calibrator: the room's detectors and [`crate::calibrate::calibrate`]
-//! behind the daemon's [`Calibrator`] trait, drawing each run's report picture when asked.
+//! behind the daemon's [`Calibrator`] trait, drawing each run's report picture when asked;
+//! for a rig ([`RoomCalibrator::with_rig`]) every camera's detectors and
+//! [`crate::calibrate::rig::calibrate_rig`].
 
 use std::path::PathBuf;
 
-use crate::calibrate::{calibrate_with_clouds, CalibrateOptions, Detectors, FrameDetections};
+use crate::calibrate::rig::{calibrate_rig, LidarInput};
+use crate::calibrate::{
+    calibrate_with_clouds, CalibrateOptions, Detectors, FrameDetections, LidarBoard, RigDetectors,
+};
 use crate::capture::GreyFrame;
 use crate::detect::holes::RefusedBoard;
 use crate::lidar::Point;
-use crate::result::CalibrationResult;
+use crate::result::{CalibrationResult, RigResult};
+use crate::rig::Rig;
 use crate::target::Room;
 
 use super::{CalibrationOutcome, Calibrator};
@@ -17,13 +23,23 @@ pub struct RoomCalibrator {
     room: Room,
     detectors: Detectors,
     report: Option<PathBuf>,
+    rig: Option<(Rig, RigDetectors)>,
 }
 
 impl RoomCalibrator {
     /// The calibrator of `room`; fails when the room's pattern cannot be detected.
     pub fn new(room: Room) -> Result<Self, crate::detect::DetectError> {
         let detectors = Detectors::new(&room)?;
-        Ok(RoomCalibrator { room, detectors, report: None })
+        Ok(RoomCalibrator { room, detectors, report: None, rig: None })
+    }
+
+    /// Also calibrates `rig` ([`Calibrator::calibrate_rig`]): its cameras' detectors made
+    /// now; the trigger's board count stays on the first camera's.
+    pub fn with_rig(mut self, rig: Rig) -> Result<Self, crate::detect::DetectError> {
+        let detectors = RigDetectors::new(&self.room, &rig)?;
+        self.detectors = Detectors::new(&rig.pair_room(&self.room, 0, None))?;
+        self.rig = Some((rig, detectors));
+        Ok(self)
     }
 
     /// Also writes every run's report picture (PNG, as `roomcal calibrate --report` draws
@@ -94,5 +110,31 @@ impl Calibrator for RoomCalibrator {
             self.write_report(first, sweeps.first(), &run, &refused_first);
         }
         CalibrationOutcome::Done(Box::new(run.result))
+    }
+
+    fn calibrate_rig(
+        &mut self,
+        frames: &[GreyFrame],
+        sweeps: &[Vec<Point>],
+        _current: Option<&RigResult>,
+    ) -> CalibrationOutcome {
+        let Some((rig, detectors)) = &mut self.rig else {
+            return CalibrationOutcome::Failed("the daemon was not configured with a rig".into());
+        };
+        let mut cameras = Vec::with_capacity(frames.len());
+        for ((frame, d), camera) in frames.iter().zip(&mut detectors.cameras).zip(&rig.cameras) {
+            match d.detect_pixels(&frame.pixels) {
+                Ok(boards) => cameras.push(boards),
+                Err(e) => {
+                    return CalibrationOutcome::Failed(format!("camera `{}`: {e}", camera.name))
+                }
+            }
+        }
+        let boards: Vec<Vec<LidarBoard>> =
+            sweeps.iter().map(|s| detectors.detect_cloud(s)).collect();
+        let lidars: Vec<LidarInput<'_>> =
+            boards.iter().zip(sweeps).map(|(boards, cloud)| LidarInput { boards, cloud }).collect();
+        let run = calibrate_rig(&self.room, rig, &cameras, &lidars, &CalibrateOptions::default());
+        CalibrationOutcome::DoneRig(Box::new(run.result))
     }
 }
