@@ -558,6 +558,27 @@ impl<const N: usize> RigCovariance<N> {
         let at = self.layout.lidar_pose(l);
         self.matrix.fixed_view::<6, 6>(at, at).into_owned()
     }
+
+    /// Covariance of the left perturbation of LiDAR `l` → camera `c` = `A_c ∘ E_l`, from
+    /// the solved first → `c` and LiDAR → first (their cross terms included).
+    pub fn lidar_to_camera(
+        &self,
+        l: usize,
+        c: usize,
+        first_to_camera: &Se3,
+        lidar_to_first: &Se3,
+    ) -> SMatrix<f64, 6, 6> {
+        if c == 0 {
+            return self.lidar_to_first(l);
+        }
+        let (to_a, to_e) = chain(first_to_camera, lidar_to_first);
+        let (a, e) = (self.layout.camera_pose(c), self.layout.lidar_pose(l));
+        let block = |i: usize, j: usize| self.matrix.fixed_view::<6, 6>(i, j).into_owned();
+        to_a * block(a, a) * to_a.transpose()
+            + to_a * block(a, e) * to_e.transpose()
+            + to_e * block(e, a) * to_a.transpose()
+            + to_e * block(e, e) * to_e.transpose()
+    }
 }
 
 /// Worst-axis 1σ of a pose covariance `[δω δt]`: rotation (rad) and translation (m).
