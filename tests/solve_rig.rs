@@ -155,8 +155,10 @@ fn sigma_matches_the_spread_over_noisy_solves() {
         "top t",
         "bumper rot",
         "bumper t",
+        "top→wide rot",
+        "top→wide t",
     ];
-    let mut sums = [0.0f64; 8];
+    let mut sums = [0.0f64; 10];
     let mut rng = Rng(2026);
     for _ in 0..TRIALS {
         let s = scene(Some((corner_px, hole_m, point_m, &mut rng)));
@@ -194,6 +196,10 @@ fn sigma_matches_the_spread_over_noisy_solves() {
                 &cov.lidar_to_first(l),
             );
         }
+        // A LiDAR → camera product (its cross terms included).
+        let (a, e) = (params.first_to_camera[1], params.lidar_to_first[0]);
+        let truth = t.first_to_camera[1].compose(&t.lidar_to_first[0]);
+        pose_terms(8, &a.compose(&e), &truth, &cov.lidar_to_camera(0, 1, &a, &e));
     }
     for (name, sum) in names.iter().zip(sums) {
         let ratio = (sum / TRIALS as f64).sqrt();

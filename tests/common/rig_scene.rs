@@ -6,7 +6,8 @@
 //! Observations: every camera sees every board in every frame; the roof LiDAR's holes
 //! and face points of every board are seen in the first camera, the bumper's of boards
 //! 2 and 3 in the second camera, its face points of board 0 alone (no camera); both
-//! LiDARs see the three planes.
+//! LiDARs see the three planes. With noise, the survey's priors are drawn off the truth
+//! by their σ too.
 
 #![allow(dead_code)]
 
@@ -222,6 +223,12 @@ pub fn scene(mut noise: Option<(f64, f64, f64, &mut Rng)>) -> Scene {
     }
     let mut truth = truth;
     truth.blocks = priors.iter().map(|p| p.pose).collect();
+    // A noisy scene's survey is off the truth by its own σ, as a real one is.
+    for prior in priors.iter_mut() {
+        let (r, t) = (prior.sigma_rad, prior.sigma_m);
+        let d = nalgebra::SVector::<f64, 6>::from_fn(|i, _| normal(if i < 3 { r } else { t }));
+        prior.pose = prior.pose.perturb_left(&d);
+    }
     Scene { truth, priors, object, holes, measured }
 }
 
