@@ -1,32 +1,39 @@
-//! A rig's calibration, first slice: every sensor through the one-pair solves, the
-//! extrinsics composed with their σ propagated.
+//! A rig's calibration: every sensor through the one-pair solves, the extrinsics composed
+//! with their σ propagated; in a surveyed room that composition is the start of ONE joint
+//! solve of the whole rig ([`crate::solve::rig`]), which gives the result.
 //!
 //! Every camera is solved with every LiDAR (the one-pair run, [`super::calibrate_with_clouds`],
-//! on [`Rig::pair_room`]). A camera's result is its run with the LiDAR that places most of
+//! on [`Rig::pair_room`]). A camera's run is its run with the LiDAR that places most of
 //! its boards (or its intrinsics-only run when none does); a LiDAR's is its run with the
 //! camera it shares most boards with.
 //!
 //! - **Surveyed room**: each camera's run gives its intrinsics and its pose in the room;
 //!   camera → first camera = `room→first ∘ (room→camera)⁻¹`; LiDAR → first camera =
 //!   `room→first ∘ (room→c)⁻¹ ∘ LiDAR→c` through its camera `c`'s run (just `LiDAR→first`
-//!   when `c` is the first camera). Sensors whose views never overlap are tied through
-//!   the room.
-//! - **Free boards**: LiDAR → first camera from its run with the first camera, else through
-//!   the camera it shares boards with; camera → first camera through a LiDAR that places
-//!   boards in both cameras' runs: `LiDAR→first ∘ (LiDAR→camera)⁻¹`.
+//!   when `c` is the first camera). Then the joint solve: every camera's boards as its run
+//!   identified them, every LiDAR's boards placed on the surveyed boards through the
+//!   composed start (holes paired with the model's), every LiDAR's points on the surveyed
+//!   planes; intrinsics, mountings, the room pose, boards and planes solved at once, σ from
+//!   its normal equations. Sensors whose views never overlap are tied through the room.
+//! - **Free boards** (the composition is the result): LiDAR → first camera from its run with
+//!   the first camera, else through the camera it shares boards with; camera → first camera
+//!   through a LiDAR that places boards in both cameras' runs: `LiDAR→first ∘ (LiDAR→camera)⁻¹`.
 //!
-//! σ: first-order propagation of each run's pose covariance ([`Calibration::pose_covariance`],
-//! left perturbations) through the composition, runs taken as independent (they share
-//! the survey's boards, whose σ each run's room solve already carries).
+//! Composition σ: first-order propagation of each run's pose covariance
+//! ([`Calibration::pose_covariance`], left perturbations), runs taken as independent (over
+//! ten simulated vehicles the LiDAR translations' σ came out 1.8× optimistic; the joint σ are
+//! honest, README "Rigs").
 //!
 //! Gate: each run is gated by the room's `[quality]`; a rig is accepted only when every
 //! sensor is (see README, "Rigs": one failing sensor rejects the whole run and is named).
+//! A joint solve that fails, or puts a board outside its survey σ, rejects the rig.
 
 use std::collections::BTreeMap;
 
 use nalgebra::{DMatrix, Matrix3};
 
 use super::identify::GATE_M;
+use super::surveyed::MOVED_BOARD_CHI2;
 use super::{
     calibrate_with_clouds, median, CalibrateOptions, Calibration, CameraBoard, FrameDetections,
     LidarBoard, MAX_OBSERVATIONS,
@@ -596,39 +603,60 @@ fn solve_jointly(
     let corner_sigma: [f64; JOINT_CAMERAS] = core::array::from_fn(|c| {
         camera_inputs.get(c).map_or(1.0, |b| median(b.iter().map(|b| b.sigma_px)).max(0.02))
     });
-    let mut planes: Vec<Vec<(usize, PlanePoints)>> =
-        lidar_inputs.iter().map(|_| Vec::new()).collect();
-    let mut iterations = 0;
-    for pass in 0..2 {
-        for (l, input) in lidar_inputs.iter().enumerate() {
-            let previous = (pass > 0).then_some(planes[l].as_slice());
-            planes[l] = super::surveyed::room_planes(
+    // The LiDARs' surveyed-plane points from the start, then again from a first solve.
+    let select = |params: &JointParams, previous: Option<&[Vec<(usize, PlanePoints)>]>| {
+        let planes = lidar_inputs.iter().enumerate().map(|(l, input)| {
+            super::surveyed::room_planes(
                 survey,
                 &surveyed,
                 &[input.cloud],
                 &params.room_to_first[0],
                 &params.lidar_to_first[l],
-                previous,
-            );
+                previous.map(|p| p[l].as_slice()),
+            )
+        });
+        planes.collect::<Vec<_>>()
+    };
+    let at_priors = |problem: &JointProblem<'_>, p: &JointParams| {
+        problem.params_at_priors(p.cameras, p.first_to_camera, p.lidar_to_first, p.room_to_first)
+    };
+    let planes = select(&params, None);
+    let (problem, _) = joint_problem(survey, &object, &seen, &lidar_seen, &planes, corner_sigma)?;
+    params = at_priors(&problem, &params);
+    let first = solve_rig(&problem, &mut params, 100).map_err(joint_reason)?;
+    let planes = select(&params, Some(&planes));
+    let (problem, blocks) =
+        joint_problem(survey, &object, &seen, &lidar_seen, &planes, corner_sigma)?;
+    let mut p = at_priors(&problem, &params);
+    let report = solve_rig(&problem, &mut p, 100).map_err(joint_reason)?;
+    moved_board(&problem, &p, &blocks)?;
+    let covariance = rig_covariance(&problem, &p).map_err(joint_reason)?;
+    let iterations = first.iterations + report.iterations;
+    Ok(Joint { params: p, covariance, report, iterations })
+}
+
+/// Fails naming the surveyed board the joint solution puts farthest outside its survey σ,
+/// if any is beyond [`MOVED_BOARD_CHI2`] (the one-pair run's rule).
+fn moved_board(
+    problem: &JointProblem<'_>,
+    params: &JointParams,
+    blocks: &[Block],
+) -> Result<(), String> {
+    let mut worst: Option<(usize, f64)> = None;
+    problem.for_each_prior(params, |k, r, _| {
+        let chi2 = r.norm_squared();
+        if let (Some(Block::Board(board)), true) = (blocks.get(k), chi2 > MOVED_BOARD_CHI2) {
+            if worst.is_none_or(|(_, w)| chi2 > w) {
+                worst = Some((*board, chi2));
+            }
         }
-        let (problem, blocks) =
-            joint_problem(survey, &object, &seen, &lidar_seen, &planes, corner_sigma)?;
-        let mut p = problem.params_at_priors(
-            params.cameras,
-            params.first_to_camera,
-            params.lidar_to_first,
-            params.room_to_first,
-        );
-        let report = solve_rig(&problem, &mut p, 100).map_err(joint_reason)?;
-        iterations += report.iterations;
-        if pass == 1 {
-            let covariance = rig_covariance(&problem, &p).map_err(joint_reason)?;
-            tracing::debug!(blocks = blocks.len(), iterations, "joint rig solve");
-            return Ok(Joint { params: p, covariance, report, iterations });
-        }
-        params = p;
+    });
+    match worst {
+        Some((board, chi2)) => Err(format!(
+            "board {board} disagrees with the survey in the joint rig solve (χ² {chi2:.0} over its 6 survey σ, limit {MOVED_BOARD_CHI2}): it has moved, or the survey is stale"
+        )),
+        None => Ok(()),
     }
-    unreachable!("the second pass returns")
 }
 
 fn joint_reason(e: crate::solve::SolveError) -> String {
