@@ -569,7 +569,9 @@ enum Block {
 }
 
 /// Solves every sensor of the rig jointly in the surveyed room, from the pair runs'
-/// intrinsics and room pose and the composed mountings.
+/// intrinsics and room pose and the composed mountings. As in the one-pair run, a board
+/// the solution puts outside its survey σ is named, left out and the rig solved again; a
+/// second one rejects the rig.
 fn solve_jointly(
     room: &Room,
     survey: &SurveySpec,
@@ -581,35 +583,82 @@ fn solve_jointly(
 ) -> Result<Joint, String> {
     let (camera_inputs, lidar_inputs) = inputs;
     let spec = &room.board;
-    let object: Vec<Vec3> = (0..spec.corner_count()).map(|i| spec.corner(i)).collect();
-    let model_holes: Vec<Vec3> = (0..spec.holes.len()).map(|h| spec.hole(h)).collect();
     let surveyed: Vec<Se3> = survey.boards.iter().map(|b| b.pose()).collect();
-    let mut params = start_params(rig, runs, camera_runs, start)?;
-    let seen: Vec<CameraMeasurements> = (0..rig.cameras.len())
+    let model_holes: Vec<Vec3> = (0..spec.holes.len()).map(|h| spec.hole(h)).collect();
+    let params = start_params(rig, runs, camera_runs, start)?;
+    let cameras: Vec<CameraMeasurements> = (0..rig.cameras.len())
         .map(|c| camera_measurements(&runs[&camera_runs[c]], &surveyed))
         .collect();
-    let mut lidar_seen = Vec::new();
+    let mut lidars = Vec::new();
     for (l, input) in lidar_inputs.iter().enumerate() {
-        lidar_seen.extend(lidar_measurements(
-            l,
-            input.boards,
-            &params,
-            &surveyed,
-            &model_holes,
-            &seen,
-            start.lidar_cameras[l],
-        ));
+        let (preferred, boards) = (start.lidar_cameras[l], input.boards);
+        let placed =
+            lidar_measurements(l, boards, &params, &surveyed, &model_holes, &cameras, preferred);
+        lidars.extend(placed);
     }
-    let corner_sigma: [f64; JOINT_CAMERAS] = core::array::from_fn(|c| {
-        camera_inputs.get(c).map_or(1.0, |b| median(b.iter().map(|b| b.sigma_px)).max(0.02))
-    });
-    // The LiDARs' surveyed-plane points from the start, then again from a first solve.
+    let mut measured = Measured {
+        object: (0..spec.corner_count()).map(|i| spec.corner(i)).collect(),
+        cameras,
+        lidars,
+        corner_sigma: core::array::from_fn(|c| {
+            let boards = camera_inputs.get(c);
+            boards.map_or(1.0, |b| median(b.iter().map(|b| b.sigma_px)).max(0.02))
+        }),
+    };
+    let clouds: Vec<&[Point]> = lidar_inputs.iter().map(|i| i.cloud).collect();
+    let mut left_out = None;
+    loop {
+        let (joint, moved) = solve_passes(survey, &surveyed, &clouds, &measured, params.clone())?;
+        match (moved, left_out) {
+            (None, _) => return Ok(joint),
+            (Some((board, _)), None) => {
+                tracing::warn!(board, "board disagrees with the survey in the joint rig solve; left out");
+                left_out = Some(board);
+                measured.leave_out(board);
+            }
+            (Some((board, chi2)), Some(first)) => {
+                return Err(format!(
+                    "board {board} disagrees with the survey in the joint rig solve (χ² {chi2:.0} over its 6 survey σ, limit {MOVED_BOARD_CHI2}) after leaving out board {first}: it has moved, or the survey is stale"
+                ))
+            }
+        }
+    }
+}
+
+/// The joint solve's measurements, owned (the problem borrows them).
+struct Measured {
+    object: Vec<Vec3>,
+    cameras: Vec<CameraMeasurements>,
+    lidars: Vec<LidarMeasurement>,
+    corner_sigma: [f64; JOINT_CAMERAS],
+}
+
+impl Measured {
+    /// Drops every measurement of surveyed board `board`.
+    fn leave_out(&mut self, board: usize) {
+        for seen in self.cameras.iter_mut() {
+            seen.retain(|(k, _)| *k != board);
+        }
+        self.lidars.retain(|m| m.board != board);
+    }
+}
+
+/// The two passes of the joint solve (surveyed-plane points selected from the start, then
+/// from the first solution), and the board farthest outside its survey σ if any is beyond
+/// [`MOVED_BOARD_CHI2`] (survey index, χ²).
+fn solve_passes(
+    survey: &SurveySpec,
+    surveyed: &[Se3],
+    clouds: &[&[Point]],
+    m: &Measured,
+    start: JointParams,
+) -> Result<(Joint, Option<(usize, f64)>), String> {
     let select = |params: &JointParams, previous: Option<&[Vec<(usize, PlanePoints)>]>| {
-        let planes = lidar_inputs.iter().enumerate().map(|(l, input)| {
+        let planes = clouds.iter().enumerate().map(|(l, cloud)| {
             super::surveyed::room_planes(
                 survey,
-                &surveyed,
-                &[input.cloud],
+                surveyed,
+                &[*cloud],
                 &params.room_to_first[0],
                 &params.lidar_to_first[l],
                 previous.map(|p| p[l].as_slice()),
@@ -620,28 +669,27 @@ fn solve_jointly(
     let at_priors = |problem: &JointProblem<'_>, p: &JointParams| {
         problem.params_at_priors(p.cameras, p.first_to_camera, p.lidar_to_first, p.room_to_first)
     };
-    let planes = select(&params, None);
-    let (problem, _) = joint_problem(survey, &object, &seen, &lidar_seen, &planes, corner_sigma)?;
-    params = at_priors(&problem, &params);
+    let planes = select(&start, None);
+    let (problem, _) = joint_problem(survey, m, &planes)?;
+    let mut params = at_priors(&problem, &start);
     let first = solve_rig(&problem, &mut params, 100).map_err(joint_reason)?;
     let planes = select(&params, Some(&planes));
-    let (problem, blocks) =
-        joint_problem(survey, &object, &seen, &lidar_seen, &planes, corner_sigma)?;
+    let (problem, blocks) = joint_problem(survey, m, &planes)?;
     let mut p = at_priors(&problem, &params);
     let report = solve_rig(&problem, &mut p, 100).map_err(joint_reason)?;
-    moved_board(&problem, &p, &blocks)?;
+    let moved = moved_board(&problem, &p, &blocks);
     let covariance = rig_covariance(&problem, &p).map_err(joint_reason)?;
     let iterations = first.iterations + report.iterations;
-    Ok(Joint { params: p, covariance, report, iterations })
+    Ok((Joint { params: p, covariance, report, iterations }, moved))
 }
 
-/// Fails naming the surveyed board the joint solution puts farthest outside its survey σ,
-/// if any is beyond [`MOVED_BOARD_CHI2`] (the one-pair run's rule).
+/// The surveyed board the solution puts farthest outside its survey σ, if any is beyond
+/// [`MOVED_BOARD_CHI2`] (the one-pair run's rule): (survey index, χ²).
 fn moved_board(
     problem: &JointProblem<'_>,
     params: &JointParams,
     blocks: &[Block],
-) -> Result<(), String> {
+) -> Option<(usize, f64)> {
     let mut worst: Option<(usize, f64)> = None;
     problem.for_each_prior(params, |k, r, _| {
         let chi2 = r.norm_squared();
@@ -651,12 +699,7 @@ fn moved_board(
             }
         }
     });
-    match worst {
-        Some((board, chi2)) => Err(format!(
-            "board {board} disagrees with the survey in the joint rig solve (χ² {chi2:.0} over its 6 survey σ, limit {MOVED_BOARD_CHI2}): it has moved, or the survey is stale"
-        )),
-        None => Ok(()),
-    }
+    worst
 }
 
 fn joint_reason(e: crate::solve::SolveError) -> String {
@@ -798,13 +841,11 @@ fn lidar_measurements(
 /// and per surveyed plane a LiDAR has points on, with the survey's priors.
 fn joint_problem<'a>(
     survey: &SurveySpec,
-    object: &'a [Vec3],
-    cameras: &'a [CameraMeasurements],
-    lidars: &'a [LidarMeasurement],
+    m: &'a Measured,
     planes: &[Vec<(usize, PlanePoints)>],
-    corner_sigma: [f64; JOINT_CAMERAS],
 ) -> Result<(JointProblem<'a>, Vec<Block>), String> {
-    let mut problem = JointProblem::new(corner_sigma, 2.0, Loss::Huber(3.0));
+    let (object, cameras, lidars) = (&m.object, &m.cameras, &m.lidars);
+    let mut problem = JointProblem::new(m.corner_sigma, 2.0, Loss::Huber(3.0));
     let mut blocks: Vec<Block> = Vec::new();
     let mut block = |problem: &mut JointProblem<'a>, which: Block| -> Result<usize, String> {
         if let Some(i) = blocks.iter().position(|b| *b == which) {
