@@ -582,6 +582,8 @@ fn solve_jointly(
     start: &Start,
 ) -> Result<Joint, String> {
     let (camera_inputs, lidar_inputs) = inputs;
+    // One input per rig LiDAR (a caller's extra inputs have no sensor).
+    let lidar_inputs = &lidar_inputs[..lidar_inputs.len().min(rig.lidars.len())];
     let spec = &room.board;
     let surveyed: Vec<Se3> = survey.boards.iter().map(|b| b.pose()).collect();
     let model_holes: Vec<Vec3> = (0..spec.holes.len()).map(|h| spec.hole(h)).collect();
