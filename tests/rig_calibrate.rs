@@ -41,11 +41,11 @@ fn path(relative: &str) -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join(relative)
 }
 
-fn simulated() -> RigSimulation {
+fn simulated(seed: u64) -> RigSimulation {
     let room = roomcal::room::load(&path("config/room.toml")).unwrap();
     let rig = roomcal::rig::load(&path("config/rig.toml")).unwrap();
     let options = SimOptions {
-        seed: 2026,
+        seed,
         range_noise_m: 0.02,
         image: ImageNoise { supersample: 1, ..ImageNoise::default() },
         ..SimOptions::default()
@@ -140,8 +140,25 @@ fn detections(sim: &RigSimulation, rng: &mut Rng) -> (Vec<Vec<CameraBoard>>, Vec
     (cameras, lidars)
 }
 
+/// The boards are laid out for the 60° camera: in the 90° one they cover 25 % of the
+/// image, below the default gate's 35 %; this room's [quality] asks for 20 %.
+fn with_wide_coverage(sim: RigSimulation) -> RigSimulation {
+    let mut room = sim.room.clone();
+    room.quality.min_coverage = 0.2;
+    RigSimulation { room, ..sim }
+}
+
 fn run(sim: &RigSimulation, room: &Room, free_boards: bool) -> RigCalibration {
-    let (cameras, lidars) = detections(sim, &mut Rng(7));
+    run_seeded(sim, room, free_boards, 7)
+}
+
+fn run_seeded(
+    sim: &RigSimulation,
+    room: &Room,
+    free_boards: bool,
+    noise_seed: u64,
+) -> RigCalibration {
+    let (cameras, lidars) = detections(sim, &mut Rng(noise_seed));
     let inputs: Vec<LidarInput<'_>> =
         lidars.iter().zip(&sim.clouds).map(|(b, c)| LidarInput { boards: b, cloud: c }).collect();
     let options = CalibrateOptions { free_boards, ..CalibrateOptions::default() };
@@ -197,18 +214,14 @@ fn check_against_truth(what: &str, sim: &RigSimulation, run: &RigCalibration) {
 
 #[test]
 fn a_rig_in_the_surveyed_room_and_with_free_boards_matches_the_truth() {
-    let sim = simulated();
+    let sim = simulated(2026);
     for (name, s) in &sim.truth.sensors {
         let placed =
             s.boards.iter().filter(|b| b.hole_scan_lines.iter().filter(|&&n| n >= 2).count() >= 2);
         let seen = s.boards.iter().filter(|b| !b.corners_px.is_empty());
         println!("{name}: {} boards in view, {} LiDAR-placeable", seen.count(), placed.count());
     }
-    // The boards are laid out for the 60° camera: in the 90° one they cover 25 % of the
-    // image, below the default gate's 35 %; this room's [quality] asks for 20 %.
-    let mut room = sim.room.clone();
-    room.quality.min_coverage = 0.2;
-    let sim = RigSimulation { room, ..sim };
+    let sim = with_wide_coverage(sim);
     let mut surveyed = sim.room.clone();
     surveyed.survey = Some(exact_survey(&sim.room_truth));
     let run_surveyed = run(&sim, &surveyed, false);
@@ -216,4 +229,284 @@ fn a_rig_in_the_surveyed_room_and_with_free_boards_matches_the_truth() {
     assert!(run_surveyed.result.sensors["front"].camera_in_room.is_some());
     let run_free = run(&sim, &sim.room, true);
     check_against_truth("free", &sim, &run_free);
+}
+
+/// The survey 16 visits give, as the study assumes it: every board and plane off
+/// the truth by 0.5 mm and 0.01° (1σ per axis, drawn), those σ declared.
+fn realistic_survey(truth: &RoomTruth, rng: &mut Rng) -> SurveySpec {
+    const SIGMA_M: f64 = 0.0005;
+    const SIGMA_DEG: f64 = 0.01;
+    let mut survey = exact_survey(truth);
+    for b in survey.boards.iter_mut() {
+        let pose = Extrinsic { rotation: b.rotation, translation: b.translation }.to_se3();
+        let mut d = nalgebra::SVector::<f64, 6>::zeros();
+        d.fixed_rows_mut::<3>(0).copy_from(&rng.vec3(SIGMA_DEG.to_radians()));
+        d.fixed_rows_mut::<3>(3).copy_from(&rng.vec3(SIGMA_M));
+        let off = Extrinsic::from_se3(&pose.perturb_left(&d));
+        (b.rotation, b.translation) = (off.rotation, off.translation);
+        (b.sigma_m, b.sigma_deg) = (SIGMA_M, SIGMA_DEG);
+    }
+    for p in survey.planes.iter_mut() {
+        let turn = roomcal::geometry::se3::so3_exp(&rng.vec3(SIGMA_DEG.to_radians()));
+        let normal = turn * Vec3::from(p.normal);
+        p.normal = [normal.x, normal.y, normal.z];
+        p.offset += SIGMA_M * rng.normal();
+        (p.sigma_m, p.sigma_deg) = (SIGMA_M, SIGMA_DEG);
+    }
+    survey
+}
+
+/// Per quantity, every seed's (error, σ) in the quantity's unit; norms of 3-axis errors
+/// are set against √3 × the worst-axis σ.
+#[derive(Default)]
+struct Tally(std::collections::BTreeMap<String, Vec<(f64, f64)>>);
+
+impl Tally {
+    fn add(&mut self, what: String, error: f64, sigma: f64) {
+        self.0.entry(what).or_default().push((error, sigma));
+    }
+
+    /// Every camera's fx %, cx, cy px and every extrinsic's rotation ° and translation mm.
+    fn record(&mut self, sim: &RigSimulation, result: &roomcal::result::RigResult) {
+        for camera in &sim.rig.cameras {
+            let name = camera.name.as_str();
+            let truth = sim.truth.sensors[name].camera.as_ref().unwrap();
+            let (got, sigma) = (
+                result.sensors[name].camera.as_ref().unwrap(),
+                result.sensors[name].uncertainty.as_ref().unwrap(),
+            );
+            let pct = 100.0 / truth.fx;
+            self.add(format!("{name} fx %"), (got.fx - truth.fx).abs() * pct, sigma.fx * pct);
+            self.add(format!("{name} cx px"), (got.cx - truth.cx).abs(), sigma.cx);
+            self.add(format!("{name} cy px"), (got.cy - truth.cy).abs(), sigma.cy);
+        }
+        let root3 = 3f64.sqrt();
+        for ext in &result.extrinsics {
+            let truth = &sim.truth.sensors[ext.from.as_str()].to_reference;
+            let got = Extrinsic { rotation: ext.rotation, translation: ext.translation };
+            let (deg, m) = truth.difference(&got);
+            let to = &ext.to;
+            self.add(format!("{}→{to} °", ext.from), deg, root3 * ext.sigma_rotation_deg);
+            self.add(
+                format!("{}→{to} mm", ext.from),
+                m * 1e3,
+                root3 * ext.sigma_translation_m * 1e3,
+            );
+        }
+    }
+
+    /// Per quantity: RMS error, largest error, RMS σ and RMS error/σ.
+    fn summary(&self) -> Vec<(String, f64, f64, f64, f64)> {
+        let rms = |v: &mut dyn Iterator<Item = f64>| {
+            let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x * x, n + 1));
+            (s / n.max(1) as f64).sqrt()
+        };
+        self.0
+            .iter()
+            .map(|(what, v)| {
+                let max = v.iter().map(|(e, _)| *e).fold(0.0, f64::max);
+                (
+                    what.clone(),
+                    rms(&mut v.iter().map(|(e, _)| *e)),
+                    max,
+                    rms(&mut v.iter().map(|(_, s)| *s)),
+                    rms(&mut v.iter().map(|(e, s)| e / s)),
+                )
+            })
+            .collect()
+    }
+}
+
+/// Ten vehicles (seeds 1–10: own intrinsics, mountings and parking) in a room surveyed as
+/// 16 visits survey it (`realistic_survey`), each calibrated from one frame per sensor:
+/// the joint solve's errors and σ against the pair runs' composition in the same runs.
+/// The joint σ must be honest: RMS error/σ within 0.5–1.6 for every quantity. Of the
+/// issue's targets (RMS over the vehicles) the intrinsics' are asserted (fx ≤ 0.1 %,
+/// cx, cy ≤ 1.5 px); the extrinsics' (camera→camera ≤ 0.03° / 3 mm, LiDAR→camera
+/// ≤ 0.05° / 4 mm) are printed met or missed — one frame in this survey does not hold them
+/// all, and its σ say so. Every LiDAR→camera RMS error must be below the composition's.
+/// Printed with `-- --nocapture`.
+#[test]
+fn ten_rigs_in_a_realistically_surveyed_room_joint_against_composition() {
+    study(|truth, seed| realistic_survey(truth, &mut Rng(1000 + seed)), true);
+}
+
+/// As above with the exact survey (σ 0), what the sensors alone allow
+/// (`cargo test --test rig_calibrate -- --ignored --nocapture`, 50 s): only the LiDAR→camera
+/// errors below the composition's are asserted. Here the LiDAR σ are not honest (RMS
+/// error/σ 1.3–2.8): the surveyed planes' points carry most of the LiDAR information and a
+/// few millimetres of bias in these simulated sweeps that their per-point σ does not
+/// describe (without them the errors are 2–3× larger and honest); a real survey's σ cover it.
+#[test]
+#[ignore]
+fn ten_rigs_in_an_exactly_surveyed_room_joint_against_composition() {
+    study(|truth, _| exact_survey(truth), false);
+}
+
+/// Calibrates seeds 1–10 in the room `survey` gives, prints joint against composition
+/// and checks it (σ honesty only when `honest_sigma`).
+fn study(survey: impl Fn(&RoomTruth, u64) -> SurveySpec, honest_sigma: bool) {
+    const SEEDS: u64 = 10;
+    let (mut joint, mut composed) = (Tally::default(), Tally::default());
+    let mut accepted = 0;
+    for seed in 1..=SEEDS {
+        let sim = with_wide_coverage(simulated(seed));
+        let mut room = sim.room.clone();
+        room.survey = Some(survey(&sim.room_truth, seed));
+        let run = run_seeded(&sim, &room, false, seed);
+        match run.result.pair.status {
+            Status::Accepted => accepted += 1,
+            Status::Rejected => println!("seed {seed}: rejected: {:?}", run.result.pair.reason),
+        }
+        joint.record(&sim, &run.result);
+        let composition = run.composition.as_ref().expect("a surveyed rig keeps its composition");
+        composed.record(&sim, composition);
+    }
+    println!("{accepted}/{SEEDS} accepted; per quantity over the vehicles: RMS error (largest), RMS σ, RMS error/σ");
+    println!("{:<18} {:>36} {:>36}", "quantity", "joint", "composition");
+    let composed = composed.summary();
+    let mut failures = Vec::new();
+    for ((what, e, max, s, ratio), (_, ce, cmax, cs, cratio)) in
+        joint.summary().into_iter().zip(composed)
+    {
+        let unit = what.rsplit(' ').next().unwrap();
+        let target = match unit {
+            "%" => 0.1,
+            "px" => 1.5,
+            "°" if what.starts_with("wide") => 0.03,
+            "°" => 0.05,
+            "mm" if what.starts_with("wide") => 3.0,
+            _ => 4.0,
+        };
+        let verdict = if e <= target { "met" } else { "MISSED" };
+        println!(
+            "{what:<18} {e:>8.4} ({max:.4}) σ {s:.4} {ratio:>4.2}   {ce:>8.4} ({cmax:.4}) σ {cs:.4} {cratio:>4.2}   target {target} {verdict}"
+        );
+        let lidar = what.starts_with("top") || what.starts_with("bumper");
+        if lidar && e > ce {
+            failures
+                .push(format!("{what}: joint RMS error {e:.4} above the composition's {ce:.4}"));
+        }
+        if honest_sigma && !(0.5..=1.6).contains(&ratio) {
+            failures.push(format!("{what}: joint RMS error/σ {ratio:.2}"));
+        }
+        if matches!(unit, "%" | "px") && e > target {
+            failures.push(format!("{what}: joint RMS error {e:.4} above the target {target}"));
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// Over the binary, real detectors: `roomcal simulate --rig` (seed 3), the simulated room
+/// given a survey (`realistic_survey` of its `room-truth.json`), `roomcal calibrate --rig`
+/// on its images and sweeps. The result is the joint solve's: every camera has its pose in
+/// the room, every extrinsic a σ and its error against `rig-truth.json` within 3√3σ.
+#[test]
+fn the_binary_calibrates_a_simulated_rig_in_a_surveyed_room() {
+    let dir = std::env::temp_dir().join(format!("roomcal-rig-surveyed-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let roomcal = |args: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_roomcal"))
+            .args(args)
+            .output()
+            .expect("roomcal runs");
+        let text = |b: &[u8]| String::from_utf8_lossy(b).into_owned();
+        (out.status.code().unwrap_or(-1), text(&out.stdout) + &text(&out.stderr))
+    };
+    let config = |f: &str| path("config").join(f).to_string_lossy().into_owned();
+    let at = |f: &str| dir.join(f).to_string_lossy().into_owned();
+    let (room, rig) = (config("room.toml"), config("rig.toml"));
+    let d = at("");
+    let args = ["simulate", "--room", &room, "--rig", &rig, "--out", &d, "--seed", "3"];
+    let (code, text) = roomcal(&[&args[..], &["--supersample", "1"]].concat());
+    assert_eq!(code, 0, "{text}");
+    let mut surveyed = roomcal::room::load(&dir.join("room.toml")).unwrap();
+    surveyed.quality.min_coverage = 0.2;
+    let truth: RoomTruth =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("room-truth.json")).unwrap())
+            .unwrap();
+    surveyed.survey = Some(realistic_survey(&truth, &mut Rng(3)));
+    std::fs::write(dir.join("surveyed.toml"), roomcal::room::to_toml(&surveyed)).unwrap();
+    let (surveyed, out) = (at("surveyed.toml"), at("result.json"));
+    let inputs = [
+        format!("front={}", at("front.png")),
+        format!("wide={}", at("wide.png")),
+        format!("top={}", at("top.pcd")),
+        format!("bumper={}", at("bumper.pcd")),
+    ];
+    let (code, text) = roomcal(&[
+        "calibrate",
+        "--room",
+        &surveyed,
+        "--rig",
+        &rig,
+        "--image",
+        &inputs[0],
+        "--image",
+        &inputs[1],
+        "--cloud",
+        &inputs[2],
+        "--cloud",
+        &inputs[3],
+        "--out",
+        &out,
+    ]);
+    println!("{text}");
+    let result: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let status = result["status"].as_str().unwrap();
+    assert_eq!(code, if status == "accepted" { 0 } else { 3 }, "{text}");
+    for camera in ["front", "wide"] {
+        assert!(result["sensors"][camera]["camera_in_room"].is_object(), "{camera}");
+    }
+    let rig_truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("rig-truth.json")).unwrap())
+            .unwrap();
+    let extrinsics = result["extrinsics"].as_array().unwrap();
+    assert_eq!(extrinsics.len(), 3, "{text}");
+    let matrix = |v: &serde_json::Value| -> [[f64; 3]; 3] {
+        std::array::from_fn(|i| std::array::from_fn(|j| v[i][j].as_f64().unwrap()))
+    };
+    let vector =
+        |v: &serde_json::Value| -> [f64; 3] { std::array::from_fn(|i| v[i].as_f64().unwrap()) };
+    let bound = 3.0 * 3f64.sqrt();
+    for e in extrinsics {
+        let from = e["from"].as_str().unwrap();
+        let t = &rig_truth["sensors"][from]["to_reference"];
+        let truth =
+            Extrinsic { rotation: matrix(&t["rotation"]), translation: vector(&t["translation"]) };
+        let got =
+            Extrinsic { rotation: matrix(&e["rotation"]), translation: vector(&e["translation"]) };
+        let (deg, m) = truth.difference(&got);
+        let (s_deg, s_m) =
+            (e["sigma_rotation_deg"].as_f64().unwrap(), e["sigma_translation_m"].as_f64().unwrap());
+        println!(
+            "binary, surveyed: {from} → front: {deg:.4}° (σ {s_deg:.4}) {:.2} mm (σ {:.2})",
+            m * 1e3,
+            s_m * 1e3
+        );
+        assert!(s_deg > 0.0 && s_m > 0.0, "{from}: σ must be positive");
+        assert!(deg <= bound * s_deg && m <= bound * s_m, "{from}: outside 3σ");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// A board moved 3 cm since the survey (one the roof LiDAR places): the pair runs and the
+/// joint solve leave it out (named in the log; the LiDARs' measurements of it too), and
+/// the rig still matches the truth. The room's gate asks for 5 of its 6 boards here, and
+/// 15 % coverage (the wide camera's corners cover 19 % without that board).
+#[test]
+fn a_board_moved_since_the_survey_is_left_out_of_the_joint_solve() {
+    let sim = with_wide_coverage(simulated(2026));
+    let placed =
+        |b: &roomcal::sim::BoardTruth| b.hole_scan_lines.iter().filter(|&&n| n >= 2).count() >= 2;
+    let moved = sim.truth.sensors["top"].boards.iter().position(placed).unwrap();
+    let mut survey = realistic_survey(&sim.room_truth, &mut Rng(5));
+    survey.boards[moved].translation[0] += 0.03;
+    let mut room = sim.room.clone();
+    room.survey = Some(survey);
+    (room.quality.min_boards, room.quality.min_coverage) = (Some(5), 0.15);
+    let run = run(&sim, &room, false);
+    println!("board {moved} moved by 30 mm");
+    check_against_truth("moved board", &sim, &run);
 }

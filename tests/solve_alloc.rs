@@ -1,8 +1,11 @@
-//! Proves the joint solve and its covariance make no heap allocation: a counting global
-//! allocator, enabled only on this test's thread while the solver runs.
+//! Proves the joint solve and its covariance make no heap allocation, for one pair and
+//! for a whole rig: a counting global allocator, enabled only on this test's thread while
+//! the solver runs.
 
 #[path = "common/counting_alloc.rs"]
 mod counting_alloc;
+#[path = "common/rig_scene.rs"]
+mod rig_scene;
 mod solve_common;
 
 use counting_alloc::count_allocations;
@@ -59,4 +62,20 @@ fn joint_solve_makes_no_heap_allocation() {
     assert!(report.iterations > 1, "the solve must actually iterate: {report:?}");
     assert!(cov.unwrap().uncertainty().fx > 0.0);
     assert_eq!(count, 0, "heap allocations inside the solve");
+}
+
+#[test]
+fn rig_solve_makes_no_heap_allocation() {
+    use roomcal::solve::rig::{rig_covariance, solve_rig};
+    let s = rig_scene::scene(None);
+    let p = rig_scene::problem(&s, 0.1, 0.003, Loss::Huber(3.0));
+    let mut params = rig_scene::perturbed(&s);
+    let ((report, cov), count) = count_allocations(|| {
+        let report = solve_rig(&p, &mut params, 50);
+        (report, rig_covariance(&p, &params))
+    });
+    let report = report.unwrap();
+    assert!(report.iterations > 1, "the solve must actually iterate: {report:?}");
+    assert!(cov.unwrap().intrinsics_sigma(1)[0] > 0.0);
+    assert_eq!(count, 0, "heap allocations inside the rig solve");
 }

@@ -1,40 +1,57 @@
-//! A rig's calibration, first slice: every sensor through the one-pair solves, the
-//! extrinsics composed with their σ propagated.
+//! A rig's calibration: every sensor through the one-pair solves, the extrinsics composed
+//! with their σ propagated; in a surveyed room that composition is the start of ONE joint
+//! solve of the whole rig ([`crate::solve::rig`]), which gives the result.
 //!
 //! Every camera is solved with every LiDAR (the one-pair run, [`super::calibrate_with_clouds`],
-//! on [`Rig::pair_room`]). A camera's result is its run with the LiDAR that places most of
+//! on [`Rig::pair_room`]). A camera's run is its run with the LiDAR that places most of
 //! its boards (or its intrinsics-only run when none does); a LiDAR's is its run with the
 //! camera it shares most boards with.
 //!
 //! - **Surveyed room**: each camera's run gives its intrinsics and its pose in the room;
 //!   camera → first camera = `room→first ∘ (room→camera)⁻¹`; LiDAR → first camera =
 //!   `room→first ∘ (room→c)⁻¹ ∘ LiDAR→c` through its camera `c`'s run (just `LiDAR→first`
-//!   when `c` is the first camera). Sensors whose views never overlap are tied through
-//!   the room.
-//! - **Free boards**: LiDAR → first camera from its run with the first camera, else through
-//!   the camera it shares boards with; camera → first camera through a LiDAR that places
-//!   boards in both cameras' runs: `LiDAR→first ∘ (LiDAR→camera)⁻¹`.
+//!   when `c` is the first camera). Then the joint solve: every camera's boards as its run
+//!   identified them, every LiDAR's boards placed on the surveyed boards through the
+//!   composed start (holes paired with the model's), every LiDAR's points on the surveyed
+//!   planes; intrinsics, mountings, the room pose, boards and planes solved at once, σ from
+//!   its normal equations. Sensors whose views never overlap are tied through the room.
+//! - **Free boards** (the composition is the result): LiDAR → first camera from its run with
+//!   the first camera, else through the camera it shares boards with; camera → first camera
+//!   through a LiDAR that places boards in both cameras' runs: `LiDAR→first ∘ (LiDAR→camera)⁻¹`.
 //!
-//! σ: first-order propagation of each run's pose covariance ([`Calibration::pose_covariance`],
-//! left perturbations) through the composition, runs taken as independent (they share
-//! the survey's boards, whose σ each run's room solve already carries).
+//! Composition σ: first-order propagation of each run's pose covariance
+//! ([`Calibration::pose_covariance`], left perturbations), runs taken as independent (over
+//! ten simulated vehicles the LiDAR translations' σ came out 1.8× optimistic; the joint σ are
+//! honest, README "Rigs").
 //!
 //! Gate: each run is gated by the room's `[quality]`; a rig is accepted only when every
 //! sensor is (see README, "Rigs": one failing sensor rejects the whole run and is named).
+//! A joint solve that fails, or puts a board outside its survey σ, rejects the rig.
 
 use std::collections::BTreeMap;
 
 use nalgebra::{DMatrix, Matrix3};
 
+use super::identify::GATE_M;
+use super::surveyed::MOVED_BOARD_CHI2;
 use super::{
-    calibrate_with_clouds, CalibrateOptions, Calibration, CameraBoard, FrameDetections, LidarBoard,
+    calibrate_with_clouds, median, CalibrateOptions, Calibration, CameraBoard, FrameDetections,
+    LidarBoard, MAX_OBSERVATIONS,
 };
-use crate::geometry::{se3::so3_log, Se3, Vec3};
+use crate::geometry::{se3::so3_log, Camera, Se3, Vec2, Vec3};
 use crate::lidar::Point;
-use crate::result::{Extrinsic, RigExtrinsic, RigResult, SensorResult, Status};
-use crate::rig::Rig;
+use crate::result::{
+    CameraResult, Extrinsic, RigExtrinsic, RigResult, SensorResult, Status, Uncertainty,
+};
+use crate::rig::{Rig, SensorKind};
 use crate::solve::linalg::max_eigenvalue3;
-use crate::target::Room;
+use crate::solve::rig::{
+    rig_covariance, rig_shared, solve_rig, worst_axis_sigma, RigCovariance, RigObservation,
+    RigParams, RigProblem, RigReport,
+};
+use crate::solve::room::{plane_frame, BlockPrior};
+use crate::solve::{hole_sigma_px, BoardObservation, Loss, PlanePoints};
+use crate::target::{Room, SurveySpec};
 
 /// What one LiDAR saw: its boards and its sweep (accumulated for a standing vehicle).
 #[derive(Clone, Copy, Debug)]
@@ -47,10 +64,14 @@ pub struct LidarInput<'a> {
 #[derive(Clone, Debug)]
 pub struct RigCalibration {
     pub result: RigResult,
-    /// The run whose result is the one-pair fields (first camera with the first LiDAR).
+    /// The first camera's run with the first LiDAR (the one-pair fields' source with free
+    /// boards; the joint solve's start in a surveyed room).
     pub first: Calibration,
     /// Every pair run: (camera, LiDAR or `None` for intrinsics only) → run.
     pub runs: BTreeMap<(usize, Option<usize>), Calibration>,
+    /// In a surveyed room, the result as the pair runs composed it, before the joint
+    /// solve replaced its values (for comparisons; `None` otherwise).
+    pub composition: Option<RigResult>,
 }
 
 /// Calibrates every sensor of `rig` in `room` from each camera's boards (`cameras[c]`) and
@@ -91,6 +112,11 @@ pub fn calibrate_rig(
     let mut sensors = BTreeMap::new();
     let mut extrinsics = Vec::new();
     let mut failures = Vec::new();
+    let mut start = Start {
+        camera_to_first: vec![None; rig.cameras.len()],
+        lidar_to_first: vec![None; rig.lidars.len()],
+        lidar_cameras: lidar_cameras.clone(),
+    };
     for (c, camera) in rig.cameras.iter().enumerate() {
         let run = &runs[&camera_runs[c]];
         let mut entry = sensor_entry(run, camera_runs[c].1.map(|l| rig.lidars[l].name.to_string()));
@@ -109,7 +135,10 @@ pub fn calibrate_rig(
         }
         if c > 0 {
             match composer.camera_to_first(c) {
-                Ok(ext) => extrinsics.push(ext.named(camera.name.as_str(), rig)),
+                Ok(ext) => {
+                    start.camera_to_first[c] = Some(ext.pose);
+                    extrinsics.push(ext.named(camera.name.as_str(), rig));
+                }
                 Err(reason) => reject(&mut entry, reason),
             }
         }
@@ -132,7 +161,10 @@ pub fn calibrate_rig(
         entry.lidar = true;
         if let Some(c) = lidar_cameras[l] {
             match composer.lidar_to_first(l, c) {
-                Ok(ext) => extrinsics.push(ext.named(lidar.name.as_str(), rig)),
+                Ok(ext) => {
+                    start.lidar_to_first[l] = Some(ext.pose);
+                    extrinsics.push(ext.named(lidar.name.as_str(), rig));
+                }
                 Err(reason) => reject(&mut entry, reason),
             }
         }
@@ -149,7 +181,91 @@ pub fn calibrate_rig(
         pair.status = Status::Accepted;
         pair.reason = None;
     }
-    RigCalibration { result: RigResult { pair, sensors, extrinsics }, first, runs }
+    let composition = RigResult { pair, sensors, extrinsics };
+    let mut result = composition.clone();
+    let fits = rig.cameras.len() <= JOINT_CAMERAS && rig.lidars.len() <= JOINT_LIDARS;
+    let Some(survey) = room.survey.as_ref().filter(|_| surveyed && fits) else {
+        if surveyed {
+            tracing::warn!("a rig beyond the joint solve's capacity keeps the composition");
+        }
+        return RigCalibration { result, first, runs, composition: None };
+    };
+    let inputs = (cameras, lidars);
+    match solve_jointly(room, survey, rig, &runs, &camera_runs, inputs, &start) {
+        Ok(joint) => apply_joint(&mut result, &joint, rig),
+        Err(reason) => {
+            result.pair.status = Status::Rejected;
+            let before = result.pair.reason.take();
+            result.pair.reason = Some(before.map_or(reason.clone(), |r| format!("{r}; {reason}")));
+        }
+    }
+    RigCalibration { result, first, runs, composition: Some(composition) }
+}
+
+/// The joint solution written into the result: every camera's intrinsics, σ and pose in
+/// the room, every extrinsic and its σ, the one-pair fields (first camera, first LiDAR).
+/// The sensors' verdicts stay their pair runs' gates.
+fn apply_joint(result: &mut RigResult, joint: &Joint, rig: &Rig) {
+    let (p, cov) = (&joint.params, &joint.covariance);
+    let lidar_of = |name: &Option<String>| match name.as_deref().and_then(|n| rig.find(n)) {
+        Some((SensorKind::Lidar, l)) => Some(l),
+        _ => None,
+    };
+    for (c, camera) in rig.cameras.iter().enumerate() {
+        let Some(entry) = result.sensors.get_mut(camera.name.as_str()) else { continue };
+        let lidar = lidar_of(&entry.solved_with);
+        entry.camera = Some(CameraResult::from_camera(&p.cameras[c]));
+        entry.uncertainty = Some(joint_uncertainty(joint, c, lidar));
+        let room_to_camera = p.first_to_camera[c].compose(&p.room_to_first[0]);
+        entry.camera_in_room = Some(Extrinsic::from_se3(&room_to_camera.inverse()));
+    }
+    for e in result.extrinsics.iter_mut() {
+        let (pose, covariance) = match rig.find(&e.from) {
+            Some((SensorKind::Camera, c)) => {
+                let a = &p.first_to_camera[c];
+                (a.inverse(), cov.camera_to_first(c, a))
+            }
+            Some((SensorKind::Lidar, l)) => (p.lidar_to_first[l], cov.lidar_to_first(l)),
+            None => continue,
+        };
+        let (rotation, translation) = worst_axis_sigma(&covariance);
+        let x = Extrinsic::from_se3(&pose);
+        (e.rotation, e.translation) = (x.rotation, x.translation);
+        (e.sigma_rotation_deg, e.sigma_translation_m) = (rotation.to_degrees(), translation);
+    }
+    let first = rig.cameras[0].name.as_str();
+    let pair = &mut result.pair;
+    if let Some(entry) = result.sensors.get(first) {
+        pair.camera = entry.camera.clone().unwrap_or(pair.camera.clone());
+        pair.camera_in_room = entry.camera_in_room.clone();
+    }
+    let with_lidar = pair.lidar_to_camera.is_some() && !rig.lidars.is_empty();
+    pair.uncertainty = joint_uncertainty(joint, 0, with_lidar.then_some(0));
+    if with_lidar {
+        pair.lidar_to_camera = Some(Extrinsic::from_se3(&p.lidar_to_first[0]));
+        pair.quality.hole_rms_px = joint.report.hole_rms_px[0];
+    }
+    pair.quality.corner_rms_px = joint.report.corner_rms_px[0];
+    tracing::debug!(iterations = joint.iterations, "rig solved jointly");
+}
+
+/// Camera `c`'s σ from the joint covariance: intrinsics, and LiDAR `lidar` → camera `c`
+/// (zero without a LiDAR).
+fn joint_uncertainty(joint: &Joint, c: usize, lidar: Option<usize>) -> Uncertainty {
+    let (p, cov) = (&joint.params, &joint.covariance);
+    let k = cov.intrinsics_sigma(c);
+    let (rotation, translation) = lidar.map_or((0.0, 0.0), |l| {
+        let lc = cov.lidar_to_camera(l, c, &p.first_to_camera[c], &p.lidar_to_first[l]);
+        worst_axis_sigma(&lc)
+    });
+    Uncertainty {
+        fx: k[0],
+        fy: k[1],
+        cx: k[2],
+        cy: k[3],
+        rotation_deg: rotation.to_degrees(),
+        translation_m: translation,
+    }
 }
 
 /// One pair run: camera `c`'s boards with LiDAR `l`'s (or none), in the pair's room. In a
@@ -392,4 +508,413 @@ fn left_difference(a: &Se3, b: &Se3) -> nalgebra::SVector<f64, 6> {
     let w: Vec3 = so3_log(&(a.rotation * b.rotation.transpose()));
     let t = a.translation - b.translation;
     nalgebra::SVector::<f64, 6>::new(w.x, w.y, w.z, t.x, t.y, t.z)
+}
+
+// ---- The joint solve (surveyed rooms) -------------------------------------------------
+
+/// Capacities of the joint solve; a rig beyond them keeps the composition.
+const JOINT_CAMERAS: usize = 4;
+const JOINT_LIDARS: usize = 4;
+const JOINT_OBSERVATIONS: usize = 96;
+const JOINT_SHARED: usize = rig_shared(JOINT_CAMERAS, JOINT_LIDARS, 1);
+
+type JointProblem<'a> = RigProblem<
+    'a,
+    JOINT_CAMERAS,
+    JOINT_LIDARS,
+    1,
+    MAX_OBSERVATIONS,
+    JOINT_OBSERVATIONS,
+    JOINT_SHARED,
+>;
+type JointParams = RigParams<Camera, JOINT_CAMERAS, JOINT_LIDARS, 1, MAX_OBSERVATIONS>;
+
+/// The joint solution: the estimate, its covariance and the solve's residuals.
+struct Joint {
+    params: JointParams,
+    covariance: RigCovariance<JOINT_SHARED>,
+    report: RigReport<JOINT_CAMERAS, JOINT_LIDARS>,
+    iterations: usize,
+}
+
+/// The starting mountings from the composition (`None` where it failed: the nominal
+/// mounting is used), and each LiDAR's composition camera.
+struct Start {
+    camera_to_first: Vec<Option<Se3>>,
+    lidar_to_first: Vec<Option<Se3>>,
+    lidar_cameras: Vec<Option<usize>>,
+}
+
+/// One camera's boards as its pair run identified them: (survey board, corners in the
+/// survey's order).
+type CameraMeasurements = Vec<(usize, Vec<Vec2>)>;
+
+/// One LiDAR board placed on a surveyed board: its holes paired with the board model's,
+/// the camera the hole term is seen in, and its face points.
+struct LidarMeasurement {
+    lidar: usize,
+    board: usize,
+    camera: Option<usize>,
+    holes_board: Vec<Vec3>,
+    holes_lidar: Vec<Vec3>,
+    hole_sigma_px: f64,
+    plane: Option<PlanePoints>,
+}
+
+/// Which survey entry a block of the joint problem is.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Block {
+    Board(usize),
+    Plane(usize),
+}
+
+/// Solves every sensor of the rig jointly in the surveyed room, from the pair runs'
+/// intrinsics and room pose and the composed mountings. As in the one-pair run, a board
+/// the solution puts outside its survey σ is named, left out and the rig solved again; a
+/// second one rejects the rig.
+fn solve_jointly(
+    room: &Room,
+    survey: &SurveySpec,
+    rig: &Rig,
+    runs: &BTreeMap<(usize, Option<usize>), Calibration>,
+    camera_runs: &[(usize, Option<usize>)],
+    inputs: (&[Vec<CameraBoard>], &[LidarInput<'_>]),
+    start: &Start,
+) -> Result<Joint, String> {
+    let (camera_inputs, lidar_inputs) = inputs;
+    // One input per rig LiDAR (a caller's extra inputs have no sensor).
+    let lidar_inputs = &lidar_inputs[..lidar_inputs.len().min(rig.lidars.len())];
+    let spec = &room.board;
+    let surveyed: Vec<Se3> = survey.boards.iter().map(|b| b.pose()).collect();
+    let model_holes: Vec<Vec3> = (0..spec.holes.len()).map(|h| spec.hole(h)).collect();
+    let params = start_params(rig, runs, camera_runs, start)?;
+    let cameras: Vec<CameraMeasurements> = (0..rig.cameras.len())
+        .map(|c| camera_measurements(&runs[&camera_runs[c]], &surveyed))
+        .collect();
+    let mut lidars = Vec::new();
+    for (l, input) in lidar_inputs.iter().enumerate() {
+        let (preferred, boards) = (start.lidar_cameras[l], input.boards);
+        let placed =
+            lidar_measurements(l, boards, &params, &surveyed, &model_holes, &cameras, preferred);
+        lidars.extend(placed);
+    }
+    let mut measured = Measured {
+        object: (0..spec.corner_count()).map(|i| spec.corner(i)).collect(),
+        cameras,
+        lidars,
+        corner_sigma: core::array::from_fn(|c| {
+            let boards = camera_inputs.get(c);
+            boards.map_or(1.0, |b| median(b.iter().map(|b| b.sigma_px)).max(0.02))
+        }),
+    };
+    let clouds: Vec<&[Point]> = lidar_inputs.iter().map(|i| i.cloud).collect();
+    let mut left_out = None;
+    loop {
+        let (joint, moved) = solve_passes(survey, &surveyed, &clouds, &measured, params.clone())?;
+        match (moved, left_out) {
+            (None, _) => return Ok(joint),
+            (Some((board, _)), None) => {
+                tracing::warn!(board, "board disagrees with the survey in the joint rig solve; left out");
+                left_out = Some(board);
+                measured.leave_out(board);
+            }
+            (Some((board, chi2)), Some(first)) => {
+                return Err(format!(
+                    "board {board} disagrees with the survey in the joint rig solve (χ² {chi2:.0} over its 6 survey σ, limit {MOVED_BOARD_CHI2}) after leaving out board {first}: it has moved, or the survey is stale"
+                ))
+            }
+        }
+    }
+}
+
+/// The joint solve's measurements, owned (the problem borrows them).
+struct Measured {
+    object: Vec<Vec3>,
+    cameras: Vec<CameraMeasurements>,
+    lidars: Vec<LidarMeasurement>,
+    corner_sigma: [f64; JOINT_CAMERAS],
+}
+
+impl Measured {
+    /// Drops every measurement of surveyed board `board`.
+    fn leave_out(&mut self, board: usize) {
+        for seen in self.cameras.iter_mut() {
+            seen.retain(|(k, _)| *k != board);
+        }
+        self.lidars.retain(|m| m.board != board);
+    }
+}
+
+/// The two passes of the joint solve (surveyed-plane points selected from the start, then
+/// from the first solution), and the board farthest outside its survey σ if any is beyond
+/// [`MOVED_BOARD_CHI2`] (survey index, χ²).
+fn solve_passes(
+    survey: &SurveySpec,
+    surveyed: &[Se3],
+    clouds: &[&[Point]],
+    m: &Measured,
+    start: JointParams,
+) -> Result<(Joint, Option<(usize, f64)>), String> {
+    let select = |params: &JointParams, previous: Option<&[Vec<(usize, PlanePoints)>]>| {
+        let planes = clouds.iter().enumerate().map(|(l, cloud)| {
+            super::surveyed::room_planes(
+                survey,
+                surveyed,
+                &[*cloud],
+                &params.room_to_first[0],
+                &params.lidar_to_first[l],
+                previous.map(|p| p[l].as_slice()),
+            )
+        });
+        planes.collect::<Vec<_>>()
+    };
+    let at_priors = |problem: &JointProblem<'_>, p: &JointParams| {
+        problem.params_at_priors(p.cameras, p.first_to_camera, p.lidar_to_first, p.room_to_first)
+    };
+    let planes = select(&start, None);
+    let (problem, _) = joint_problem(survey, m, &planes)?;
+    let mut params = at_priors(&problem, &start);
+    let first = solve_rig(&problem, &mut params, 100).map_err(joint_reason)?;
+    let planes = select(&params, Some(&planes));
+    let (problem, blocks) = joint_problem(survey, m, &planes)?;
+    let mut p = at_priors(&problem, &params);
+    let report = solve_rig(&problem, &mut p, 100).map_err(joint_reason)?;
+    let moved = moved_board(&problem, &p, &blocks);
+    let covariance = rig_covariance(&problem, &p).map_err(joint_reason)?;
+    let iterations = first.iterations + report.iterations;
+    Ok((Joint { params: p, covariance, report, iterations }, moved))
+}
+
+/// The surveyed board the solution puts farthest outside its survey σ, if any is beyond
+/// [`MOVED_BOARD_CHI2`] (the one-pair run's rule): (survey index, χ²).
+fn moved_board(
+    problem: &JointProblem<'_>,
+    params: &JointParams,
+    blocks: &[Block],
+) -> Option<(usize, f64)> {
+    let mut worst: Option<(usize, f64)> = None;
+    problem.for_each_prior(params, |k, r, _| {
+        let chi2 = r.norm_squared();
+        if let (Some(Block::Board(board)), true) = (blocks.get(k), chi2 > MOVED_BOARD_CHI2) {
+            if worst.is_none_or(|(_, w)| chi2 > w) {
+                worst = Some((*board, chi2));
+            }
+        }
+    });
+    worst
+}
+
+fn joint_reason(e: crate::solve::SolveError) -> String {
+    format!("the joint rig solve failed: {e}")
+}
+
+/// The start: every camera's intrinsics from its run, the room pose from the first
+/// camera's run, the mountings composed (nominal where the composition failed). Unused
+/// slots hold copies nothing observes (the solve fixes them).
+fn start_params(
+    rig: &Rig,
+    runs: &BTreeMap<(usize, Option<usize>), Calibration>,
+    camera_runs: &[(usize, Option<usize>)],
+    start: &Start,
+) -> Result<JointParams, String> {
+    let first = &runs[&camera_runs[0]];
+    let room_to_first = first
+        .result
+        .camera_in_room
+        .as_ref()
+        .ok_or_else(|| format!("camera `{}` has no pose in the room", rig.cameras[0].name))?
+        .to_se3()
+        .inverse();
+    let cameras =
+        core::array::from_fn(|c| camera_runs.get(c).map_or(first.camera, |key| runs[key].camera));
+    let first_to_camera = core::array::from_fn(|c| match (c, rig.cameras.get(c)) {
+        (0, _) | (_, None) => Se3::identity(),
+        (_, Some(camera)) => start.camera_to_first[c].unwrap_or(camera.to_reference).inverse(),
+    });
+    let lidar_to_first = core::array::from_fn(|l| match rig.lidars.get(l) {
+        Some(lidar) => start.lidar_to_first[l].unwrap_or(lidar.to_reference),
+        None => Se3::identity(),
+    });
+    Ok(RigParams {
+        cameras,
+        first_to_camera,
+        lidar_to_first,
+        room_to_first: [room_to_first],
+        blocks: heapless::Vec::new(),
+    })
+}
+
+/// A camera's boards as its run used them, each on the surveyed board its solved pose
+/// puts it on (board → room = camera → room ∘ board → camera, within the identification
+/// gate).
+fn camera_measurements(run: &Calibration, surveyed: &[Se3]) -> CameraMeasurements {
+    let Some(camera_in_room) = run.result.camera_in_room.as_ref().map(Extrinsic::to_se3) else {
+        return Vec::new();
+    };
+    run.boards
+        .iter()
+        .filter_map(|b| {
+            let at = camera_in_room.compose(&b.pose).translation;
+            nearest(surveyed.iter().map(|s| s.translation), &at, GATE_M)
+                .map(|k| (k, b.corners.clone()))
+        })
+        .collect()
+}
+
+/// The index of the point nearest `to`, if within `gate`.
+fn nearest(points: impl Iterator<Item = Vec3>, to: &Vec3, gate: f64) -> Option<usize> {
+    points
+        .enumerate()
+        .map(|(i, p)| (i, (p - to).norm()))
+        .filter(|(_, d)| *d <= gate)
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(i, _)| i)
+}
+
+/// LiDAR `l`'s boards placed on the surveyed boards through the start (LiDAR → room), each
+/// hole paired with the nearest of the board model's; the hole term is seen in the
+/// LiDAR's composition camera when it sees that board, else in the first camera that
+/// does (none: the face points alone).
+fn lidar_measurements(
+    l: usize,
+    boards: &[LidarBoard],
+    start: &JointParams,
+    surveyed: &[Se3],
+    model_holes: &[Vec3],
+    seen: &[CameraMeasurements],
+    preferred: Option<usize>,
+) -> Vec<LidarMeasurement> {
+    let to_room = start.room_to_first[0].inverse().compose(&start.lidar_to_first[l]);
+    let centre = model_holes.iter().sum::<Vec3>() / model_holes.len().max(1) as f64;
+    let spacing = (0..model_holes.len())
+        .flat_map(|i| (0..i).map(move |j| (i, j)))
+        .map(|(i, j)| (model_holes[i] - model_holes[j]).norm())
+        .fold(f64::INFINITY, f64::min);
+    let mut out: Vec<LidarMeasurement> = Vec::new();
+    for board in boards.iter().filter(|b| !b.holes.is_empty()) {
+        let mean = board.holes.iter().sum::<Vec3>() / board.holes.len() as f64;
+        let centres = surveyed.iter().map(|s| s.act(&centre));
+        let Some(k) = nearest(centres, &to_room.act(&mean), GATE_M) else { continue };
+        if out.iter().any(|m| m.board == k) {
+            continue;
+        }
+        let model: Vec<Vec3> = model_holes.iter().map(|h| surveyed[k].act(h)).collect();
+        let mut pairs: Vec<(usize, Vec3)> = Vec::new();
+        for p in &board.holes {
+            let i = nearest(model.iter().copied(), &to_room.act(p), 0.5 * spacing);
+            if let Some(i) = i.filter(|i| pairs.iter().all(|(j, _)| j != i)) {
+                pairs.push((i, *p));
+            }
+        }
+        pairs.sort_by_key(|(i, _)| *i);
+        let sees = |c: usize| seen[c].iter().any(|(b, _)| *b == k);
+        let camera = preferred.filter(|&c| sees(c)).or_else(|| (0..seen.len()).find(|&c| sees(c)));
+        let hole_sigma_px = camera.map_or(1.0, |c| {
+            let to_camera =
+                start.first_to_camera[c].compose(&start.room_to_first[0]).compose(&surveyed[k]);
+            hole_sigma_px(start.cameras[c].fx, board.sigma_m, to_camera.translation.z)
+        });
+        let with_holes = camera.is_some() && pairs.len() >= 2;
+        if !with_holes && board.plane.is_none() {
+            continue;
+        }
+        out.push(LidarMeasurement {
+            lidar: l,
+            board: k,
+            camera: camera.filter(|_| with_holes),
+            holes_board: if with_holes {
+                pairs.iter().map(|(i, _)| model_holes[*i]).collect()
+            } else {
+                Vec::new()
+            },
+            holes_lidar: if with_holes {
+                pairs.iter().map(|(_, p)| *p).collect()
+            } else {
+                Vec::new()
+            },
+            hole_sigma_px,
+            plane: board.plane,
+        });
+    }
+    out
+}
+
+/// The joint problem over the measurements: one block per surveyed board anything sees
+/// and per surveyed plane a LiDAR has points on, with the survey's priors.
+fn joint_problem<'a>(
+    survey: &SurveySpec,
+    m: &'a Measured,
+    planes: &[Vec<(usize, PlanePoints)>],
+) -> Result<(JointProblem<'a>, Vec<Block>), String> {
+    let (object, cameras, lidars) = (&m.object, &m.cameras, &m.lidars);
+    let mut problem = JointProblem::new(m.corner_sigma, 2.0, Loss::Huber(3.0));
+    let mut blocks: Vec<Block> = Vec::new();
+    let mut block = |problem: &mut JointProblem<'a>, which: Block| -> Result<usize, String> {
+        if let Some(i) = blocks.iter().position(|b| *b == which) {
+            return Ok(i);
+        }
+        let prior = match which {
+            Block::Board(k) => {
+                let s = &survey.boards[k];
+                BlockPrior {
+                    pose: s.pose(),
+                    sigma_m: s.sigma_m,
+                    sigma_rad: s.sigma_deg.to_radians(),
+                }
+            }
+            Block::Plane(i) => {
+                let s = &survey.planes[i];
+                BlockPrior {
+                    pose: plane_frame(&Vec3::from(s.normal), s.offset),
+                    sigma_m: s.sigma_m,
+                    sigma_rad: s.sigma_deg.to_radians(),
+                }
+            }
+        };
+        blocks.push(which);
+        problem.add_block(prior).map_err(joint_reason)
+    };
+    let add = |problem: &mut JointProblem<'a>, o: RigObservation<'a>| {
+        problem.add_observation(o).map(|_| ()).map_err(joint_reason)
+    };
+    for (c, seen) in cameras.iter().enumerate() {
+        for (k, corners) in seen {
+            let observation = BoardObservation { object, corners, ..BoardObservation::default() };
+            let b = block(&mut problem, Block::Board(*k))?;
+            add(
+                &mut problem,
+                RigObservation { frame: 0, block: b, camera: Some(c), lidar: None, observation },
+            )?;
+        }
+    }
+    for m in lidars {
+        let observation = BoardObservation {
+            holes_board: &m.holes_board,
+            holes_lidar: &m.holes_lidar,
+            hole_sigma_px: Some(m.hole_sigma_px),
+            plane: m.plane,
+            ..BoardObservation::default()
+        };
+        let b = block(&mut problem, Block::Board(m.board))?;
+        let o = RigObservation {
+            frame: 0,
+            block: b,
+            camera: m.camera,
+            lidar: Some(m.lidar),
+            observation,
+        };
+        add(&mut problem, o)?;
+    }
+    for (l, planes) in planes.iter().enumerate() {
+        for (i, points) in planes {
+            let observation =
+                BoardObservation { plane: Some(*points), ..BoardObservation::default() };
+            let b = block(&mut problem, Block::Plane(*i))?;
+            add(
+                &mut problem,
+                RigObservation { frame: 0, block: b, camera: None, lidar: Some(l), observation },
+            )?;
+        }
+    }
+    Ok((problem, blocks))
 }

@@ -381,7 +381,7 @@ fn add_observations<'a>(
 /// the plane carried into the LiDAR frame by `room_to_camera` and `extrinsic`, and not
 /// near a board. The cut is [`PLANE_START_CUT_M`] at first, then 3σ of the previous
 /// selection of that plane.
-fn room_planes(
+pub(super) fn room_planes(
     survey: &SurveySpec,
     surveyed: &[Se3],
     clouds: &[&[Point]],

@@ -1,7 +1,8 @@
 //! The numeric core of a calibration run (no_std, no heap): closed-form initialisation
 //! (homography, Zhang, board pose, Kabsch), the joint Levenberg–Marquardt problem over
 //! intrinsics, the LiDAR→camera extrinsic and every board pose reduced with the Schur
-//! complement, and the covariance of the shared parameters.
+//! complement, and the covariance of the shared parameters; the surveyed room as one
+//! rigid target ([`room`]) and a whole rig of cameras and LiDARs in it ([`rig`]).
 //!
 //! Everything here works on fixed-size `nalgebra` matrices and caller-owned slices;
 //! capacities are const generics (`B`: most board observations in one problem). Memory
@@ -58,6 +59,7 @@ pub mod init;
 pub mod linalg;
 pub mod lm;
 pub mod problem;
+pub mod rig;
 pub mod room;
 
 use core::fmt;
@@ -73,7 +75,7 @@ pub use init::{
 };
 pub use lm::{solve, LmOptions, SolveReport, Termination};
 pub use problem::{
-    hole_sigma_px, BoardObservation, JointParams, JointProblem, Loss, ParamMask, PlanePoints,
+    hole_sigma_px, BoardObservation, JointParams, JointProblem, Loss, Noise, ParamMask, PlanePoints,
 };
 
 /// Intrinsic parameters the solver handles: fx fy cx cy + up to 5 distortion terms.

@@ -46,6 +46,131 @@ pub struct BoardObservation<'a> {
     pub plane: Option<PlanePoints>,
 }
 
+/// The σ of a board observation's corner and hole terms (px), where the observation does
+/// not set its own (the plane term carries its σ in [`PlanePoints`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Noise {
+    pub corner_px: f64,
+    pub hole_px: f64,
+}
+
+impl BoardObservation<'_> {
+    /// Streams this observation's whitened residual blocks (numbered `board`) seen by
+    /// `camera`, the LiDAR at `ext` (LiDAR → camera) and the board at `pose` (board →
+    /// camera), with their Jacobians. Every problem built of board observations (free
+    /// boards, the surveyed room, rigs) evaluates its measurements here.
+    pub fn for_each_residual<C: Projector>(
+        &self,
+        board: usize,
+        cam: &C,
+        ext: &Se3,
+        pose: &Se3,
+        noise: Noise,
+        f: &mut impl FnMut(&Residual),
+    ) -> Result<(), SolveError> {
+        let ws = 1.0 / noise.corner_px;
+        let wh = 1.0 / self.hole_sigma_px.unwrap_or(noise.hole_px);
+        let fail = SolveError::NotProjectable { board };
+        for (i, (x, meas)) in self.object.iter().zip(self.corners).enumerate() {
+            let rx = pose.rotation * x;
+            let (u, jp, jk) = cam.project_with_jacobians(&(rx + pose.translation)).ok_or(fail)?;
+            let mut j_shared = SMatrix::<f64, 2, SHARED>::zeros();
+            j_shared.fixed_view_mut::<2, INTRINSICS>(0, 0).copy_from(&(jk * ws));
+            f(&Residual {
+                board,
+                kind: ResidualKind::Corner(i),
+                r: (u - meas) * ws,
+                j_shared,
+                j_board: jp * point_jacobian(&rx) * ws,
+                rows: 2,
+            });
+        }
+        for (i, (h, p)) in self.holes_board.iter().zip(self.holes_lidar).enumerate() {
+            let rp = ext.rotation * p;
+            let (u1, jq, jk1) = cam.project_with_jacobians(&(rp + ext.translation)).ok_or(fail)?;
+            let rh = pose.rotation * h;
+            let (u2, jp, jk2) = cam.project_with_jacobians(&(rh + pose.translation)).ok_or(fail)?;
+            let mut j_shared = SMatrix::<f64, 2, SHARED>::zeros();
+            j_shared.fixed_view_mut::<2, INTRINSICS>(0, 0).copy_from(&((jk1 - jk2) * wh));
+            j_shared
+                .fixed_view_mut::<2, 6>(0, EXT_ROTATION)
+                .copy_from(&(jq * point_jacobian(&rp) * wh));
+            f(&Residual {
+                board,
+                kind: ResidualKind::Hole(i),
+                r: (u1 - u2) * wh,
+                j_shared,
+                j_board: -(jp * point_jacobian(&rh)) * wh,
+                rows: 2,
+            });
+        }
+        if let Some(plane) = &self.plane {
+            plane_blocks(board, plane, pose, ext, f);
+        }
+        Ok(())
+    }
+
+    /// Calls `f(kind, error)` for every block as [`Self::for_each_residual`] streams them,
+    /// without Jacobians or σ (pixels; metres·√points for the plane term).
+    pub fn for_each_error<C: Projector>(
+        &self,
+        board: usize,
+        cam: &C,
+        ext: &Se3,
+        pose: &Se3,
+        f: &mut impl FnMut(ResidualKind, Vec2),
+    ) -> Result<(), SolveError> {
+        let fail = SolveError::NotProjectable { board };
+        for (i, (x, meas)) in self.object.iter().zip(self.corners).enumerate() {
+            let u = cam.project(&(pose.rotation * x + pose.translation)).ok_or(fail)?;
+            f(ResidualKind::Corner(i), u - meas);
+        }
+        for (i, (h, p)) in self.holes_board.iter().zip(self.holes_lidar).enumerate() {
+            let u1 = cam.project(&(ext.rotation * p + ext.translation)).ok_or(fail)?;
+            let u2 = cam.project(&(pose.rotation * h + pose.translation)).ok_or(fail)?;
+            f(ResidualKind::Hole(i), u1 - u2);
+        }
+        if let Some(plane) = &self.plane {
+            let (a, offset, _) = plane_geometry(plane, pose, ext);
+            let r = plane.residual(&a, offset);
+            f(ResidualKind::Plane(0), Vec2::new(r[0], r[1]));
+            f(ResidualKind::Plane(1), Vec2::new(r[2], r[3]));
+        }
+        Ok(())
+    }
+
+    /// The σ dividing this observation's blocks of `kind` (px, or m for the plane term).
+    pub fn sigma(&self, kind: ResidualKind, noise: Noise) -> f64 {
+        match kind {
+            ResidualKind::Corner(_) => noise.corner_px,
+            ResidualKind::Hole(_) => self.hole_sigma_px.unwrap_or(noise.hole_px),
+            ResidualKind::Plane(_) => self.plane.map_or(1.0, |p| p.sigma_m),
+        }
+    }
+
+    /// Scalar measurements (2 per corner and per hole, 1 per plane point).
+    pub fn residual_count(&self) -> usize {
+        2 * (self.corners.len() + self.holes_lidar.len()) + self.plane.map_or(0, |p| p.count)
+    }
+
+    /// Checks that the paired slices pair up.
+    pub fn check(&self) -> Result<(), SolveError> {
+        if self.object.len() != self.corners.len() {
+            return Err(SolveError::LengthMismatch {
+                left: self.object.len(),
+                right: self.corners.len(),
+            });
+        }
+        if self.holes_board.len() != self.holes_lidar.len() {
+            return Err(SolveError::LengthMismatch {
+                left: self.holes_board.len(),
+                right: self.holes_lidar.len(),
+            });
+        }
+        Ok(())
+    }
+}
+
 /// The LiDAR points of one board summarised for the point-to-plane term: with
 /// `a = R_LCᵀ n` (the board normal in the LiDAR frame) and `b` the plane's offset at the
 /// centroid `c`, `Σ (aᵀ(p − c) + b)² = |Lᵀ a|² + count · b²` where `L Lᵀ` is the
@@ -220,6 +345,17 @@ pub enum ResidualKind {
     Plane(usize),
 }
 
+impl ResidualKind {
+    /// The loss for a block of this kind under a problem's `loss`: the plane term sums
+    /// many points already and stays plain least squares.
+    pub fn loss(self, loss: Loss) -> Loss {
+        match self {
+            ResidualKind::Plane(_) => Loss::Squared,
+            _ => loss,
+        }
+    }
+}
+
 /// One whitened residual block and its Jacobians (shared parameters; its board's pose).
 #[derive(Clone, Copy, Debug)]
 pub struct Residual {
@@ -256,18 +392,7 @@ impl<'a, const B: usize> JointProblem<'a, B> {
 
     /// Adds a board observation; returns its index (the index of its pose).
     pub fn add_board(&mut self, board: BoardObservation<'a>) -> Result<usize, SolveError> {
-        if board.object.len() != board.corners.len() {
-            return Err(SolveError::LengthMismatch {
-                left: board.object.len(),
-                right: board.corners.len(),
-            });
-        }
-        if board.holes_board.len() != board.holes_lidar.len() {
-            return Err(SolveError::LengthMismatch {
-                left: board.holes_board.len(),
-                right: board.holes_lidar.len(),
-            });
-        }
+        board.check()?;
         self.boards.push(board).map_err(|_| SolveError::TooManyBoards { capacity: B })?;
         Ok(self.boards.len() - 1)
     }
@@ -284,10 +409,7 @@ impl<'a, const B: usize> JointProblem<'a, B> {
 
     /// Number of scalar measurements (2 per corner and per hole, 1 per plane point).
     pub fn residual_count(&self) -> usize {
-        let per_board = |b: &BoardObservation<'_>| {
-            2 * (b.corners.len() + b.holes_lidar.len()) + b.plane.map_or(0, |p| p.count)
-        };
-        self.boards.iter().map(per_board).sum()
+        self.boards.iter().map(BoardObservation::residual_count).sum()
     }
 
     /// Checks the settings (positive finite σ and loss scale) and that `params` has one
@@ -323,51 +445,9 @@ impl<'a, const B: usize> JointProblem<'a, B> {
         mut f: impl FnMut(&Residual),
     ) -> Result<(), SolveError> {
         self.check_params(params)?;
-        let cam = &params.camera;
-        let ext = &params.lidar_to_camera;
-        let ws = 1.0 / self.corner_sigma_px;
+        let (cam, ext, noise) = (&params.camera, &params.lidar_to_camera, self.noise());
         for (b, (obs, pose)) in self.boards.iter().zip(params.board_poses.iter()).enumerate() {
-            let wh = 1.0 / obs.hole_sigma_px.unwrap_or(self.hole_sigma_px);
-            let fail = SolveError::NotProjectable { board: b };
-            for (i, (x, meas)) in obs.object.iter().zip(obs.corners).enumerate() {
-                let rx = pose.rotation * x;
-                let (u, jp, jk) =
-                    cam.project_with_jacobians(&(rx + pose.translation)).ok_or(fail)?;
-                let mut j_shared = SMatrix::<f64, 2, SHARED>::zeros();
-                j_shared.fixed_view_mut::<2, INTRINSICS>(0, 0).copy_from(&(jk * ws));
-                f(&Residual {
-                    board: b,
-                    kind: ResidualKind::Corner(i),
-                    r: (u - meas) * ws,
-                    j_shared,
-                    j_board: jp * point_jacobian(&rx) * ws,
-                    rows: 2,
-                });
-            }
-            for (i, (h, p)) in obs.holes_board.iter().zip(obs.holes_lidar).enumerate() {
-                let rp = ext.rotation * p;
-                let (u1, jq, jk1) =
-                    cam.project_with_jacobians(&(rp + ext.translation)).ok_or(fail)?;
-                let rh = pose.rotation * h;
-                let (u2, jp, jk2) =
-                    cam.project_with_jacobians(&(rh + pose.translation)).ok_or(fail)?;
-                let mut j_shared = SMatrix::<f64, 2, SHARED>::zeros();
-                j_shared.fixed_view_mut::<2, INTRINSICS>(0, 0).copy_from(&((jk1 - jk2) * wh));
-                j_shared
-                    .fixed_view_mut::<2, 6>(0, EXT_ROTATION)
-                    .copy_from(&(jq * point_jacobian(&rp) * wh));
-                f(&Residual {
-                    board: b,
-                    kind: ResidualKind::Hole(i),
-                    r: (u1 - u2) * wh,
-                    j_shared,
-                    j_board: -(jp * point_jacobian(&rh)) * wh,
-                    rows: 2,
-                });
-            }
-            if let Some(plane) = &obs.plane {
-                plane_blocks(b, plane, pose, ext, &mut f);
-            }
+            obs.for_each_residual(b, cam, ext, pose, noise, &mut f)?;
         }
         Ok(())
     }
@@ -379,46 +459,27 @@ impl<'a, const B: usize> JointProblem<'a, B> {
         mut f: impl FnMut(usize, ResidualKind, Vec2),
     ) -> Result<(), SolveError> {
         self.check_params(params)?;
-        let cam = &params.camera;
-        let ext = &params.lidar_to_camera;
+        let (cam, ext) = (&params.camera, &params.lidar_to_camera);
         for (b, (obs, pose)) in self.boards.iter().zip(params.board_poses.iter()).enumerate() {
-            let fail = SolveError::NotProjectable { board: b };
-            for (i, (x, meas)) in obs.object.iter().zip(obs.corners).enumerate() {
-                let u = cam.project(&(pose.rotation * x + pose.translation)).ok_or(fail)?;
-                f(b, ResidualKind::Corner(i), u - meas);
-            }
-            for (i, (h, p)) in obs.holes_board.iter().zip(obs.holes_lidar).enumerate() {
-                let u1 = cam.project(&(ext.rotation * p + ext.translation)).ok_or(fail)?;
-                let u2 = cam.project(&(pose.rotation * h + pose.translation)).ok_or(fail)?;
-                f(b, ResidualKind::Hole(i), u1 - u2);
-            }
-            if let Some(plane) = &obs.plane {
-                let (a, offset, _) = plane_geometry(plane, pose, ext);
-                let r = plane.residual(&a, offset);
-                f(b, ResidualKind::Plane(0), Vec2::new(r[0], r[1]));
-                f(b, ResidualKind::Plane(1), Vec2::new(r[2], r[3]));
-            }
+            obs.for_each_error(b, cam, ext, pose, &mut |kind, e| f(b, kind, e))?;
         }
         Ok(())
+    }
+
+    /// The problem-wide σ of the corner and hole terms.
+    pub fn noise(&self) -> Noise {
+        Noise { corner_px: self.corner_sigma_px, hole_px: self.hole_sigma_px }
     }
 
     /// The loss applied to a block of this kind: the problem's, except for the plane
     /// term, which sums many points already and stays plain least squares.
     pub fn loss_for(&self, kind: ResidualKind) -> Loss {
-        match kind {
-            ResidualKind::Plane(_) => Loss::Squared,
-            _ => self.loss,
-        }
+        kind.loss(self.loss)
     }
 
     /// The σ dividing a block of board `b` of this kind (px, or m for the plane term).
     fn sigma_for(&self, b: usize, kind: ResidualKind) -> f64 {
-        let obs = &self.boards[b];
-        match kind {
-            ResidualKind::Corner(_) => self.corner_sigma_px,
-            ResidualKind::Hole(_) => obs.hole_sigma_px.unwrap_or(self.hole_sigma_px),
-            ResidualKind::Plane(_) => obs.plane.map_or(1.0, |p| p.sigma_m),
-        }
+        self.boards[b].sigma(kind, self.noise())
     }
 
     /// Robust cost `½ Σ ρ(|r/σ|²)`.

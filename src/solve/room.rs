@@ -268,7 +268,10 @@ impl<'a, const B: usize> RoomProblem<'a, B> {
 
 /// The whitened prior residual `[log(R R₀ᵀ)/σ_r; (t − t₀)/σ_t]` of a block pose and its
 /// Jacobian under the left perturbation (`J_l⁻¹` of the rotation error).
-fn prior_residual(prior: &BlockPrior, pose: &Se3) -> (SVector<f64, 6>, SMatrix<f64, 6, 6>) {
+pub(crate) fn prior_residual(
+    prior: &BlockPrior,
+    pose: &Se3,
+) -> (SVector<f64, 6>, SMatrix<f64, 6, 6>) {
     let (wr, wt) = (1.0 / prior.sigma_rad.max(PRIOR_FLOOR), 1.0 / prior.sigma_m.max(PRIOR_FLOOR));
     let phi = so3_log(&(pose.rotation * prior.pose.rotation.transpose()));
     let dt = pose.translation - prior.pose.translation;
@@ -280,9 +283,9 @@ fn prior_residual(prior: &BlockPrior, pose: &Se3) -> (SVector<f64, 6>, SMatrix<f
     (r, j)
 }
 
-/// The maps from the left perturbations of `A` (room→camera) and `B` (block→room) to
-/// that of `A ∘ B` (block→camera), see the module doc.
-fn chain(a: &Se3, b: &Se3) -> (SMatrix<f64, 6, 6>, SMatrix<f64, 6, 6>) {
+/// The maps from the left perturbations of `A` (e.g. room→camera) and `B` (block→room)
+/// to that of `A ∘ B` (block→camera), see the module doc.
+pub(crate) fn chain(a: &Se3, b: &Se3) -> (SMatrix<f64, 6, 6>, SMatrix<f64, 6, 6>) {
     let mut to_a = SMatrix::<f64, 6, 6>::identity();
     to_a.fixed_view_mut::<3, 3>(3, 0).copy_from(&(-skew(&(a.rotation * b.translation))));
     let mut to_b = SMatrix::<f64, 6, 6>::zeros();
@@ -291,74 +294,108 @@ fn chain(a: &Se3, b: &Se3) -> (SMatrix<f64, 6, 6>, SMatrix<f64, 6, 6>) {
     (to_a, to_b)
 }
 
-/// The undamped normal equations of a room problem, blocks kept apart for the Schur
-/// complement (as [`super::lm::NormalEquations`], with 21 shared parameters).
+/// The undamped normal equations of a problem of `N` shared parameters and up to `B`
+/// blocks of 6 (poses eliminated by the Schur complement), as [`super::lm::NormalEquations`]
+/// keeps them for the free-board problem: per block `U_k` (6×6), `W_k` (N×6) and `g_k`;
+/// one `V` (N×N) and `g` over the shared parameters. The room and the rig problems
+/// ([`super::rig`]) accumulate into it and share its reduction, step and LM loop.
 #[derive(Clone, Debug)]
-pub struct RoomNormalEquations<const B: usize> {
+pub struct SchurSystem<const N: usize, const B: usize> {
     pub blocks: usize,
     pub u: [SMatrix<f64, 6, 6>; B],
-    pub w: [SMatrix<f64, ROOM_SHARED, 6>; B],
+    pub w: [SMatrix<f64, N, 6>; B],
     pub g_block: [SVector<f64, 6>; B],
-    pub v: SMatrix<f64, ROOM_SHARED, ROOM_SHARED>,
-    pub g_shared: SVector<f64, ROOM_SHARED>,
+    pub v: SMatrix<f64, N, N>,
+    pub g_shared: SVector<f64, N>,
     pub cost: f64,
     pub residuals: usize,
 }
 
-impl<const B: usize> RoomNormalEquations<B> {
-    /// Accumulates the normal equations at `params`.
-    pub fn build<C: Projector + Clone>(
-        problem: &RoomProblem<'_, B>,
-        params: &RoomParams<C, B>,
-    ) -> Result<Self, SolveError> {
-        let mut ne = RoomNormalEquations {
-            blocks: problem.priors.len(),
+/// The room problem's normal equations (21 shared parameters).
+pub type RoomNormalEquations<const B: usize> = SchurSystem<ROOM_SHARED, B>;
+
+/// A least-squares problem over `N` shared parameters and blocks of 6 that
+/// [`schur_lm`] and [`schur_covariance`] solve (`P`: its parameters).
+pub trait SchurProblem<P, const N: usize, const B: usize> {
+    /// The undamped normal equations at `params`.
+    fn normal_equations(&self, params: &P) -> Result<SchurSystem<N, B>, SolveError>;
+    /// The robust cost `½ Σ ρ` (measurements and priors) at `params`.
+    fn cost(&self, params: &P) -> Result<f64, SolveError>;
+    /// `params ⊕ (shared, blocks)`.
+    fn apply(&self, params: &P, shared: &SVector<f64, N>, blocks: &[SVector<f64, 6>; B]) -> P;
+    /// Shared parameters the data cannot move whatever they are (unused intrinsics,
+    /// absent sensors); [`SchurSystem::mask`] adds those nothing touched.
+    fn structural_mask(&self, params: &P) -> [bool; N];
+}
+
+impl<const N: usize, const B: usize> SchurSystem<N, B> {
+    /// Empty equations for `blocks` blocks, `prior_rows` scalar prior residuals counted.
+    pub fn new(blocks: usize, prior_rows: usize) -> Self {
+        SchurSystem {
+            blocks,
             u: [SMatrix::zeros(); B],
             w: [SMatrix::zeros(); B],
             g_block: [SVector::zeros(); B],
             v: SMatrix::zeros(),
             g_shared: SVector::zeros(),
             cost: 0.0,
-            residuals: 6 * problem.priors.len(),
-        };
-        problem.for_each_residual(params, |k, kind, r, js, jb, rows| {
-            let (rho, weight) = problem.inner.loss_for(kind).eval(r.norm_squared());
-            ne.cost += 0.5 * rho;
-            ne.residuals += rows;
-            ne.u[k].gemm_tr(weight, jb, jb, 1.0);
-            ne.g_block[k].gemv_tr(weight, jb, r, 1.0);
-            ne.w[k].gemm_tr(weight, js, jb, 1.0);
-            ne.v.gemm_tr(weight, js, js, 1.0);
-            ne.g_shared.gemv_tr(weight, js, r, 1.0);
-        })?;
-        problem.for_each_prior(params, |k, r, j| {
-            ne.cost += 0.5 * r.norm_squared();
-            ne.u[k].gemm_tr(1.0, j, j, 1.0);
-            ne.g_block[k].gemv_tr(1.0, j, r, 1.0);
-        });
-        if ne.cost.is_finite() {
-            Ok(ne)
+            residuals: prior_rows,
+        }
+    }
+
+    /// Adds one whitened 2-row block `r` of block `k` under `loss` (IRLS weight), standing
+    /// for `rows` scalar measurements.
+    pub fn add(
+        &mut self,
+        k: usize,
+        loss: Loss,
+        r: &SVector<f64, 2>,
+        js: &SMatrix<f64, 2, N>,
+        jb: &SMatrix<f64, 2, 6>,
+        rows: usize,
+    ) {
+        let (rho, weight) = loss.eval(r.norm_squared());
+        self.cost += 0.5 * rho;
+        self.residuals += rows;
+        self.u[k].gemm_tr(weight, jb, jb, 1.0);
+        self.g_block[k].gemv_tr(weight, jb, r, 1.0);
+        self.w[k].gemm_tr(weight, js, jb, 1.0);
+        self.v.gemm_tr(weight, js, js, 1.0);
+        self.g_shared.gemv_tr(weight, js, r, 1.0);
+    }
+
+    /// Adds a whitened prior on block `k` (its rows are counted by [`Self::new`]).
+    pub fn add_prior(&mut self, k: usize, r: &SVector<f64, 6>, j: &SMatrix<f64, 6, 6>) {
+        self.cost += 0.5 * r.norm_squared();
+        self.u[k].gemm_tr(1.0, j, j, 1.0);
+        self.g_block[k].gemv_tr(1.0, j, r, 1.0);
+    }
+
+    /// The equations, or [`SolveError::NonFinite`] if the cost overflowed.
+    pub fn finite(self) -> Result<Self, SolveError> {
+        if self.cost.is_finite() {
+            Ok(self)
         } else {
             Err(SolveError::NonFinite)
         }
     }
 
-    /// The structural mask plus every shared parameter nothing touches.
-    fn mask<C: Projector>(&self, problem: &RoomProblem<'_, B>, camera: &C) -> [bool; ROOM_SHARED] {
-        let mut fixed = problem.structural_mask(camera);
+    /// `structural` plus every shared parameter nothing touches.
+    pub fn mask(&self, structural: &[bool; N]) -> [bool; N] {
+        let mut fixed = *structural;
         for (i, f) in fixed.iter_mut().enumerate() {
             *f |= self.v[(i, i)] <= 0.0;
         }
         fixed
     }
 
-    /// The reduced system after eliminating the blocks, damped by `λ`.
-    fn reduce(
+    /// The reduced system after eliminating the blocks, damped by `λ`; fixed parameters
+    /// get a unit row/column and a zero right-hand side.
+    pub fn reduce(
         &self,
         lambda: f64,
-        fixed: &[bool; ROOM_SHARED],
-    ) -> Result<(SMatrix<f64, ROOM_SHARED, ROOM_SHARED>, SVector<f64, ROOM_SHARED>), SolveError>
-    {
+        fixed: &[bool; N],
+    ) -> Result<(SMatrix<f64, N, N>, SVector<f64, N>), SolveError> {
         let mut s = self.v;
         damp(&mut s, lambda);
         let mut rhs = -self.g_shared;
@@ -378,11 +415,11 @@ impl<const B: usize> RoomNormalEquations<B> {
     }
 
     /// The damped step: shared and per block.
-    fn step(
+    pub fn step(
         &self,
         lambda: f64,
-        fixed: &[bool; ROOM_SHARED],
-    ) -> Result<(SVector<f64, ROOM_SHARED>, [SVector<f64, 6>; B]), SolveError> {
+        fixed: &[bool; N],
+    ) -> Result<(SVector<f64, N>, [SVector<f64, 6>; B]), SolveError> {
         let (s, rhs) = self.reduce(lambda, fixed)?;
         let shared = Cholesky::new(&s)?.solve(&rhs);
         let mut blocks = [SVector::<f64, 6>::zeros(); B];
@@ -396,15 +433,27 @@ impl<const B: usize> RoomNormalEquations<B> {
     }
 }
 
-/// Levenberg–Marquardt on the room problem from `params` (updated in place).
-pub fn solve_room<C: Projector + Clone, const B: usize>(
-    problem: &RoomProblem<'_, B>,
-    params: &mut RoomParams<C, B>,
+/// What a [`schur_lm`] run did.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SchurReport {
+    pub iterations: usize,
+    pub initial_cost: f64,
+    pub final_cost: f64,
+    /// Scalar residuals (measurements and prior rows).
+    pub residuals: usize,
+}
+
+/// Levenberg–Marquardt with the Schur complement from `params` (updated in place): λ
+/// raised tenfold until a step lowers the cost, lowered tenfold after; stops when an
+/// accepted step lowers the cost by less than 10⁻⁹ of it, or no damping helps.
+pub fn schur_lm<P: Clone, const N: usize, const B: usize>(
+    problem: &impl SchurProblem<P, N, B>,
+    params: &mut P,
     max_iterations: usize,
-) -> Result<RoomReport, SolveError> {
+) -> Result<SchurReport, SolveError> {
     const COST_TOLERANCE: f64 = 1e-9;
-    let mut ne = RoomNormalEquations::build(problem, params)?;
-    let fixed = ne.mask(problem, &params.camera);
+    let mut ne = problem.normal_equations(params)?;
+    let fixed = ne.mask(&problem.structural_mask(params));
     let initial_cost = ne.cost;
     let mut lambda = 1e-4;
     let mut iterations = 0;
@@ -422,12 +471,12 @@ pub fn solve_room<C: Projector + Clone, const B: usize>(
                 }
                 Err(e) => return Err(e),
             };
-            let trial = apply_room_step(params, &shared, &blocks);
+            let trial = problem.apply(params, &shared, &blocks);
             match problem.cost(&trial) {
                 Ok(c) if c < ne.cost => {
                     let done = ne.cost - c <= COST_TOLERANCE * ne.cost;
                     *params = trial;
-                    ne = RoomNormalEquations::build(problem, params)?;
+                    ne = problem.normal_equations(params)?;
                     lambda = (lambda * 0.1).max(1e-15);
                     if done {
                         break 'outer;
@@ -441,26 +490,18 @@ pub fn solve_room<C: Projector + Clone, const B: usize>(
             }
         }
     }
-    let (corner_rms_px, hole_rms_px) = problem.rms_px(params)?;
-    Ok(RoomReport {
-        iterations,
-        initial_cost,
-        final_cost: ne.cost,
-        residuals: ne.residuals,
-        corner_rms_px,
-        hole_rms_px,
-    })
+    Ok(SchurReport { iterations, initial_cost, final_cost: ne.cost, residuals: ne.residuals })
 }
 
-/// Covariance of the 21 shared parameters at `params` (normally the solution), scaled
-/// by the residual variance `2·cost/dof` as the free-board covariance is. Fixed
-/// parameters have zero rows and columns.
-pub fn room_covariance<C: Projector + Clone, const B: usize>(
-    problem: &RoomProblem<'_, B>,
-    params: &RoomParams<C, B>,
-) -> Result<SMatrix<f64, ROOM_SHARED, ROOM_SHARED>, SolveError> {
-    let ne = RoomNormalEquations::build(problem, params)?;
-    let fixed = ne.mask(problem, &params.camera);
+/// Covariance of the `N` shared parameters at `params` (normally the solution): the
+/// inverse of the reduced system, scaled by the residual variance `2·cost/dof` as the
+/// free-board covariance is. Fixed parameters have zero rows and columns.
+pub fn schur_covariance<P, const N: usize, const B: usize>(
+    problem: &impl SchurProblem<P, N, B>,
+    params: &P,
+) -> Result<SMatrix<f64, N, N>, SolveError> {
+    let ne = problem.normal_equations(params)?;
+    let fixed = ne.mask(&problem.structural_mask(params));
     let free = fixed.iter().filter(|f| !**f).count() + 6 * ne.blocks;
     if ne.residuals <= free {
         return Err(SolveError::TooFewPoints { needed: free + 1, got: ne.residuals });
@@ -473,6 +514,67 @@ pub fn room_covariance<C: Projector + Clone, const B: usize>(
         matrix.column_mut(i).fill(0.0);
     }
     Ok(matrix)
+}
+
+impl<C: Projector + Clone, const B: usize> SchurProblem<RoomParams<C, B>, ROOM_SHARED, B>
+    for RoomProblem<'_, B>
+{
+    fn normal_equations(
+        &self,
+        params: &RoomParams<C, B>,
+    ) -> Result<RoomNormalEquations<B>, SolveError> {
+        let mut ne = SchurSystem::new(self.priors.len(), 6 * self.priors.len());
+        self.for_each_residual(params, |k, kind, r, js, jb, rows| {
+            ne.add(k, self.inner.loss_for(kind), r, js, jb, rows);
+        })?;
+        self.for_each_prior(params, |k, r, j| ne.add_prior(k, r, j));
+        ne.finite()
+    }
+
+    fn cost(&self, params: &RoomParams<C, B>) -> Result<f64, SolveError> {
+        RoomProblem::cost(self, params)
+    }
+
+    fn apply(
+        &self,
+        params: &RoomParams<C, B>,
+        shared: &SVector<f64, ROOM_SHARED>,
+        blocks: &[SVector<f64, 6>; B],
+    ) -> RoomParams<C, B> {
+        apply_room_step(params, shared, blocks)
+    }
+
+    fn structural_mask(&self, params: &RoomParams<C, B>) -> [bool; ROOM_SHARED] {
+        RoomProblem::structural_mask(self, &params.camera)
+    }
+}
+
+/// Levenberg–Marquardt on the room problem from `params` (updated in place).
+pub fn solve_room<C: Projector + Clone, const B: usize>(
+    problem: &RoomProblem<'_, B>,
+    params: &mut RoomParams<C, B>,
+    max_iterations: usize,
+) -> Result<RoomReport, SolveError> {
+    let report = schur_lm(problem, params, max_iterations)?;
+    let (corner_rms_px, hole_rms_px) = problem.rms_px(params)?;
+    Ok(RoomReport {
+        iterations: report.iterations,
+        initial_cost: report.initial_cost,
+        final_cost: report.final_cost,
+        residuals: report.residuals,
+        corner_rms_px,
+        hole_rms_px,
+    })
+}
+
+/// Covariance of the 21 shared parameters at `params` (normally the solution), scaled
+/// by the residual variance `2·cost/dof` as the free-board covariance is. Fixed
+/// parameters have zero rows and columns.
+pub fn room_covariance<C: Projector + Clone, const B: usize>(
+    problem: &RoomProblem<'_, B>,
+    params: &RoomParams<C, B>,
+) -> Result<SMatrix<f64, ROOM_SHARED, ROOM_SHARED>, SolveError> {
+    schur_covariance(problem, params)
 }
 
 /// `params ⊕ step`: additive intrinsics, left-perturbed extrinsic, room pose and blocks.
