@@ -756,6 +756,15 @@ secret_file = "/etc/roomcal/secret"
     }
 
     #[test]
+    fn the_example_rig_daemon_configuration_parses() {
+        let path = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/config/rig-daemon.toml"));
+        let c = load(path).unwrap();
+        let rig = c.rig.unwrap();
+        assert_eq!(rig.lidars[1].source, LidarSource::Udp("0.0.0.0:2369".parse().unwrap()));
+        assert_eq!(rig.cameras[1].source, CameraSource::V4l2("/dev/video2".into()));
+    }
+
+    #[test]
     fn a_rigs_sources_that_do_not_match_it_are_named() {
         let top = "[[lidar]]\nname = \"top\"\nsource = \"udp:0.0.0.0:2368\"\n";
         let bumper = "[[lidar]]\nname = \"bumper\"\nsource = \"udp:0.0.0.0:2369\"\n";
