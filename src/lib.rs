@@ -48,6 +48,8 @@ pub mod export;
 #[cfg(feature = "std")]
 pub mod font;
 #[cfg(feature = "std")]
+pub mod parallel;
+#[cfg(feature = "std")]
 pub mod report;
 #[cfg(feature = "std")]
 pub mod result;

@@ -817,30 +817,13 @@ fn survey(args: SurveyArgs) -> Result<(), Failure> {
     Ok(())
 }
 
-/// `f(index, item)` over `items` on every core; the results in order, or the first
-/// failure in the items' order.
+/// `f(index, item)` over `items` on every core ([`roomcal::parallel::map`]); the results
+/// in order, or the first failure in the items' order.
 fn parallel_map<T: Sync, R: Send>(
     items: &[T],
     f: impl Fn(usize, &T) -> Result<R, Failure> + Sync,
 ) -> Result<Vec<R>, Failure> {
-    let workers = std::thread::available_parallelism().map_or(1, |n| n.get()).min(items.len());
-    let next = std::sync::atomic::AtomicUsize::new(0);
-    let mut results: Vec<Option<Result<R, Failure>>> = (0..items.len()).map(|_| None).collect();
-    let slots = std::sync::Mutex::new(&mut results);
-    std::thread::scope(|scope| {
-        for _ in 0..workers.max(1) {
-            scope.spawn(|| loop {
-                let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                let Some(item) = items.get(i) else { break };
-                let outcome = f(i, item);
-                slots.lock().unwrap_or_else(|e| e.into_inner())[i] = Some(outcome);
-            });
-        }
-    });
-    results
-        .into_iter()
-        .map(|r| r.unwrap_or_else(|| Err(Failure::new(1, anyhow::anyhow!("a worker stopped")))))
-        .collect()
+    roomcal::parallel::map(items, f).into_iter().collect()
 }
 
 /// The steps `calibrate` shows progress for: each file read, each frame's detection (a

@@ -84,15 +84,14 @@ pub fn calibrate_rig(
     options: &CalibrateOptions,
 ) -> RigCalibration {
     let surveyed = room.survey.is_some() && !options.free_boards;
-    let mut runs = BTreeMap::new();
-    for c in 0..rig.cameras.len() {
-        for l in 0..rig.lidars.len() {
-            runs.insert(
-                (c, Some(l)),
-                pair_run(room, rig, cameras, lidars, (c, Some(l)), surveyed, options),
-            );
-        }
-    }
+    // Every camera with every LiDAR: independent runs, spread over the cores.
+    let keys: Vec<(usize, Option<usize>)> = (0..rig.cameras.len())
+        .flat_map(|c| (0..rig.lidars.len()).map(move |l| (c, Some(l))))
+        .collect();
+    let solved = crate::parallel::map(&keys, |_, &key| {
+        pair_run(room, rig, cameras, lidars, key, surveyed, options)
+    });
+    let mut runs: BTreeMap<_, _> = keys.into_iter().zip(solved).collect();
     let counts: Vec<Vec<usize>> = (0..rig.cameras.len())
         .map(|c| (0..rig.lidars.len()).map(|l| lidar_boards(&runs[&(c, Some(l))])).collect())
         .collect();

@@ -99,40 +99,81 @@ pub struct RigDetections {
     pub lidars: Vec<(Vec<LidarBoard>, Vec<Point>)>,
 }
 
-/// Loads and detects every sensor's data (frames averaged, sweeps accumulated).
+/// Loads and detects every sensor's data (frames averaged, sweeps accumulated), the
+/// sensors spread over the cores.
 pub fn detect_all(
     room: &Room,
     rig: &Rig,
     inputs: &RigInputs,
     angles: Option<&Path>,
 ) -> Result<RigDetections, Failure> {
-    let mut out = RigDetections { cameras: Vec::new(), lidars: Vec::new() };
-    for (c, paths) in inputs.images.iter().enumerate() {
-        let spec = &rig.cameras[c].spec;
-        let whose = format!("camera `{}` of the rig", rig.cameras[c].name);
-        let images = paths
-            .iter()
-            .map(|p| load_image_sized(p, (spec.width, spec.height), &whose))
-            .collect::<Result<Vec<_>, _>>()?;
-        let (frames, _) = standing_frame(images, Vec::new());
-        let mut detectors = Detectors::new(&rig.pair_room(room, c, None)).map_err(bad_input)?;
-        let boards = match frames.first() {
-            Some(frame) => detectors.detect_image(frame).map_err(bad_input)?,
-            None => Vec::new(),
-        };
-        out.cameras.push(boards);
-    }
-    for (l, paths) in inputs.clouds.iter().enumerate() {
-        let model = rig.lidars[l].model.packet_model();
-        let mut cloud = Vec::new();
-        for path in paths {
-            cloud.extend(roomcal::lidar::read_cloud(path, model, angles).map_err(bad_input)?);
+    let cameras = (0..rig.cameras.len()).map(Sensor::Camera);
+    let sensors: Vec<Sensor> = cameras.chain((0..rig.lidars.len()).map(Sensor::Lidar)).collect();
+    let detected = roomcal::parallel::map(&sensors, |_, sensor| match *sensor {
+        Sensor::Camera(c) => detect_camera(room, rig, c, &inputs.images[c]).map(Detected::Camera),
+        Sensor::Lidar(l) => {
+            detect_lidar(room, rig, l, &inputs.clouds[l], angles).map(Detected::Lidar)
         }
-        let mut detectors = Detectors::new(&rig.pair_room(room, 0, Some(l))).map_err(bad_input)?;
-        let boards = if cloud.is_empty() { Vec::new() } else { detectors.detect_cloud(&cloud) };
-        out.lidars.push((boards, cloud));
+    });
+    let mut out = RigDetections { cameras: Vec::new(), lidars: Vec::new() };
+    for detected in detected {
+        match detected? {
+            Detected::Camera(boards) => out.cameras.push(boards),
+            Detected::Lidar(lidar) => out.lidars.push(lidar),
+        }
     }
     Ok(out)
+}
+
+/// One sensor of the rig, by its index among its kind.
+enum Sensor {
+    Camera(usize),
+    Lidar(usize),
+}
+
+/// What one sensor's data showed.
+enum Detected {
+    Camera(Vec<CameraBoard>),
+    Lidar((Vec<LidarBoard>, Vec<Point>)),
+}
+
+/// Camera `c`'s boards in its frames (averaged: a standing vehicle's).
+fn detect_camera(
+    room: &Room,
+    rig: &Rig,
+    c: usize,
+    paths: &[PathBuf],
+) -> Result<Vec<CameraBoard>, Failure> {
+    let spec = &rig.cameras[c].spec;
+    let whose = format!("camera `{}` of the rig", rig.cameras[c].name);
+    let images = paths
+        .iter()
+        .map(|p| load_image_sized(p, (spec.width, spec.height), &whose))
+        .collect::<Result<Vec<_>, _>>()?;
+    let (frames, _) = standing_frame(images, Vec::new());
+    let Some(frame) = frames.first() else { return Ok(Vec::new()) };
+    let mut detectors = Detectors::new(&rig.pair_room(room, c, None)).map_err(bad_input)?;
+    detectors.detect_image(frame).map_err(bad_input)
+}
+
+/// LiDAR `l`'s boards in its sweeps (accumulated), and the sweeps.
+fn detect_lidar(
+    room: &Room,
+    rig: &Rig,
+    l: usize,
+    paths: &[PathBuf],
+    angles: Option<&Path>,
+) -> Result<(Vec<LidarBoard>, Vec<Point>), Failure> {
+    let model = rig.lidars[l].model.packet_model();
+    let mut cloud = Vec::new();
+    for path in paths {
+        cloud.extend(roomcal::lidar::read_cloud(path, model, angles).map_err(bad_input)?);
+    }
+    if cloud.is_empty() {
+        return Ok((Vec::new(), cloud));
+    }
+    let mut detectors = Detectors::new(&rig.pair_room(room, 0, Some(l))).map_err(bad_input)?;
+    Ok((detectors.detect_cloud(&cloud), cloud))
 }
 
 /// Where `calibrate --rig` writes: the result file, the exports (accepted runs only), the

@@ -1,0 +1,80 @@
+#!/usr/bin/env python3
+"""Speed of a rig's calibration against a one-pair one (issue 17, item 8: a two-camera,
+two-LiDAR calibration within 2x the time of a one-pair one), in the same run.
+
+DIR is a rig parked in a surveyed room, made by the whole workflow:
+    roomcal simulate --room config/room.toml --rig config/rig.toml --visits 8 --out DIR
+    roomcal survey --room DIR/room.toml --visit DIR/visit-01/image.png DIR/visit-01/cloud.pcd ... --out DIR/surveyed.toml
+The rig run is `roomcal calibrate --rig RIG` of every sensor in DIR/rig/; the reference is
+`roomcal calibrate` of the first camera's image with the first LiDAR's cloud in the same
+surveyed room as a one-pair room file (DIR/rig/room.toml, whose [camera]/[lidar] are the rig's
+first pair, with the survey's tables appended). The two alternate run by run; wall seconds
+(the process, image decoding and detection included) and CPU seconds of the child; medians.
+Stdout is a markdown table.
+
+    cargo build --release && scripts/bench_rig.py DIR [--rig config/rig.toml] [--runs 5]
+"""
+import argparse
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOMCAL = os.path.join(ROOT, "target", "release", "roomcal")
+
+
+def timed(args):
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.monotonic()
+    run = subprocess.run(args, capture_output=True, text=True)
+    wall = time.monotonic() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if run.returncode not in (0, 3):
+        sys.exit(f"{' '.join(args[:2])} failed ({run.returncode}): {run.stderr}{run.stdout}")
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return wall, cpu, run.returncode
+
+
+def pair_room(d):
+    """The rig's first pair as a room file, in the surveyed room."""
+    surveyed = open(os.path.join(d, "surveyed.toml")).read()
+    survey = surveyed[surveyed.index("\n[survey]") :]
+    path = os.path.join(d, "pair-surveyed.toml")
+    with open(path, "w") as f:
+        f.write(open(os.path.join(d, "rig", "room.toml")).read().rstrip() + "\n" + survey)
+    return path
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("dir")
+    ap.add_argument("--rig", default=os.path.join(ROOT, "config", "rig.toml"))
+    ap.add_argument("--runs", type=int, default=5)
+    a = ap.parse_args()
+    rig_dir = os.path.join(a.dir, "rig")
+    out = os.path.join(a.dir, "bench-result.json")
+    rig_run = [ROOMCAL, "calibrate", "--room", os.path.join(a.dir, "surveyed.toml"), "--rig", a.rig, "--quiet", "--out", out]
+    for name, flag, ext in [("front", "--image", "png"), ("wide", "--image", "png"), ("top", "--cloud", "pcd"), ("bumper", "--cloud", "pcd")]:
+        rig_run += [flag, f"{name}={os.path.join(rig_dir, name + '.' + ext)}"]
+    pair_run = [ROOMCAL, "calibrate", "--room", pair_room(a.dir), "--quiet", "--out", out,
+                "--image", os.path.join(rig_dir, "front.png"), "--cloud", os.path.join(rig_dir, "top.pcd")]
+    rig, pair = [], []
+    for _ in range(a.runs):
+        rig.append(timed(rig_run))
+        pair.append(timed(pair_run))
+    med = lambda xs, i: statistics.median(x[i] for x in xs)
+    load = os.getloadavg()[0]
+    print(f"machine: {os.cpu_count()} cores, load average {load:.1f} at the end; median of {a.runs} runs")
+    print()
+    print("| run | exit | wall s | CPU s |")
+    print("|---|---|---|---|")
+    print(f"| one pair (front + top) | {pair[0][2]} | {med(pair, 0):.3f} | {med(pair, 1):.3f} |")
+    print(f"| rig (front, wide, top, bumper) | {rig[0][2]} | {med(rig, 0):.3f} | {med(rig, 1):.3f} |")
+    print(f"| rig / pair | | {med(rig, 0) / med(pair, 0):.2f} | {med(rig, 1) / med(pair, 1):.2f} |")
+
+
+if __name__ == "__main__":
+    main()
