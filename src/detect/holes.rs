@@ -311,6 +311,7 @@ pub struct HoleDetector {
     hist: Vec<u32>,
     rings: Vec<u32>,
     spacings: Vec<f64>,
+    residuals: Vec<f64>,
     run: Vec<(f64, u32)>,
     turned_gaps: Vec<[f64; 2]>,
     lines: Vec<(f64, u32)>,
@@ -378,6 +379,7 @@ impl HoleDetector {
             hist: Vec::new(),
             rings: Vec::new(),
             spacings: Vec::new(),
+            residuals: Vec::new(),
             run: Vec::new(),
             turned_gaps: Vec::new(),
             lines: Vec::new(),
@@ -481,9 +483,16 @@ impl HoleDetector {
         let mut n = n;
         let (mut c, mut rms) = (c, 0.0);
         self.keep_board_runs();
-        for _ in 0..2 {
+        // The band kept about the plane is three robust σ of the residuals (their median
+        // absolute value): clutter touching the board a few centimetres off its plane (a box
+        // at its foot) inflates the RMS and would stay within 3 RMS, tilting the plane.
+        for _ in 0..3 {
             let Some((c2, n2, rms2)) = fit_plane(&self.seg) else { return };
-            let keep = (3.0 * rms2).clamp(0.01, self.config.plane_tolerance_m);
+            self.residuals.clear();
+            self.residuals.extend(self.seg.iter().map(|p| n2.dot(&(p - c2)).abs()));
+            let mid = self.residuals.len() / 2;
+            let mad = *self.residuals.select_nth_unstable_by(mid, f64::total_cmp).1;
+            let keep = (3.0 * 1.4826 * mad).clamp(0.01, self.config.plane_tolerance_m);
             self.seg.retain(|p| n2.dot(&(p - c2)).abs() < keep);
             (c, n, rms) = (c2, n2, rms2);
         }
