@@ -13,7 +13,7 @@ mod opencalib;
 use std::path::Path;
 use std::time::Instant;
 
-use opencalib::opencalib_board;
+use opencalib::{opencalib_board, opencalib_data_dir};
 use roomcal::detect::holes::{HoleConfig, HoleDetector};
 use roomcal::sim::{simulate, ImageNoise, SimOptions};
 
@@ -61,14 +61,12 @@ fn reference_run(cloud: &[roomcal::lidar::Point]) -> u64 {
     std::hint::black_box(keys.iter().fold(0u64, |a, &k| a.wrapping_mul(31) ^ k))
 }
 
-/// The same on the real OpenCalib frame (`../shared/data/holeboard-real`) when present.
+/// The same on the real OpenCalib frame (`../shared/data/holeboard-real`, or under
+/// `ROOMCAL_SHARED`) when present.
 fn real_frame() {
-    let path = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../shared/data/holeboard-real/2022-01-18-15-25-03-449.pcd"
-    );
-    let Ok(points) = roomcal::lidar::pcd::read(path) else {
-        println!("holes (real): skipped, {path} is absent");
+    let path = opencalib_data_dir().join("2022-01-18-15-25-03-449.pcd");
+    let Ok(points) = roomcal::lidar::pcd::read(&path) else {
+        println!("holes (real): skipped, {} is absent", path.display());
         return;
     };
     let spec = opencalib_board();
@@ -86,8 +84,9 @@ fn real_frame() {
 }
 
 /// Fastest and median of 30 runs (ms): CPU time of this thread where Linux reports it
-/// (`/proc/thread-self/schedstat`, so time waiting for a core shared with other work does
-/// not count), else wall time.
+/// (`CLOCK_THREAD_CPUTIME_ID`, so time waiting for a core shared with other work does not
+/// count), else wall time. (`/proc/thread-self/schedstat`, read before, advances only at
+/// the scheduler's ticks, 4 ms apart: a run shorter than a tick read as 0 ms.)
 fn time(mut f: impl FnMut()) -> (f64, f64) {
     let mut ms: Vec<f64> = (0..30)
         .map(|_| {
@@ -104,7 +103,25 @@ fn time(mut f: impl FnMut()) -> (f64, f64) {
 }
 
 /// Nanoseconds this thread has run on a CPU.
+#[cfg(all(target_os = "linux", target_pointer_width = "64"))]
 fn cpu_ns() -> Option<u64> {
-    let stat = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
-    stat.split_whitespace().next()?.parse().ok()
+    #[repr(C)]
+    struct Timespec {
+        sec: i64,
+        nsec: i64,
+    }
+    extern "C" {
+        fn clock_gettime(clock: i32, ts: *mut Timespec) -> i32;
+    }
+    const CLOCK_THREAD_CPUTIME_ID: i32 = 3;
+    let mut ts = Timespec { sec: 0, nsec: 0 };
+    // SAFETY: `ts` is a valid, writable timespec (64-bit Linux layout); the call writes
+    // only it.
+    let rc = unsafe { clock_gettime(CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    (rc == 0).then(|| ts.sec as u64 * 1_000_000_000 + ts.nsec as u64)
+}
+
+#[cfg(not(all(target_os = "linux", target_pointer_width = "64")))]
+fn cpu_ns() -> Option<u64> {
+    None
 }

@@ -1,5 +1,6 @@
 //! The LiDAR board detector on a real Pandar64-class frame: OpenCalib's joint-calibration
-//! sample (`../shared/data/holeboard-real`). Skips with a note when the data are absent.
+//! sample (`../shared/data/holeboard-real`, or under `ROOMCAL_SHARED`). Skips with a note
+//! when the data are absent.
 //!
 //! The board's geometry comes from OpenCalib's own LiDAR circle detector (a 1.2 m square
 //! window, circle centres 0.3 m and 0.9 m into it, i.e. a 0.6 m square grid about the
@@ -15,13 +16,9 @@
 #[path = "common/opencalib.rs"]
 mod opencalib;
 
-use std::path::Path;
-
-use opencalib::opencalib_board;
+use opencalib::{opencalib_board, opencalib_data_dir};
 use roomcal::detect::holes::{HoleConfig, HoleDetector};
 use roomcal::lidar::{pcd, Point};
-
-const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data/holeboard-real");
 
 /// Independent estimate of one hole from the raw rings near `guess`: (y along the rings,
 /// z) of the centre and the number of rings with a gap there.
@@ -66,9 +63,9 @@ fn ring_gap_estimate(points: &[Point], guess: [f64; 3]) -> Option<([f64; 2], usi
 
 #[test]
 fn real_board_holes_on_a_0_6_m_grid() {
-    let dir = Path::new(DATA);
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        println!("skipped: {DATA} is absent");
+    let dir = opencalib_data_dir();
+    let Ok(entries) = std::fs::read_dir(&dir) else {
+        println!("skipped: {} is absent", dir.display());
         return;
     };
     let mut files: Vec<_> = entries

@@ -39,7 +39,9 @@
 //!    is hidden (a board partly behind another, a corner hole a few centimetres from the
 //!    edge) still shows the hole.
 //!    Coarse, medium and fine grids (each scoring only
-//!    the points within its window's reach of an edge, the points turned once per yaw);
+//!    the points within its window's reach of an edge, the points turned once per yaw;
+//!    per yaw the centres lie on a lattice along the turned board's axes, so a point's
+//!    mask column and row are found once and each centre costs one table lookup);
 //!    the final estimate is the centroid of the fine grid's top plateau (every pose the
 //!    points cannot tell from the best), its spread the pose covariance. A plateau wider
 //!    than the window walks on at a coarser step.
@@ -304,10 +306,12 @@ pub struct HoleDetector {
     through_lines: Vec<(f64, u32)>,
     crossings: Vec<(usize, f64)>,
     turned: Vec<[f64; 2]>,
+    lattice: Vec<i32>,
     keep: Vec<bool>,
     hist: Vec<u32>,
     rings: Vec<u32>,
     spacings: Vec<f64>,
+    residuals: Vec<f64>,
     run: Vec<(f64, u32)>,
     turned_gaps: Vec<[f64; 2]>,
     lines: Vec<(f64, u32)>,
@@ -370,10 +374,12 @@ impl HoleDetector {
             through_lines: Vec::new(),
             crossings: Vec::new(),
             turned: Vec::new(),
+            lattice: Vec::new(),
             keep: Vec::new(),
             hist: Vec::new(),
             rings: Vec::new(),
             spacings: Vec::new(),
+            residuals: Vec::new(),
             run: Vec::new(),
             turned_gaps: Vec::new(),
             lines: Vec::new(),
@@ -477,9 +483,16 @@ impl HoleDetector {
         let mut n = n;
         let (mut c, mut rms) = (c, 0.0);
         self.keep_board_runs();
-        for _ in 0..2 {
+        // The band kept about the plane is three robust σ of the residuals (their median
+        // absolute value): clutter touching the board a few centimetres off its plane (a box
+        // at its foot) inflates the RMS and would stay within 3 RMS, tilting the plane.
+        for _ in 0..3 {
             let Some((c2, n2, rms2)) = fit_plane(&self.seg) else { return };
-            let keep = (3.0 * rms2).clamp(0.01, self.config.plane_tolerance_m);
+            self.residuals.clear();
+            self.residuals.extend(self.seg.iter().map(|p| n2.dot(&(p - c2)).abs()));
+            let mid = self.residuals.len() / 2;
+            let mad = *self.residuals.select_nth_unstable_by(mid, f64::total_cmp).1;
+            let keep = (3.0 * 1.4826 * mad).clamp(0.01, self.config.plane_tolerance_m);
             self.seg.retain(|p| n2.dot(&(p - c2)).abs() < keep);
             (c, n, rms) = (c2, n2, rms2);
         }
@@ -945,26 +958,26 @@ impl HoleDetector {
     fn coarse(&mut self) -> Candidates {
         let stride = (self.flat.len() / COARSE_POINTS).max(1);
         let (hw, hh) = (self.spec.width / 2.0, self.spec.height / 2.0);
+        let cell = self.coarse_mask.step;
         let mut found = Candidates::new();
-        for &yaw in &self.yaws {
-            let (s, c) = yaw.sin_cos();
-            // The points in board-aligned axes; the board centre is then a plain shift.
+        for k in 0..self.yaws.len() {
+            let yaw = self.yaws[k];
+            // The points in board-aligned axes (coarse cells); the board centre is then a
+            // plain shift.
             self.sample.clear();
+            self.sample.extend(self.flat.iter().step_by(stride));
+            self.gap_sample.clear();
+            self.gap_sample.extend(self.gaps.iter().step_by(stride));
+            self.through_sample.clear();
+            self.through_sample.extend(self.through.iter().step_by(stride));
+            self.coarse_mask.turn(&self.sample, yaw, &mut self.turned);
+            self.coarse_mask.turn(&self.gap_sample, yaw, &mut self.turned_gaps);
+            self.coarse_mask.turn(&self.through_sample, yaw, &mut self.turned_through);
             let mut lo = [f64::MAX; 2];
             let mut hi = [f64::MIN; 2];
-            for p in self.flat.iter().step_by(stride) {
-                let (u, v) = (c * p[0] + s * p[1], -s * p[0] + c * p[1]);
-                lo = [lo[0].min(u), lo[1].min(v)];
-                hi = [hi[0].max(u), hi[1].max(v)];
-                self.sample.push([u, v]);
-            }
-            self.gap_sample.clear();
-            for p in self.gaps.iter().step_by(stride) {
-                self.gap_sample.push([c * p[0] + s * p[1], -s * p[0] + c * p[1]]);
-            }
-            self.through_sample.clear();
-            for p in self.through.iter().step_by(stride) {
-                self.through_sample.push([c * p[0] + s * p[1], -s * p[0] + c * p[1]]);
+            for p in &self.turned {
+                lo = [lo[0].min(p[0] * cell), lo[1].min(p[1] * cell)];
+                hi = [hi[0].max(p[0] * cell), hi[1].max(p[1] * cell)];
             }
             // Board centres for which the board covers the points or, when the points
             // span more than the board (coplanar clutter beside it: a neighbouring board,
@@ -975,30 +988,51 @@ impl HoleDetector {
             };
             let (ur, vr) = (range(lo[0], hi[0], hw), range(lo[1], hi[1], hh));
             // Centres at twice the coarse step (at most ~100 per yaw: a wide window, little
-            // of the board seen, takes larger steps), then the best ones' neighbours at
-            // the coarse step; the medium grid recentres from there.
+            // of the board seen, takes larger steps), then the best
+            // ones' neighbours at the coarse step; the medium grid recentres from there.
             let area = (ur.1 - ur.0 + COARSE_STEP) * (vr.1 - vr.0 + COARSE_STEP);
             let step = (area / 100.0).sqrt().clamp(2.0 * COARSE_STEP, 4.0 * COARSE_STEP);
+            // (A window wider than a lattice holds, never a board's, takes larger steps still.)
+            let widest = (ur.1 - ur.0).max(vr.1 - vr.0);
+            let step = step.max(widest / (MAX_LATTICE - 1) as f64);
+            let n = [((ur.1 - ur.0) / step) as usize + 1, ((vr.1 - vr.0) / step) as usize + 1];
+            let first = [ur.0 / cell, vr.0 / cell];
+            self.lattice.resize(n[0] * n[1], 0);
+            let e = Evidence {
+                returns: &self.turned,
+                gaps: &self.turned_gaps,
+                through: &self.turned_through,
+            };
+            self.coarse_mask.score_lattice(e, first, step / cell, n, &mut self.lattice);
             let mut here = Candidates::new();
-            let mut u = ur.0;
-            while u <= ur.1 {
-                let mut v = vr.0;
-                while v <= vr.1 {
-                    let score = self.coarse_mask.score_shifted(self.sampled(), u, v);
+            for i in 0..n[0] {
+                for j in 0..n[1] {
+                    let (u, v) = (ur.0 + i as f64 * step, vr.0 + j as f64 * step);
+                    let score = self.lattice[j * n[0] + i] as i64;
                     keep_best(&mut here, score, [u, v, yaw], 2.0 * step);
-                    v += step;
                 }
-                u += step;
             }
-            let half = (step / COARSE_STEP / 2.0).ceil() as i32;
+            let half = (step / COARSE_STEP / 2.0).ceil() as usize;
+            let side = 2 * half + 1;
             for &(_, [u0, v0, _]) in here.iter().take(2) {
+                let (u1, v1) = (u0 - half as f64 * COARSE_STEP, v0 - half as f64 * COARSE_STEP);
+                let e = self.turned_evidence();
+                let mut local_scores = [0i32; 81];
+                self.coarse_mask.score_lattice(
+                    e,
+                    [u1 / cell, v1 / cell],
+                    COARSE_STEP / cell,
+                    [side, side],
+                    &mut local_scores,
+                );
                 let mut local = (i64::MIN, [0.0; 3]);
-                for a in -half..=half {
-                    for b in -half..=half {
-                        let (u, v) = (u0 + a as f64 * COARSE_STEP, v0 + b as f64 * COARSE_STEP);
-                        let score = self.coarse_mask.score_shifted(self.sampled(), u, v);
+                for a in 0..side {
+                    for b in 0..side {
+                        let score = local_scores[b * side + a] as i64;
                         if score > local.0 {
+                            let (u, v) = (u1 + a as f64 * COARSE_STEP, v1 + b as f64 * COARSE_STEP);
                             // The centre back in the plane frame.
+                            let (s, c) = yaw.sin_cos();
                             local = (score, [c * u - s * v, s * u + c * v, yaw]);
                         }
                     }
@@ -1007,11 +1041,6 @@ impl HoleDetector {
             }
         }
         found
-    }
-
-    /// The subsampled evidence (`sample`, `gap_sample`, `through_sample`).
-    fn sampled(&self) -> Evidence<'_> {
-        Evidence { returns: &self.sample, gaps: &self.gap_sample, through: &self.through_sample }
     }
 
     /// The evidence turned by [`Mask::turn`] (`turned`, `turned_gaps`, `turned_through`).
@@ -1064,7 +1093,7 @@ impl HoleDetector {
     /// within its window's reach of an edge.
     #[inline(never)]
     fn medium(&mut self, coarse: [f64; 3]) -> Fit {
-        let medium_step = [0.005, 0.005, 0.5f64.to_radians()];
+        let medium_step = (0.005, 0.5f64.to_radians());
         self.near_edges(coarse, 0.07);
         // The medium grid only finds the plateau (5 mm, 0.5° cells): a subsample will do.
         self.thin_sample(MEDIUM_POINTS);
@@ -1084,7 +1113,7 @@ impl HoleDetector {
     fn fine(&mut self, medium: [f64; 3]) -> Fit {
         // The fine window reaches 9 mm and 0.36° (5 mm at the board's corners).
         self.near_edges(medium, 0.02);
-        let fine = self.grid(medium, [0.0015, 0.0015, 0.06f64.to_radians()], 6);
+        let fine = self.grid(medium, (0.0015, 0.06f64.to_radians()), 6);
         if !fine.at_window_edge {
             return fine;
         }
@@ -1092,7 +1121,7 @@ impl HoleDetector {
         // an occluded board can cause): a wide window at a coarser step, walked on over a
         // subsample (each step of the walk only recentres), then scored once on every
         // point near an edge for the plateau and its spread.
-        let walk_step = [0.004, 0.004, 0.3f64.to_radians()];
+        let walk_step = (0.004, 0.3f64.to_radians());
         let mut pose = fine.pose;
         for _ in 0..6 {
             self.near_edges(pose, 0.07);
@@ -1137,23 +1166,32 @@ impl HoleDetector {
         self.through_sample.extend(self.through.iter().filter(|p| close(p)));
     }
 
-    /// Scores the (2k+1)³ grid around `centre`; returns the plateau centroid and spread.
+    /// Scores the (2k+1)³ grid around `centre`, `step` = (translation in fine-mask cells,
+    /// yaw in radians); returns the plateau centroid and spread. Per yaw the centres lie on
+    /// a lattice along the turned board's axes (whole cells apart: [`Mask::score_lattice`]).
     #[inline(never)]
-    fn grid(&mut self, centre: [f64; 3], step: [f64; 3], k: i32) -> Fit {
+    fn grid(&mut self, centre: [f64; 3], (step, yaw_step): (f64, f64), k: i32) -> Fit {
         let span = (2 * k + 1) as usize;
         let mut scores = [0i64; 17 * 17 * 17];
+        let mut turns = [(0.0, 0.0); 17];
         let mut max = i64::MIN;
-        let off = |i: usize, s: f64| (i as i32 - k) as f64 * s;
+        let off = |i: usize| (i as i32 - k) as f64;
         for g in 0..span {
             // Per yaw the points are turned once; each centre is then a plain shift.
-            let yaw = centre[2] + off(g, step[2]);
+            let yaw = centre[2] + off(g) * yaw_step;
+            turns[g] = yaw.sin_cos();
             self.mask.turn(&self.sample, yaw, &mut self.turned);
             self.mask.turn(&self.gap_sample, yaw, &mut self.turned_gaps);
             self.mask.turn(&self.through_sample, yaw, &mut self.turned_through);
+            let u = self.mask.turned_centre([centre[0], centre[1]], yaw);
+            let reach = k as f64 * step / self.mask.step;
+            let first = [u[0] - reach, u[1] - reach];
+            let mut block = [0i32; 17 * 17];
+            let cells = step / self.mask.step;
+            self.mask.score_lattice(self.turned_evidence(), first, cells, [span, span], &mut block);
             for a in 0..span {
                 for b in 0..span {
-                    let t = [centre[0] + off(a, step[0]), centre[1] + off(b, step[1])];
-                    let sc = self.mask.score_turned(self.turned_evidence(), t, yaw);
+                    let sc = block[b * span + a] as i64;
                     scores[(a * span + b) * span + g] = sc;
                     max = max.max(sc);
                 }
@@ -1172,11 +1210,10 @@ impl HoleDetector {
                     if w < 1e-6 {
                         continue;
                     }
-                    let x = [
-                        (a as i32 - k) as f64 * step[0],
-                        (b as i32 - k) as f64 * step[1],
-                        (g as i32 - k) as f64 * step[2],
-                    ];
+                    // The centre's offset along the turned axes, back in the plane frame.
+                    let (s, c) = turns[g];
+                    let (du, dv) = (off(a) * step, off(b) * step);
+                    let x = [c * du - s * dv, s * du + c * dv, off(g) * yaw_step];
                     if w > 0.1 && [a, b, g].iter().any(|&i| i == 0 || i == span - 1) {
                         edge = true;
                     }
@@ -1202,7 +1239,8 @@ impl HoleDetector {
         for i in 0..3 {
             for j in i..3 {
                 // A one-cell plateau still has the grid's own quantisation spread.
-                let q = if i == j { step[i] * step[i] / 12.0 } else { 0.0 };
+                let cell = [step, step, yaw_step][i];
+                let q = if i == j { cell * cell / 12.0 } else { 0.0 };
                 let c = second[n] / w_sum - mean[i] * mean[j] + q;
                 cov[i * 3 + j] = c;
                 cov[j * 3 + i] = c;
@@ -1409,18 +1447,18 @@ struct Fit {
     at_window_edge: bool,
 }
 
-/// The board model rasterised (2 mm for the fine search, 1 cm for the coarse). For a
-/// return: +1 on solid board, −3 in a hole, −1 outside. For a gap point (where a scan
-/// line crossing the plane returned nothing): +1 in a hole, −3 on solid board (it would
-/// have returned), −1 outside. For a see-through point (a beam that crossed the plane
-/// and returned from behind it): −3 on solid board, 0 in a hole and outside (beams pass
-/// beside a board as freely as through its holes, so they only veto solid board).
+/// The board model rasterised (2 mm for the fine search, 1 cm for the coarse): each
+/// cell holds +1 on solid board, −1 in a hole and 0 outside (as does everything beyond
+/// the grid). The scores follow from it: a return scores 2v − 1 (+1 on solid board, −3 in
+/// a hole, −1 outside); a gap point (where a scan line crossing the plane returned
+/// nothing) −2v − 1 (+1 in a hole, −3 on solid board: it would have returned, −1
+/// outside); a see-through point (a beam that crossed the plane and returned from behind
+/// it) −3 on solid board and nothing elsewhere (beams pass beside a board as freely as
+/// through its holes, so they only veto solid board).
 #[derive(Clone, Debug)]
 struct Mask {
     step: f64,
     cells: Vec<i8>,
-    gap_cells: Vec<i8>,
-    through_cells: Vec<i8>,
     cols: usize,
     rows: usize,
     origin: [f64; 2],
@@ -1429,11 +1467,19 @@ struct Mask {
 const MASK_MARGIN: f64 = 0.15;
 /// Most cells along a mask side: the fine mask of the largest board the room file accepts
 /// (`MAX_BOARD_SIDE_M` + margins at 2 mm) needs 2650, so this bounds the allocation
-/// (2 × 4096² bytes per mask) even for a board that bypassed validation.
+/// (4096² bytes per mask) even for a board that bypassed validation.
 pub const MAX_MASK_SIDE: usize = 4096;
-const HOLE_PENALTY: i8 = -3;
-const OUTSIDE_PENALTY: i8 = -1;
-const GAP_ON_SOLID: i8 = -3;
+
+/// Score of a return, a gap point and a see-through point on a cell of value `v`.
+fn return_score(v: i8) -> i32 {
+    2 * v as i32 - 1
+}
+fn gap_score(v: i8) -> i32 {
+    -2 * v as i32 - 1
+}
+fn through_score(v: i8) -> i32 {
+    -3 * v.max(0) as i32
+}
 
 impl Mask {
     fn new(spec: &BoardSpec, step: f64) -> Self {
@@ -1441,9 +1487,7 @@ impl Mask {
         // `as` saturates (NaN → 0); the cap keeps a hostile size from sizing the buffers.
         let cols = (((spec.width + 2.0 * MASK_MARGIN) / step).ceil() as usize).min(MAX_MASK_SIDE);
         let rows = (((spec.height + 2.0 * MASK_MARGIN) / step).ceil() as usize).min(MAX_MASK_SIDE);
-        let mut cells = vec![OUTSIDE_PENALTY; cols * rows];
-        let mut gap_cells = vec![OUTSIDE_PENALTY; cols * rows];
-        let mut through_cells = vec![0; cols * rows];
+        let mut cells = vec![0; cols * rows];
         let r2 = spec.hole_radius * spec.hole_radius;
         for row in 0..rows {
             for col in 0..cols {
@@ -1451,37 +1495,14 @@ impl Mask {
                 let y = origin[1] + (row as f64 + 0.5) * step;
                 let inside = x.abs() <= spec.width / 2.0 && y.abs() <= spec.height / 2.0;
                 let hole = spec.holes.iter().any(|h| (x - h[0]).powi(2) + (y - h[1]).powi(2) < r2);
-                let at = row * cols + col;
-                (cells[at], gap_cells[at], through_cells[at]) = match (inside, hole) {
-                    (true, false) => (1, GAP_ON_SOLID, GAP_ON_SOLID),
-                    (true, true) => (HOLE_PENALTY, 1, 0),
-                    _ => (OUTSIDE_PENALTY, OUTSIDE_PENALTY, 0),
+                cells[row * cols + col] = match (inside, hole) {
+                    (true, false) => 1,
+                    (true, true) => -1,
+                    _ => 0,
                 };
             }
         }
-        Mask { step, cells, gap_cells, through_cells, cols, rows, origin }
-    }
-
-    /// Score of board-aligned evidence for board centre (u, v).
-    fn score_shifted(&self, e: Evidence, u: f64, v: f64) -> i64 {
-        let inv = 1.0 / self.step;
-        let (ox, oy) = ((self.origin[0] + u) * inv, (self.origin[1] + v) * inv);
-        let sum = |cells: &[i8], pts: &[[f64; 2]], beyond: i64| -> i64 {
-            pts.iter().map(|p| self.at(cells, p[0] * inv - ox, p[1] * inv - oy, beyond)).sum()
-        };
-        let outside = OUTSIDE_PENALTY as i64;
-        sum(&self.cells, e.returns, outside)
-            + sum(&self.gap_cells, e.gaps, outside)
-            + sum(&self.through_cells, e.through, 0)
-    }
-
-    /// The cell value at fractional cell coordinates (col, row); `beyond` beyond the grid.
-    fn at(&self, cells: &[i8], col: f64, row: f64, beyond: i64) -> i64 {
-        if col >= 0.0 && row >= 0.0 && (col as usize) < self.cols && (row as usize) < self.rows {
-            cells[row as usize * self.cols + col as usize] as i64
-        } else {
-            beyond
-        }
+        Mask { step, cells, cols, rows, origin }
     }
 
     /// Plane-frame points turned by −`yaw` and scaled to cells, into `out`.
@@ -1494,21 +1515,116 @@ impl Mask {
         );
     }
 
+    /// The board centre `t` (plane frame, m) in the frame of points turned by −`yaw` and
+    /// scaled to cells.
+    fn turned_centre(&self, t: [f64; 2], yaw: f64) -> [f64; 2] {
+        let (s, c) = yaw.sin_cos();
+        [(c * t[0] + s * t[1]) / self.step, (c * t[1] - s * t[0]) / self.step]
+    }
+
     /// Score of evidence turned by [`Mask::turn`] for board centre `t` (plane frame) and
     /// the same `yaw`.
     fn score_turned(&self, e: Evidence, t: [f64; 2], yaw: f64) -> i64 {
-        let (s, c) = yaw.sin_cos();
-        let inv = 1.0 / self.step;
-        let ox = (c * t[0] + s * t[1]) * inv + self.origin[0] * inv;
-        let oy = (c * t[1] - s * t[0]) * inv + self.origin[1] * inv;
-        let sum = |cells: &[i8], pts: &[[f64; 2]], beyond: i64| -> i64 {
-            pts.iter().map(|p| self.at(cells, p[0] - ox, p[1] - oy, beyond)).sum()
+        let u = self.turned_centre(t, yaw);
+        let (ox, oy) = (u[0] + self.origin[0] / self.step, u[1] + self.origin[1] / self.step);
+        let sum = |pts: &[[f64; 2]], score: fn(i8) -> i32| -> i64 {
+            pts.iter().map(|p| score(self.at(p[0] - ox, p[1] - oy)) as i64).sum()
         };
-        let outside = OUTSIDE_PENALTY as i64;
-        sum(&self.cells, e.returns, outside)
-            + sum(&self.gap_cells, e.gaps, outside)
-            + sum(&self.through_cells, e.through, 0)
+        sum(e.returns, return_score) + sum(e.gaps, gap_score) + sum(e.through, through_score)
     }
+
+    /// The cell value at fractional cell coordinates (col, row); 0 beyond the grid.
+    fn at(&self, col: f64, row: f64) -> i8 {
+        if col >= 0.0 && row >= 0.0 && (col as usize) < self.cols && (row as usize) < self.rows {
+            self.cells[row as usize * self.cols + col as usize]
+        } else {
+            0
+        }
+    }
+
+    /// Scores of a lattice of board centres at once, for evidence turned by
+    /// [`Mask::turn`]: centre (i, j) lies at `first + (i, j)·step` (turned frame, cells;
+    /// at most [`MAX_LATTICE`] a side), its score goes to `out[j·n[0] + i]`. Along the
+    /// turned board's axes a point's column depends on i alone and its row on j alone:
+    /// both are found once per point, and each centre then costs one table lookup.
+    fn score_lattice(
+        &self,
+        e: Evidence,
+        first: [f64; 2],
+        step: f64,
+        n: [usize; 2],
+        out: &mut [i32],
+    ) {
+        let n = [n[0].min(MAX_LATTICE), n[1].min(MAX_LATTICE)];
+        let out = &mut out[..n[0] * n[1]];
+        // Every return and gap point scores −1 outside; the cells add the rest.
+        out.fill(-((e.returns.len() + e.gaps.len()) as i32));
+        let o = [first[0] + self.origin[0] / self.step, first[1] + self.origin[1] / self.step];
+        let mut index = Lattice { step, n, cols: [0; MAX_LATTICE], rows: [0; MAX_LATTICE] };
+        for p in e.returns {
+            self.add_lattice(p, o, &mut index, out, |v| 2 * v as i32);
+        }
+        for p in e.gaps {
+            self.add_lattice(p, o, &mut index, out, |v| -2 * v as i32);
+        }
+        for p in e.through {
+            self.add_lattice(p, o, &mut index, out, through_score);
+        }
+    }
+
+    /// Adds one point's `score` of the cell under it to every centre of the lattice
+    /// (`score_lattice`'s layout; `o` is the first centre's cell origin). Cells beyond the
+    /// grid hold 0 and add nothing.
+    #[inline(always)]
+    fn add_lattice(
+        &self,
+        p: &[f64; 2],
+        o: [f64; 2],
+        index: &mut Lattice,
+        out: &mut [i32],
+        score: impl Fn(i8) -> i32,
+    ) {
+        let n = index.n;
+        let (i_lo, i_hi) = cells_along(p[0] - o[0], index.step, self.cols, &mut index.cols[..n[0]]);
+        let (j_lo, j_hi) = cells_along(p[1] - o[1], index.step, self.rows, &mut index.rows[..n[1]]);
+        if i_lo >= i_hi {
+            return;
+        }
+        for j in j_lo..j_hi {
+            let row = &self.cells[index.rows[j] as usize * self.cols..][..self.cols];
+            let cols = &index.cols[i_lo..i_hi];
+            for (acc, &c) in out[j * n[0] + i_lo..j * n[0] + i_hi].iter_mut().zip(cols) {
+                *acc += score(row[c as usize]);
+            }
+        }
+    }
+}
+
+/// Most lattice centres along a side in one [`Mask::score_lattice`] call.
+const MAX_LATTICE: usize = 128;
+
+/// A lattice's spacing (cells) and size, and one point's column and row per centre.
+struct Lattice {
+    step: f64,
+    n: [usize; 2],
+    cols: [u32; MAX_LATTICE],
+    rows: [u32; MAX_LATTICE],
+}
+
+/// The cell `x − k·step` for every lattice centre k into `cells` (`x` in cells from the
+/// grid's origin for the first centre); returns the range of centres for which it lies
+/// within the `len` cells of the grid (it falls with k, so the range is contiguous).
+fn cells_along(x: f64, step: f64, len: usize, cells: &mut [u32]) -> (usize, usize) {
+    let (mut lo, mut hi) = (cells.len(), 0);
+    for (k, cell) in cells.iter_mut().enumerate() {
+        let at = x - k as f64 * step;
+        if at >= 0.0 && at < len as f64 {
+            *cell = at as u32;
+            lo = lo.min(k);
+            hi = k + 1;
+        }
+    }
+    (lo, hi)
 }
 
 /// What the mask scores: returns on the plane, gap points and see-through points, in one
@@ -1826,6 +1942,72 @@ impl Refusal {
             }
             Refusal::OutlineDisagrees { .. } | Refusal::SeenThrough { .. } => {
                 "if it is a board, check the room file's board size and clear what touches its edges"
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn board() -> BoardSpec {
+        let mut holes = heapless::Vec::new();
+        for h in [[-0.45, -0.35], [0.45, -0.35], [-0.45, 0.35], [0.45, 0.35]] {
+            holes.push(h).unwrap();
+        }
+        BoardSpec {
+            width: 1.2,
+            height: 1.0,
+            inner_corners: [7, 5],
+            square: 0.08,
+            hole_radius: 0.08,
+            holes,
+            count: 1,
+            checker_offset: [0.0, 0.0],
+        }
+    }
+
+    /// Points spread over and beyond the board (plane frame), from a fixed LCG.
+    fn scatter(n: usize, seed: u64) -> Vec<[f64; 2]> {
+        let mut s = seed;
+        let mut next = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        (0..n).map(|_| [0.8 * next(), 0.7 * next()]).collect()
+    }
+
+    /// The lattice scorer gives every centre the score that scoring it alone gives (the
+    /// fine and the coarse mask, a step that is no whole number of cells, centres whose
+    /// points fall off the grid).
+    #[test]
+    fn lattice_scores_equal_scores_one_centre_at_a_time() {
+        let spec = board();
+        let (returns, gaps, through) = (scatter(400, 1), scatter(60, 2), scatter(90, 3));
+        for (mask, step_m, n) in
+            [(Mask::new(&spec, 0.002), 0.0015, [13, 11]), (Mask::new(&spec, 0.01), 0.07, [30, 25])]
+        {
+            let yaw = 0.3;
+            let (mut r, mut g, mut t) = (Vec::new(), Vec::new(), Vec::new());
+            mask.turn(&returns, yaw, &mut r);
+            mask.turn(&gaps, yaw, &mut g);
+            mask.turn(&through, yaw, &mut t);
+            let e = Evidence { returns: &r, gaps: &g, through: &t };
+            let step = step_m / mask.step;
+            let u = mask.turned_centre([0.013, -0.021], yaw);
+            let first = [u[0] - 6.0 * step, u[1] - 5.0 * step];
+            let mut lattice = vec![0; n[0] * n[1]];
+            mask.score_lattice(e, first, step, n, &mut lattice);
+            let (s, c) = yaw.sin_cos();
+            for j in 0..n[1] {
+                for i in 0..n[0] {
+                    // The centre back in the plane frame (m).
+                    let (a, b) = (first[0] + i as f64 * step, first[1] + j as f64 * step);
+                    let centre = [(c * a - s * b) * mask.step, (s * a + c * b) * mask.step];
+                    let alone = mask.score_turned(e, centre, yaw);
+                    assert_eq!(lattice[j * n[0] + i] as i64, alone, "centre ({i}, {j})");
+                }
             }
         }
     }

@@ -20,3 +20,12 @@ pub fn opencalib_board() -> BoardSpec {
         checker_offset: [0.0, 0.0],
     }
 }
+
+/// The sample's folder: `../shared/data/holeboard-real` from the repo root, or under
+/// `ROOMCAL_SHARED` (a worktree elsewhere names the shared folder with it).
+pub fn opencalib_data_dir() -> std::path::PathBuf {
+    std::env::var_os("ROOMCAL_SHARED")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared"))
+        .join("data/holeboard-real")
+}
