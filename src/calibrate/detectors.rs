@@ -32,10 +32,15 @@ impl RigDetectors {
         Ok(RigDetectors { cameras })
     }
 
+    /// The first camera's detectors (whose hole detector serves every LiDAR).
+    pub fn first(&mut self) -> &mut Detectors {
+        // A rig has at least one camera (crate::rig checks it).
+        &mut self.cameras[0]
+    }
+
     /// Every board LiDAR sweep `points` places (any LiDAR of the rig).
     pub fn detect_cloud(&mut self, points: &[crate::lidar::Point]) -> Vec<LidarBoard> {
-        // A rig has at least one camera (crate::rig checks it).
-        self.cameras[0].detect_cloud(points)
+        self.first().detect_cloud(points)
     }
 }
 

@@ -21,24 +21,25 @@ use super::{CalibrationOutcome, Calibrator};
 /// Detection and calibration for one room, with workspaces made once.
 pub struct RoomCalibrator {
     room: Room,
-    detectors: Detectors,
+    /// One camera's for the one-pair vehicle, every camera's for a rig; the first camera's
+    /// count the trigger's boards and run the one-pair calibration.
+    detectors: RigDetectors,
     report: Option<PathBuf>,
-    rig: Option<(Rig, RigDetectors)>,
+    rig: Option<Rig>,
 }
 
 impl RoomCalibrator {
     /// The calibrator of `room`; fails when the room's pattern cannot be detected.
     pub fn new(room: Room) -> Result<Self, crate::detect::DetectError> {
-        let detectors = Detectors::new(&room)?;
+        let detectors = RigDetectors { cameras: vec![Detectors::new(&room)?] };
         Ok(RoomCalibrator { room, detectors, report: None, rig: None })
     }
 
     /// Also calibrates `rig` ([`Calibrator::calibrate_rig`]): its cameras' detectors made
     /// now; the trigger's board count stays on the first camera's.
     pub fn with_rig(mut self, rig: Rig) -> Result<Self, crate::detect::DetectError> {
-        let detectors = RigDetectors::new(&self.room, &rig)?;
-        self.detectors = Detectors::new(&rig.pair_room(&self.room, 0, None))?;
-        self.rig = Some((rig, detectors));
+        self.detectors = RigDetectors::new(&self.room, &rig)?;
+        self.rig = Some(rig);
         Ok(self)
     }
 
@@ -79,7 +80,7 @@ impl RoomCalibrator {
 
 impl Calibrator for RoomCalibrator {
     fn count_boards(&mut self, frame: &GreyFrame) -> usize {
-        self.detectors.detect_pixels(&frame.pixels).map_or(0, |boards| boards.len())
+        self.detectors.first().detect_pixels(&frame.pixels).map_or(0, |boards| boards.len())
     }
 
     fn calibrate(
@@ -91,14 +92,14 @@ impl Calibrator for RoomCalibrator {
         let mut detections = Vec::with_capacity(frames.len());
         let mut refused_first = Vec::new();
         for (i, frame) in frames.iter().enumerate() {
-            let camera = match self.detectors.detect_pixels(&frame.pixels) {
+            let camera = match self.detectors.first().detect_pixels(&frame.pixels) {
                 Ok(boards) => boards,
                 Err(e) => return CalibrationOutcome::Failed(format!("frame {i}: {e}")),
             };
             let lidar =
                 sweeps.get(i).map_or(Vec::new(), |sweep| self.detectors.detect_cloud(sweep));
             if i == 0 && self.report.is_some() {
-                refused_first = self.detectors.refused_in_cloud().to_vec();
+                refused_first = self.detectors.first().refused_in_cloud().to_vec();
             }
             detections.push(FrameDetections { camera, lidar });
         }
@@ -118,7 +119,7 @@ impl Calibrator for RoomCalibrator {
         sweeps: &[Vec<Point>],
         _current: Option<&RigResult>,
     ) -> CalibrationOutcome {
-        let Some((rig, detectors)) = &mut self.rig else {
+        let (Some(rig), detectors) = (&self.rig, &mut self.detectors) else {
             return CalibrationOutcome::Failed("the daemon was not configured with a rig".into());
         };
         let mut cameras = Vec::with_capacity(frames.len());
