@@ -53,15 +53,8 @@ fn extrinsic_record(e: &Se3) -> ExtrinsicRecord {
 /// The sensor table of a rig in force, in [`RigResult::in_order`]'s order; `None` when it
 /// does not fit the table (the configured one is served then).
 fn rig_table(rig: &RigResult) -> Option<SensorTable> {
-    let mut table = SensorTable::default();
-    for sensor in rig.in_order() {
-        let kind = match sensor.camera {
-            Some(_) => SensorKind::Camera,
-            None => SensorKind::Lidar,
-        };
-        table.push(kind, sensor.name).ok()?;
-    }
-    Some(table)
+    let kind = |camera: bool| if camera { SensorKind::Camera } else { SensorKind::Lidar };
+    SensorTable::of(rig.in_order().iter().map(|s| (kind(s.camera.is_some()), s.name))).ok()
 }
 
 /// What the daemon shares with the service and the handle.

@@ -445,17 +445,13 @@ fn configured_sensors(
 ) -> crate::service::uds::SensorTable {
     use crate::service::uds::{SensorKind, SensorTable};
     let Some(r) = &config.rig else { return SensorTable::one_pair(room.lidar.is_some()) };
-    let mut table = SensorTable::default();
     let sensors = r
         .cameras
         .iter()
         .map(|c| (SensorKind::Camera, c.name.as_str()))
         .chain(r.lidars.iter().map(|l| (SensorKind::Lidar, l.name.as_str())));
-    for (kind, name) in sensors {
-        // A rig holds at most 8 + 8 checked names: they fit the table's 16.
-        let _ = table.push(kind, name);
-    }
-    table
+    // A rig holds at most 8 + 8 checked names: they fit the table's 16.
+    SensorTable::of(sensors).unwrap_or_default()
 }
 
 async fn run_daemon<C: Calibrator>(

@@ -590,6 +590,18 @@ impl SensorTable {
         table
     }
 
+    /// The table of `sensors` (kind, name), in their order; `Err` when one does not fit
+    /// ([`SensorTable::push`]).
+    pub fn of<'a>(
+        sensors: impl IntoIterator<Item = (SensorKind, &'a str)>,
+    ) -> Result<Self, DecodeError> {
+        let mut table = SensorTable::default();
+        for (kind, name) in sensors {
+            table.push(kind, name)?;
+        }
+        Ok(table)
+    }
+
     /// Appends a sensor; `Err` when the table is full or the name is not a rig name.
     pub fn push(&mut self, kind: SensorKind, name: &str) -> Result<(), DecodeError> {
         if !is_sensor_name(name.as_bytes()) {
