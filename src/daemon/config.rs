@@ -79,7 +79,8 @@ pub struct RigCameraSource {
 #[derive(Clone, Debug, PartialEq)]
 pub struct RigLidarSource {
     pub name: String,
-    pub model: crate::target::LidarModel,
+    /// The rig file's model; `None` for the one-pair vehicle's LiDAR (the room file's).
+    pub model: Option<crate::target::LidarModel>,
     pub source: LidarSource,
     pub multicast: Option<Ipv4Addr>,
     pub replay_speed: f64,
@@ -139,7 +140,7 @@ impl Config {
             multicast: lidar.multicast,
             replay_speed: lidar.replay_speed,
             lidar_calibration: lidar.calibration.clone(),
-            lidar_model: Some(lidar.model),
+            lidar_model: lidar.model,
             ..self.clone()
         }
     }
@@ -301,8 +302,8 @@ pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
         }
     };
     // The first camera and LiDAR: the one-pair vehicle's, or the rig's first.
-    let (camera, lidar, lidar_model) = match &rig {
-        Some(r) => (r.cameras[0].clone(), r.lidars[0].clone(), Some(r.lidars[0].model)),
+    let (camera, lidar) = match &rig {
+        Some(r) => (r.cameras[0].clone(), r.lidars[0].clone()),
         None => {
             let (c, l) = (&raw.camera.all()[0], &raw.lidar.all()[0]);
             let camera = RigCameraSource {
@@ -312,14 +313,13 @@ pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
             };
             let lidar = RigLidarSource {
                 name: crate::rig::PAIR_LIDAR.into(),
-                // Not read: `lidar_model` None means the room file's model.
-                model: crate::target::LidarModel::Pandar64,
+                model: None,
                 source: lidar_source(&l.source, "lidar.source", &resolve).map_err(invalid)?,
                 multicast: l.multicast,
                 replay_speed: l.replay_speed,
                 calibration: l.calibration.as_deref().map(&resolve),
             };
-            (camera, lidar, None)
+            (camera, lidar)
         }
     };
     check_numbers(&raw).map_err(|e| invalid(e.to_string()))?;
@@ -340,7 +340,7 @@ pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
         multicast: lidar.multicast,
         replay_speed: lidar.replay_speed,
         lidar_calibration: lidar.calibration,
-        lidar_model,
+        lidar_model: lidar.model,
         rig,
         trigger: TriggerConfig {
             mode: t.mode,
@@ -477,7 +477,7 @@ fn rig_sources(
         let key = format!("lidar `{}` source", l.name);
         out.lidars.push(RigLidarSource {
             name: l.name.to_string(),
-            model: l.model,
+            model: Some(l.model),
             source: lidar_source(&raw.source, &key, resolve)?,
             multicast: raw.multicast,
             replay_speed: raw.replay_speed,
