@@ -39,6 +39,24 @@ fn calibrate_in(room: &str, inputs: &[&str], out: &Path) -> (i32, String, String
     roomcal(&args)
 }
 
+/// `--image NAME=…` / `--cloud NAME=…` of the example rig's files `simulate --rig` wrote
+/// into `dir`.
+fn rig_inputs(dir: &Path) -> Vec<String> {
+    let sensors = [
+        ("--image", "front.png"),
+        ("--image", "wide.png"),
+        ("--cloud", "top.pcd"),
+        ("--cloud", "bumper.pcd"),
+    ];
+    sensors
+        .iter()
+        .flat_map(|(flag, file)| {
+            let name = file.split('.').next().unwrap_or(file);
+            [flag.to_string(), format!("{name}={}", dir.join(file).display())]
+        })
+        .collect()
+}
+
 #[test]
 fn bad_rig_inputs_exit_2_naming_them() {
     let dir = temp_dir("bad");
@@ -121,17 +139,7 @@ fn a_simulated_rig_is_detected_and_calibrated_by_name() {
     ] {
         assert!(dir.join(file).exists(), "{file}");
     }
-    let input = |name: &str, file: &str| format!("{name}={}", dir.join(file).display());
-    let inputs = [
-        "--image".to_string(),
-        input("front", "front.png"),
-        "--image".to_string(),
-        input("wide", "wide.png"),
-        "--cloud".to_string(),
-        input("top", "top.pcd"),
-        "--cloud".to_string(),
-        input("bumper", "bumper.pcd"),
-    ];
+    let inputs = rig_inputs(&dir);
     let inputs: Vec<&str> = inputs.iter().map(String::as_str).collect();
     let detections = dir.join("detections.json");
     let mut args = vec!["detect", "--room", &room, "--rig", &rig, "--out"];
@@ -234,20 +242,8 @@ fn a_rig_is_calibrated_in_the_room_its_visits_surveyed() {
     let (code, _, stderr) = roomcal(&args);
     assert_eq!(code, 0, "survey: {stderr}");
 
-    let input = |name: &str, file: &str| format!("{name}={}", dir.join("rig").join(file).display());
-    let inputs = [
-        "--image".to_string(),
-        input("front", "front.png"),
-        "--image".to_string(),
-        input("wide", "wide.png"),
-        "--cloud".to_string(),
-        input("top", "top.pcd"),
-        "--cloud".to_string(),
-        input("bumper", "bumper.pcd"),
-        "--export".to_string(),
-        dir.join("exports").display().to_string(),
-        "--json".to_string(),
-    ];
+    let mut inputs = rig_inputs(&dir.join("rig"));
+    inputs.extend(["--export".into(), dir.join("exports").display().to_string(), "--json".into()]);
     let inputs: Vec<&str> = inputs.iter().map(String::as_str).collect();
     let out = dir.join("result.json");
     let (code, stdout, stderr) = calibrate_in(&surveyed, &inputs, &out);
