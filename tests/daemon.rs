@@ -561,15 +561,26 @@ fn the_unit_raises_the_file_descriptor_limit() {
     assert!(limit >= 1024 && limit > 8 * clients, "LimitNOFILE={limit}");
 }
 
-/// Sees six boards; calibrates rigs only, recording how many cameras' frames and LiDARs'
-/// sweeps each run got.
+/// Sees six boards in every camera (or `boards[i]` in camera i); calibrates rigs only,
+/// recording how many cameras' frames and LiDARs' sweeps each run got.
 struct RigFake {
     seen: Arc<std::sync::Mutex<Vec<(usize, usize)>>>,
+    boards: [usize; 2],
+}
+
+impl RigFake {
+    fn new(seen: &Arc<std::sync::Mutex<Vec<(usize, usize)>>>) -> Self {
+        RigFake { seen: seen.clone(), boards: [6, 6] }
+    }
 }
 
 impl Calibrator for RigFake {
     fn count_boards(&mut self, _frame: &GreyFrame) -> usize {
-        6
+        self.boards[0]
+    }
+
+    fn count_boards_on(&mut self, camera: usize, _frame: &GreyFrame) -> usize {
+        self.boards[camera]
     }
 
     fn calibrate(
@@ -595,16 +606,26 @@ impl Calibrator for RigFake {
 /// `scene`'s folder with the example rig (config/rig.toml) and a daemon configuration
 /// naming a source per sensor; `bumper` is the bumper LiDAR's source.
 fn rig_scene(name: &str, bumper: &str) -> (PathBuf, config::Config) {
+    rig_scene_with(name, bumper, "", "")
+}
+
+/// [`rig_scene`] with keys added to the wide camera's table and to `[trigger]`.
+fn rig_scene_with(
+    name: &str,
+    bumper: &str,
+    wide: &str,
+    trigger: &str,
+) -> (PathBuf, config::Config) {
     let (dir, _) = scene(name, "");
     std::fs::copy(concat!(env!("CARGO_MANIFEST_DIR"), "/config/rig.toml"), dir.join("rig.toml"))
         .unwrap();
     let text = format!(
         "room = \"room.toml\"\nstore = \"store\"\nrig = \"rig.toml\"\n\
          [[camera]]\nname = \"front\"\nsource = \"replay:frames\"\n\
-         [[camera]]\nname = \"wide\"\nsource = \"replay:frames\"\n\
+         [[camera]]\nname = \"wide\"\nsource = \"replay:frames\"\n{wide}\
          [[lidar]]\nname = \"top\"\nsource = \"replay:cloud.pcd\"\n\
          [[lidar]]\nname = \"bumper\"\nsource = \"{bumper}\"\n\
-         [trigger]\nsettle_s = 2.0\nframes = 3\nsweeps = 2\n"
+         [trigger]\nsettle_s = 2.0\nframes = 3\nsweeps = 2\n{trigger}"
     );
     let path = dir.join("rig-daemon.toml");
     std::fs::write(&path, text).unwrap();
@@ -616,7 +637,7 @@ async fn a_rig_daemon_captures_every_sensor_and_keeps_the_rig_in_force() {
     let (dir, cfg) = rig_scene("rig-run", "replay:cloud.pcd");
     assert_eq!(cfg.rig.as_ref().map(|r| r.cameras.len() + r.lidars.len()), Some(4));
     let seen = Arc::new(std::sync::Mutex::new(Vec::new()));
-    let cal = RigFake { seen: seen.clone() };
+    let cal = RigFake::new(&seen);
     let summary =
         daemon::run(cfg, cal, RunOptions { once: true }, std::future::pending()).await.unwrap();
     assert_eq!((summary.runs, summary.accepted, summary.generation), (1, 1, 1));
@@ -635,17 +656,34 @@ async fn a_rig_daemon_captures_every_sensor_and_keeps_the_rig_in_force() {
 async fn a_rig_run_times_out_naming_the_sensor_that_delivered_nothing() {
     let (dir, cfg) = rig_scene("rig-timeout", "replay:missing.pcd");
     let seen = Arc::new(std::sync::Mutex::new(Vec::new()));
-    let error = daemon::run(
-        cfg,
-        RigFake { seen: seen.clone() },
-        RunOptions { once: true },
-        std::future::pending(),
-    )
-    .await
-    .unwrap_err()
-    .to_string();
+    let error =
+        daemon::run(cfg, RigFake::new(&seen), RunOptions { once: true }, std::future::pending())
+            .await
+            .unwrap_err()
+            .to_string();
     assert!(error.contains("0 of 2 sweeps of LiDAR `bumper`"), "{error}");
     assert!(error.contains("2 of 2 sweeps of LiDAR `top`"), "{error}");
     assert!(seen.lock().unwrap().is_empty(), "calibrated without the bumper LiDAR");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The room counts as seen when every camera sees its boards: a wide camera that sees two
+/// of the six boards holds the trigger; it runs when `[trigger] cameras` leaves that
+/// camera out, or when the camera's own `min_boards` is two.
+#[tokio::test(start_paused = true)]
+async fn a_rigs_trigger_waits_for_every_watched_camera() {
+    let run = |name: &str, wide: &str, trigger: &str| {
+        let (dir, cfg) = rig_scene_with(name, "replay:cloud.pcd", wide, trigger);
+        let seen = Arc::new(std::sync::Mutex::new(Vec::new()));
+        let cal = RigFake { boards: [6, 2], ..RigFake::new(&seen) };
+        async move {
+            let stop = tokio::time::sleep(Duration::from_secs(30));
+            let summary = daemon::run(cfg, cal, RunOptions { once: true }, stop).await.unwrap();
+            let _ = std::fs::remove_dir_all(&dir);
+            (summary.runs, seen.lock().unwrap().len())
+        }
+    };
+    assert_eq!(run("rig-held", "", "").await, (0, 0), "ran with the wide camera short of boards");
+    assert_eq!(run("rig-front", "", "cameras = [\"front\"]\n").await, (1, 1));
+    assert_eq!(run("rig-own", "min_boards = 2\n", "").await, (1, 1));
 }

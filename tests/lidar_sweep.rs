@@ -76,6 +76,38 @@ fn clean_capture_gives_whole_turns() {
     }
 }
 
+/// The assembler that grows its own buffer hands out the very sweeps of a fixed buffer,
+/// and counts what passes its limit as overflow, as a full fixed buffer does.
+#[test]
+fn a_growing_buffer_gives_the_fixed_buffers_sweeps_and_overflows_at_its_limit() {
+    let (cal, pk) = packets(Model::Pandar64, 3);
+    let input = on_data(&pk);
+    let config = SweepConfig::for_calibration(&cal);
+    let run = |asm: &mut SweepAssembler<'_>| {
+        let mut sweeps: Vec<(bool, Vec<Point>, u64)> = Vec::new();
+        for (port, payload) in &input {
+            asm.push(*port, payload, &mut |s| {
+                sweeps.push((s.complete, s.points.to_vec(), s.overflow))
+            });
+        }
+        asm.flush(&mut |s| sweeps.push((s.complete, s.points.to_vec(), s.overflow)));
+        sweeps
+    };
+    let mut buf = vec![Point::default(); 200_000];
+    let fixed = run(&mut SweepAssembler::new(cal, config, &mut buf));
+    let grown = run(&mut SweepAssembler::growing(cal, config, 200_000));
+    assert_eq!(fixed.len(), 4);
+    assert!(fixed == grown, "the growing buffer's sweeps differ from the fixed buffer's");
+
+    let limit = 1000 * Model::Pandar64.lasers();
+    let mut small = vec![Point::default(); limit];
+    let fixed = run(&mut SweepAssembler::new(cal, config, &mut small));
+    let grown = run(&mut SweepAssembler::growing(cal, config, limit));
+    let full_turn = fixed.iter().find(|s| s.0).expect("a complete turn");
+    assert_eq!((full_turn.1.len(), full_turn.2), (limit, 800 * 64));
+    assert!(fixed == grown, "overflow at the limit differs");
+}
+
 #[test]
 fn lost_duplicate_and_reordered_packets() {
     for model in [Model::Vlp32c, Model::Pandar64] {

@@ -390,9 +390,12 @@ pub(super) fn room_planes(
     previous: Option<&[(usize, PlanePoints)]>,
 ) -> Vec<(usize, PlanePoints)> {
     let lidar_to_room = room_to_camera.inverse().compose(extrinsic);
+    // Planes and board centres are moved into the LiDAR's frame once, so that each of the
+    // sweep's points costs one dot product per plane (distances are the same in both frames).
+    let room_to_lidar = lidar_to_room.inverse();
+    let boards: Vec<Vec3> = surveyed.iter().map(|b| room_to_lidar.act(&b.translation)).collect();
     let mut out = Vec::new();
     for (index, plane) in survey.planes.iter().enumerate() {
-        let normal = Vec3::from(plane.normal);
         let cut = match previous {
             Some(prev) => match prev.iter().find(|(i, _)| *i == index) {
                 Some((_, p)) => 3.0 * p.sigma_m,
@@ -400,22 +403,20 @@ pub(super) fn room_planes(
             },
             None => PLANE_START_CUT_M,
         };
+        let normal = lidar_to_room.rotation.transpose() * Vec3::from(plane.normal);
+        let offset = plane.offset - Vec3::from(plane.normal).dot(&lidar_to_room.translation);
+        let distance = |q: &Vec3| normal.dot(q) - offset;
         let near = |q: &Vec3| {
-            let distance = normal.dot(q) - plane.offset;
-            distance.abs() <= cut
-                && surveyed.iter().all(|b| (b.translation - q).norm() > PLANE_BOARD_CLEARANCE_M)
+            distance(q).abs() <= cut
+                && boards.iter().all(|b| (b - q).norm() > PLANE_BOARD_CLEARANCE_M)
         };
         let points: Vec<Vec3> = clouds
             .iter()
             .flat_map(|c| c.iter())
             .map(|p| Vec3::new(p.x as f64, p.y as f64, p.z as f64))
-            .filter(|p| p.iter().all(|v| v.is_finite()))
-            .filter(|p| near(&lidar_to_room.act(p)))
+            .filter(|p| p.iter().all(|v| v.is_finite()) && near(p))
             .collect();
-        let rms = (points
-            .iter()
-            .map(|p| (normal.dot(&lidar_to_room.act(p)) - plane.offset).powi(2))
-            .sum::<f64>()
+        let rms = (points.iter().map(|p| distance(p).powi(2)).sum::<f64>()
             / points.len().max(1) as f64)
             .sqrt();
         if let Some(summary) = PlanePoints::from_points(points, rms.max(PLANE_MIN_SIGMA_M)) {

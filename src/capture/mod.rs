@@ -53,31 +53,98 @@ pub trait FrameSource: Send {
 /// The mean of several frames of the same size (a static scene: averaging lowers the
 /// noise before detection); `None` if there are none or their sizes differ.
 pub fn average_frames(frames: &[GreyFrame]) -> Option<GreyFrame> {
-    let first = frames.first()?;
-    if frames.iter().any(|f| f.width != first.width || f.height != first.height) {
-        return None;
+    let mut sum = FrameSum::default();
+    for f in frames {
+        sum.add(f).ok()?;
     }
-    let all: Vec<&[u8]> = frames.iter().map(|f| f.pixels.as_slice()).collect();
-    let pixels = mean_pixels(&all)?;
-    let time = frames.iter().map(|f| f.time).sum::<f64>() / frames.len() as f64;
-    Some(GreyFrame { width: first.width, height: first.height, pixels, time })
+    sum.into_mean()
 }
 
 /// The rounded per-pixel mean of equally long pixel buffers; `None` if there are none or
 /// their lengths differ.
 pub fn mean_pixels(frames: &[&[u8]]) -> Option<Vec<u8>> {
-    let first = frames.first()?;
-    if frames.iter().any(|f| f.len() != first.len()) {
-        return None;
-    }
-    let n = frames.len() as u32;
-    let mut sum = vec![0u32; first.len()];
+    let mut sum = FrameSum::default();
     for f in frames {
-        for (s, &p) in sum.iter_mut().zip(f.iter()) {
+        sum.add_pixels(f).ok()?;
+    }
+    sum.into_mean().map(|m| m.pixels)
+}
+
+/// The running per-pixel sum of a static scene's frames: their rounded mean without
+/// keeping the frames. The daemon sums each camera's frames as they arrive (a run's five
+/// 1920×1200 frames of two cameras held 23 MB as frames) and turns the sums into means
+/// before it calibrates, so the sums are gone while the detectors and the solve run.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct FrameSum {
+    width: u32,
+    height: u32,
+    sum: Vec<u32>,
+    frames: u32,
+    time: f64,
+}
+
+/// A frame that [`FrameSum::add`] refused: its size is not the first frame's.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("a {got_w}×{got_h} frame among {want_w}×{want_h} frames")]
+pub struct FrameSizeMismatch {
+    pub got_w: u32,
+    pub got_h: u32,
+    pub want_w: u32,
+    pub want_h: u32,
+}
+
+impl FrameSum {
+    /// Adds a frame; the first one sets the size, a later one of another size is refused
+    /// (the sum is unchanged).
+    pub fn add(&mut self, frame: &GreyFrame) -> Result<(), FrameSizeMismatch> {
+        let mismatch = FrameSizeMismatch {
+            got_w: frame.width,
+            got_h: frame.height,
+            want_w: self.width,
+            want_h: self.height,
+        };
+        if self.frames > 0 && (frame.width, frame.height) != (self.width, self.height) {
+            return Err(mismatch);
+        }
+        self.add_pixels(&frame.pixels).map_err(|()| mismatch)?;
+        (self.width, self.height) = (frame.width, frame.height);
+        self.time += frame.time;
+        Ok(())
+    }
+
+    /// Frames summed so far.
+    pub fn frames(&self) -> usize {
+        self.frames as usize
+    }
+
+    /// The rounded mean frame (time: the frames' mean); `None` before the first frame.
+    pub fn into_mean(self) -> Option<GreyFrame> {
+        let n = self.frames;
+        if n == 0 {
+            return None;
+        }
+        let pixels = self.sum.iter().map(|&s| ((s + n / 2) / n) as u8).collect();
+        Some(GreyFrame {
+            width: self.width,
+            height: self.height,
+            pixels,
+            time: self.time / n as f64,
+        })
+    }
+
+    /// Adds one buffer of pixels; `Err` (sum unchanged) when its length is not the first's.
+    fn add_pixels(&mut self, pixels: &[u8]) -> Result<(), ()> {
+        if self.frames == 0 {
+            self.sum = vec![0; pixels.len()];
+        } else if pixels.len() != self.sum.len() {
+            return Err(());
+        }
+        for (s, &p) in self.sum.iter_mut().zip(pixels) {
             *s += u32::from(p);
         }
+        self.frames += 1;
+        Ok(())
     }
-    Some(sum.iter().map(|&s| ((s + n / 2) / n) as u8).collect())
 }
 
 /// Exponential backoff for reopening a failed device: `initial`, doubling up to `max`,
@@ -216,6 +283,22 @@ mod tests {
         odd.pixels.truncate(1);
         assert!(average_frames(&[frame(1, 0.0), odd]).is_none());
         assert!(average_frames(&[]).is_none());
+    }
+
+    #[test]
+    fn a_frame_sum_refuses_another_size_and_keeps_what_it_had() {
+        let mut sum = FrameSum::default();
+        assert!(sum.clone().into_mean().is_none());
+        sum.add(&frame(10, 0.0)).unwrap();
+        let mut odd = frame(1, 0.0);
+        odd.width = 1;
+        odd.pixels.truncate(1);
+        let e = sum.add(&odd).unwrap_err();
+        assert_eq!(e.to_string(), "a 1×1 frame among 2×1 frames");
+        sum.add(&frame(13, 1.0)).unwrap();
+        assert_eq!(sum.frames(), 2);
+        let mean = sum.into_mean().unwrap();
+        assert_eq!((mean.pixels, mean.time, mean.width), (vec![12, 244], 0.5, 2));
     }
 
     #[test]

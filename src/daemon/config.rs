@@ -17,6 +17,9 @@
 //! keys of `[camera]` / `[lidar]`. Every sensor of the rig needs exactly one source, and
 //! the rig at least one LiDAR (the trigger watches the first LiDAR's motion); the first
 //! camera's and first LiDAR's sources are also [`Config::camera`] / [`Config::lidar`].
+//! The room counts as seen when every camera sees its boards: `[trigger] cameras` (names
+//! of the rig's cameras) narrows that to a subset, a `[[camera]]` table's `min_boards`
+//! sets that camera's count (default `[trigger] min_boards`).
 
 use std::net::{Ipv4Addr, SocketAddr};
 use std::path::{Path, PathBuf};
@@ -73,6 +76,12 @@ pub struct RigCameraSource {
     pub name: String,
     pub source: CameraSource,
     pub replay_fps: f64,
+    /// Whether the trigger waits for this camera to see the room (`[trigger] cameras`;
+    /// every camera when that key is absent).
+    pub watched: bool,
+    /// Boards this camera must see for the room to count as seen (`min_boards` of its
+    /// `[[camera]]` table); `None`: `[trigger] min_boards`.
+    pub min_boards: Option<usize>,
 }
 
 /// One LiDAR of a rig and its source.
@@ -128,6 +137,19 @@ pub struct Config {
 }
 
 impl Config {
+    /// The cameras the trigger waits for, each with the boards it must see: (index in the
+    /// rig's order, boards). The one-pair vehicle's camera needs `trigger.min_boards`.
+    pub fn watched_cameras(&self) -> Vec<(usize, usize)> {
+        let need = |own: Option<usize>| own.unwrap_or(self.trigger.min_boards);
+        match &self.rig {
+            None => vec![(0, self.trigger.min_boards)],
+            Some(r) => (r.cameras.iter().enumerate())
+                .filter(|(_, c)| c.watched)
+                .map(|(i, c)| (i, need(c.min_boards)))
+                .collect(),
+        }
+    }
+
     /// This configuration with `camera` as its camera (a rig's camera task).
     pub fn with_camera(&self, camera: &RigCameraSource) -> Config {
         Config { camera: camera.source.clone(), replay_fps: camera.replay_fps, ..self.clone() }
@@ -207,6 +229,8 @@ struct RawCamera {
     source: String,
     #[serde(default = "default_fps")]
     replay_fps: f64,
+    /// A rig's camera: the boards it must see for the room to count as seen.
+    min_boards: Option<usize>,
 }
 
 #[derive(Deserialize)]
@@ -227,6 +251,8 @@ struct RawTrigger {
     mode: Mode,
     settle_s: f64,
     min_boards: Option<usize>,
+    /// A rig's cameras the trigger waits for (default: every camera).
+    cameras: Option<Vec<String>>,
     still_m: f32,
     leave_s: f64,
     frames: usize,
@@ -242,6 +268,7 @@ impl Default for RawTrigger {
             mode: t.mode,
             settle_s: t.settle_s,
             min_boards: None,
+            cameras: None,
             still_m: t.still_m,
             leave_s: t.leave_s,
             frames: 5,
@@ -310,6 +337,8 @@ pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
                 name: crate::rig::PAIR_CAMERA.into(),
                 source: camera_source(&c.source, "camera.source", &resolve).map_err(invalid)?,
                 replay_fps: c.replay_fps,
+                watched: true,
+                min_boards: None,
             };
             let lidar = RigLidarSource {
                 name: crate::rig::PAIR_LIDAR.into(),
@@ -403,6 +432,11 @@ fn one_pair_only(raw: &RawConfig) -> Result<(), String> {
                     named (add rig = \"RIG.toml\")"
             .into());
     }
+    if c.min_boards.is_some() || raw.trigger.cameras.is_some() {
+        return Err("camera.min_boards / trigger.cameras choose among a rig's cameras: the one \
+                    camera's boards are trigger.min_boards"
+            .into());
+    }
     Ok(())
 }
 
@@ -463,13 +497,16 @@ fn rig_sources(
         cameras: Vec::new(),
         lidars: Vec::new(),
     };
-    for c in &rig.cameras {
+    let watched = watched_cameras(&rig, raw.trigger.cameras.as_deref(), path)?;
+    for (c, watched) in rig.cameras.iter().zip(watched) {
         let raw = &cameras[find("camera", &c.name)?];
         let key = format!("camera `{}` source", c.name);
         out.cameras.push(RigCameraSource {
             name: c.name.to_string(),
             source: camera_source(&raw.source, &key, resolve)?,
             replay_fps: raw.replay_fps,
+            watched,
+            min_boards: raw.min_boards,
         });
     }
     for l in &rig.lidars {
@@ -485,6 +522,28 @@ fn rig_sources(
         });
     }
     Ok(out)
+}
+
+/// Which of the rig's cameras the trigger waits for: those `[trigger] cameras` names (each
+/// a camera of the rig), or every camera.
+fn watched_cameras(
+    rig: &crate::rig::Rig,
+    names: Option<&[String]>,
+    path: &Path,
+) -> Result<Vec<bool>, String> {
+    let Some(names) = names else { return Ok(vec![true; rig.cameras.len()]) };
+    if names.is_empty() {
+        return Err("trigger.cameras is empty: name the cameras that must see the room".into());
+    }
+    let known: Vec<&str> = rig.cameras.iter().map(|c| c.name.as_str()).collect();
+    if let Some(unknown) = names.iter().find(|n| !known.contains(&n.as_str())) {
+        return Err(format!(
+            "trigger.cameras: `{unknown}` is not a camera of the rig {} (its cameras: {})",
+            path.display(),
+            known.join(", ")
+        ));
+    }
+    Ok(known.iter().map(|k| names.iter().any(|n| n == k)).collect())
 }
 
 /// Longest time setting (s): an hour; longer waits are typing mistakes.
@@ -526,9 +585,14 @@ fn check_numbers(raw: &RawConfig) -> Result<(), crate::target::RoomError> {
     for (key, value, range) in numbers {
         range.check(key, Index::None, value)?;
     }
+    let boards = Range::closed(0.0, crate::target::MAX_BOARDS as f64, "boards");
     if let Some(n) = t.min_boards {
-        let boards = Range::closed(0.0, crate::target::MAX_BOARDS as f64, "boards");
         boards.check("trigger.min_boards", Index::None, n as f64)?;
+    }
+    for (i, c) in raw.camera.all().iter().enumerate() {
+        if let Some(n) = c.min_boards {
+            boards.check("camera.min_boards", sensor_index(&raw.camera, i), n as f64)?;
+        }
     }
     Ok(())
 }
@@ -790,5 +854,48 @@ secret_file = "/etc/roomcal/secret"
                      [lidar]\nsource = \"udp:0.0.0.0:1\"\n";
         let e = parse(named, Path::new("x.toml")).unwrap_err().to_string();
         assert!(e.contains("only a rig's"), "{e}");
+    }
+
+    /// Every camera by default; `[trigger] cameras` a subset, `min_boards` per camera; a
+    /// name that is not one of the rig's cameras, an empty list, or either key without a
+    /// rig is named.
+    #[test]
+    fn the_trigger_watches_every_camera_or_the_configured_ones() {
+        let path = Path::new("x.toml");
+        let watched = |extra: &str| {
+            let mut c = parse(&(rig_config(RIG_SOURCES) + extra), path).unwrap();
+            c.trigger.min_boards = 6;
+            c.watched_cameras()
+        };
+        assert_eq!(watched(""), [(0, 6), (1, 6)]);
+        assert_eq!(watched("[trigger]\ncameras = [\"wide\"]\n"), [(1, 6)]);
+        let sources = RIG_SOURCES
+            .replace("source = \"replay:wide\"\n", "source = \"replay:wide\"\nmin_boards = 2\n");
+        let mut c = parse(&rig_config(&sources), path).unwrap();
+        c.trigger.min_boards = 6;
+        assert_eq!(c.watched_cameras(), [(0, 6), (1, 2)]);
+        let cases = [
+            (
+                "[trigger]\ncameras = [\"front\", \"rear\"]\n",
+                "trigger.cameras: `rear` is not a camera of the rig",
+            ),
+            ("[trigger]\ncameras = []\n", "trigger.cameras is empty"),
+        ];
+        for (extra, expect) in cases {
+            let e = parse(&(rig_config(RIG_SOURCES) + extra), path).unwrap_err().to_string();
+            assert!(
+                e.contains(expect) && e.contains("front, wide") == expect.contains("rear"),
+                "`{expect}` not in: {e}"
+            );
+        }
+        let pair = "room = \"r\"\nstore = \"s\"\n[camera]\nsource = \"replay:f\"\n[lidar]\nsource = \"udp:0.0.0.0:1\"\n";
+        let c = parse(pair, path).unwrap();
+        assert_eq!(c.watched_cameras(), [(0, 0)], "the one camera, at trigger.min_boards");
+        let extra = "[trigger]\ncameras = [\"front\"]\n";
+        let e = parse(&format!("{pair}{extra}"), path).unwrap_err().to_string();
+        assert!(e.contains("trigger.cameras choose among a rig's cameras"), "{e}");
+        let e =
+            parse(&pair.replace("replay:f\"\n", "replay:f\"\nmin_boards = 3\n"), path).unwrap_err();
+        assert!(e.to_string().contains("camera.min_boards"), "{e}");
     }
 }

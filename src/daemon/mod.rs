@@ -35,7 +35,7 @@ use std::time::Duration;
 
 use tokio::sync::{mpsc, watch};
 
-use crate::capture::{average_frames, Backoff, CaptureError, FrameSource, GreyFrame, ImageReplay};
+use crate::capture::{Backoff, CaptureError, FrameSource, FrameSum, GreyFrame, ImageReplay};
 use crate::lidar::{Calibration, Model, Point};
 use crate::result::{CalibrationResult, RigResult, Status};
 use crate::service::uds::{DaemonState, Outcome};
@@ -52,6 +52,13 @@ use trigger::{Action, Trigger, Verdict};
 pub trait Calibrator: Send + 'static {
     /// A cheap detection pass: how many boards `frame` shows (about once a second).
     fn count_boards(&mut self, frame: &GreyFrame) -> usize;
+
+    /// The same for a rig's camera `camera` (the rig file's order); a calibrator with one
+    /// set of detectors counts every camera's frame with it.
+    fn count_boards_on(&mut self, camera: usize, frame: &GreyFrame) -> usize {
+        let _ = camera;
+        self.count_boards(frame)
+    }
     /// A full run on averaged frames and accumulated sweeps (frame *i* pairs with sweep
     /// *i*); `current` is the calibration in force, for the gate's change check.
     fn calibrate(
@@ -373,7 +380,8 @@ fn notify(state: &[sd_notify::NotifyState<'_>]) {
 /// What the control loop holds during a run: per camera its frames, per LiDAR its sweeps.
 #[derive(Default)]
 struct RunBuffers {
-    frames: Vec<Vec<GreyFrame>>,
+    /// Every camera's frames, summed as they arrive (the mean is what is calibrated).
+    frames: Vec<FrameSum>,
     sweeps: Vec<Vec<Vec<Point>>>,
     /// The packets of `sweeps`.
     counts: PacketCounts,
@@ -383,7 +391,7 @@ struct RunBuffers {
 impl RunBuffers {
     fn new(cameras: usize, lidars: usize, deadline: tokio::time::Instant) -> Self {
         RunBuffers {
-            frames: vec![Vec::new(); cameras],
+            frames: vec![FrameSum::default(); cameras],
             sweeps: vec![Vec::new(); lidars],
             counts: PacketCounts::default(),
             deadline: Some(deadline),
@@ -391,7 +399,7 @@ impl RunBuffers {
     }
 
     fn complete(&self, frames: usize, sweeps: usize) -> bool {
-        self.frames.iter().all(|f| f.len() >= frames)
+        self.frames.iter().all(|f| f.frames() >= frames)
             && self.sweeps.iter().all(|s| s.len() >= sweeps)
     }
 
@@ -399,7 +407,7 @@ impl RunBuffers {
     fn shortfall(&self, config: &Config, names: &SensorNames) -> String {
         let mut parts = Vec::new();
         for (name, f) in names.cameras.iter().zip(&self.frames) {
-            parts.push(format!("{} of {} frames{name}", f.len(), config.frames));
+            parts.push(format!("{} of {} frames{name}", f.frames(), config.frames));
         }
         for (name, s) in names.lidars.iter().zip(&self.sweeps) {
             parts.push(format!("{} of {} sweeps{name}", s.len(), config.sweeps));
@@ -410,6 +418,7 @@ impl RunBuffers {
 
 /// How the timeout names each sensor: nothing for the one-pair vehicle, " of camera `NAME`"
 /// for a rig's.
+#[derive(Clone)]
 struct SensorNames {
     cameras: Vec<String>,
     lidars: Vec<String>,
@@ -425,6 +434,24 @@ impl SensorNames {
             },
         }
     }
+}
+
+/// Whether every watched camera's latest frame, `(camera, boards it needs, frame)`, shows
+/// its boards; stops at the first that does not, and says so at debug level (the trigger
+/// polls about once a second).
+fn room_seen<C: Calibrator>(
+    calibrator: &mut C,
+    latest: &[(usize, usize, Arc<GreyFrame>)],
+    names: &SensorNames,
+) -> bool {
+    latest.iter().all(|(camera, need, frame)| {
+        let boards = calibrator.count_boards_on(*camera, frame);
+        if boards < *need {
+            let name = names.cameras.get(*camera).map_or("", String::as_str);
+            tracing::debug!("{boards} of {need} boards seen{name}");
+        }
+        boards >= *need
+    })
 }
 
 /// The configuration of each camera task and each LiDAR task.
@@ -473,6 +500,7 @@ async fn run_daemon<C: Calibrator>(
 
     let (camera_configs, lidar_configs) = sensor_configs(&config);
     let names = SensorNames::of(&config);
+    let watched = config.watched_cameras();
     let (news_tx, mut news) = mpsc::channel::<usize>(2 * camera_configs.len());
     let (sweep_tx, mut sweeps) = mpsc::channel::<(usize, OwnedSweep)>(4 * lidar_configs.len());
     let (stop_tx, stop_rx) = watch::channel(false);
@@ -535,13 +563,16 @@ async fn run_daemon<C: Calibrator>(
             _ = watchdog.tick(), if watchdog_on => notify(&[sd_notify::NotifyState::Watchdog]),
             _ = store_check.tick() => verify_store(&store, &shared),
             _ = detect.tick(), if !capturing && solving.is_none() => {
-                let frame = frames[0].borrow().clone();
-                if let Some(frame) = frame {
-                    let cal = calibrator.clone();
-                    let boards = tokio::task::spawn_blocking(move || {
-                        cal.lock().map_or(0, |mut c| c.count_boards(&frame))
-                    }).await.unwrap_or(0);
-                    action = trigger.on_boards(now_s(), boards);
+                let latest: Option<Vec<_>> = watched
+                    .iter()
+                    .map(|&(camera, need)| frames[camera].borrow().clone().map(|f| (camera, need, f)))
+                    .collect();
+                if let Some(latest) = latest {
+                    let (cal, names) = (calibrator.clone(), names.clone());
+                    let seen = tokio::task::spawn_blocking(move || {
+                        cal.lock().is_ok_and(|mut c| room_seen(&mut *c, &latest, &names))
+                    }).await.unwrap_or(false);
+                    action = trigger.on_room(now_s(), seen);
                 }
             }
             _ = sleep_until_opt(run.deadline), if capturing => {
@@ -553,8 +584,10 @@ async fn run_daemon<C: Calibrator>(
                         continue;
                     }
                     let frame = rx.borrow_and_update().clone();
-                    if let Some(f) = frame.filter(|_| taken.len() < config.frames) {
-                        taken.push((*f).clone());
+                    if let Some(f) = frame.filter(|_| taken.frames() < config.frames) {
+                        if let Err(e) = taken.add(&f) {
+                            tracing::warn!("camera frame left out of the run: {e}");
+                        }
                     }
                 }
             }
@@ -726,12 +759,14 @@ fn start_solve<C: Calibrator>(
     let cal = calibrator.clone();
     let current = shared.lock().ok().and_then(|s| s.current.clone());
     tokio::task::spawn_blocking(move || {
-        let Some(frames) = run.frames.iter().map(|f| average_frames(f)).collect::<Option<Vec<_>>>()
+        // The sums become means, and a camera's sweeps one cloud, before the detectors run:
+        // the run's buffers are not held beside the detectors' workspaces.
+        let Some(frames) =
+            run.frames.into_iter().map(FrameSum::into_mean).collect::<Option<Vec<_>>>()
         else {
-            return CalibrationOutcome::Failed("frames of different sizes".into());
+            return CalibrationOutcome::Failed("a camera delivered no frame".into());
         };
-        let clouds: Vec<Vec<Point>> =
-            run.sweeps.into_iter().map(|s| s.into_iter().flatten().collect()).collect();
+        let clouds: Vec<Vec<Point>> = run.sweeps.into_iter().map(accumulated).collect();
         let Ok(mut c) = cal.lock() else {
             return CalibrationOutcome::Failed("calibrator poisoned by an earlier panic".into());
         };
@@ -743,6 +778,18 @@ fn start_solve<C: Calibrator>(
             }
         }
     })
+}
+
+/// A LiDAR's sweeps of a standing vehicle as one cloud; a single sweep is moved, not copied.
+fn accumulated(mut sweeps: Vec<Vec<Point>>) -> Vec<Point> {
+    if sweeps.len() == 1 {
+        return sweeps.pop().unwrap_or_default();
+    }
+    let mut cloud = Vec::with_capacity(sweeps.iter().map(Vec::len).sum());
+    for sweep in sweeps {
+        cloud.extend_from_slice(&sweep);
+    }
+    cloud
 }
 
 /// Stores the outcome (accepted → new generation; rejected → kept aside) and reports it;

@@ -80,7 +80,12 @@ impl RoomCalibrator {
 
 impl Calibrator for RoomCalibrator {
     fn count_boards(&mut self, frame: &GreyFrame) -> usize {
-        self.detectors.first().detect_pixels(&frame.pixels).map_or(0, |boards| boards.len())
+        self.count_boards_on(0, frame)
+    }
+
+    fn count_boards_on(&mut self, camera: usize, frame: &GreyFrame) -> usize {
+        let Some(detectors) = self.detectors.cameras.get_mut(camera) else { return 0 };
+        detectors.detect_pixels(&frame.pixels).map_or(0, |boards| boards.len())
     }
 
     fn calibrate(

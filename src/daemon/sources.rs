@@ -93,7 +93,8 @@ pub trait SweepSource: Send {
     fn next_sweep(&mut self) -> impl Future<Output = Result<OwnedSweep, SweepError>> + Send;
 }
 
-/// Points a sweep buffer holds: a dual-return 64-laser unit at 5 Hz (3600 firings).
+/// Most points a sweep may hold: a dual-return 64-laser unit at 5 Hz (3600 firings). The
+/// assemblers grow to what the sensor really sends ([`SweepAssembler::growing`]).
 const SWEEP_CAPACITY: usize = 2 * 64 * 3600;
 
 /// A packet source: a task assembling sweeps, and the channel it fills.
@@ -120,8 +121,8 @@ impl SweepSource for PacketSweeps {
 }
 
 /// Assembles payloads into sweeps sent on `tx` (dropped when the receiver lags).
-struct Feeder<'b> {
-    asm: SweepAssembler<'b>,
+struct Feeder {
+    asm: SweepAssembler<'static>,
     tx: mpsc::Sender<Result<OwnedSweep, SweepError>>,
     /// Complete sweeps handed on so far.
     sent: usize,
@@ -136,7 +137,7 @@ fn owned(s: &Sweep<'_>) -> OwnedSweep {
     }
 }
 
-impl Feeder<'_> {
+impl Feeder {
     fn push(&mut self, port: u16, payload: &[u8]) {
         let (tx, sent) = (&self.tx, &mut self.sent);
         self.asm.push(port, payload, &mut |s| {
@@ -172,7 +173,7 @@ impl Reporter {
     /// Logs what changed since the last report: a warning naming what the assembler waits
     /// for when no sweep completed, a note of the drops when some did; nothing when all is
     /// well. `payloads` counts every datagram received.
-    fn report(&mut self, name: &str, feeder: &Feeder<'_>, payloads: u64, cut_azimuth: u16) {
+    fn report(&mut self, name: &str, feeder: &Feeder, payloads: u64, cut_azimuth: u16) {
         let now = feeder.asm.stats();
         let was = std::mem::replace(&mut self.stats, now);
         let sent = std::mem::replace(&mut self.sent, feeder.sent);
@@ -238,9 +239,9 @@ pub async fn udp(
     let name = format!("udp {addr}");
     let task_name = name.clone();
     let task = tokio::spawn(async move {
-        let mut buf = vec![Point::default(); SWEEP_CAPACITY];
         let config = SweepConfig { data_port: addr.port(), ..SweepConfig::for_calibration(&cal) };
-        let mut feeder = Feeder { asm: SweepAssembler::new(cal, config, &mut buf), tx, sent: 0 };
+        let asm = SweepAssembler::growing(cal, config, SWEEP_CAPACITY);
+        let mut feeder = Feeder { asm, tx, sent: 0 };
         // The largest UDP datagram: Ouster packets run to 33 KB (128 beams, dual returns).
         let mut packet = vec![0u8; 65_536];
         let mut reporter = Reporter { stats: SweepStats::default(), sent: 0, payloads: 0 };
@@ -284,13 +285,12 @@ pub fn pcap_replay(path: &Path, cal: Calibration, speed: f64) -> Result<PacketSw
     let pacer = ReplayPacer::new(first.timestamp_ns).with_speed(speed);
     let (tx, rx) = mpsc::channel(4);
     let task = tokio::spawn(async move {
-        let mut buf = vec![Point::default(); SWEEP_CAPACITY];
         let config = SweepConfig::for_calibration(&cal);
         loop {
             // A fresh assembler per pass: the capture's clock jumps back when it loops, and
             // an assembler would keep those packets as reordered ones, never cutting.
-            let mut feeder =
-                Feeder { asm: SweepAssembler::new(cal, config, &mut buf), tx: tx.clone(), sent: 0 };
+            let asm = SweepAssembler::growing(cal, config, SWEEP_CAPACITY);
+            let mut feeder = Feeder { asm, tx: tx.clone(), sent: 0 };
             let start = tokio::time::Instant::now();
             for d in &datagrams {
                 let due = start + pacer.delay_until(d.timestamp_ns);

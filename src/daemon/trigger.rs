@@ -117,7 +117,12 @@ impl Trigger {
 
     /// Result of a cheap detection pass at `now`: `boards` boards seen.
     pub fn on_boards(&mut self, now: f64, boards: usize) -> Action {
-        let seen = boards >= self.cfg.min_boards;
+        self.on_room(now, boards >= self.cfg.min_boards)
+    }
+
+    /// Result of a cheap detection pass at `now` over every watched camera: whether each
+    /// saw its boards (a rig's cameras may each need their own count).
+    pub fn on_room(&mut self, now: f64, seen: bool) -> Action {
         self.room = seen;
         if seen {
             self.absent_since = None;

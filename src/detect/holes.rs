@@ -407,6 +407,10 @@ impl HoleDetector {
         let (near, far) = self.config.range_m;
         self.pts.clear();
         self.keys.clear();
+        // Exactly the sweep's size, not a doubling's slack: a rig's daemon keeps a detector
+        // sized for its largest sweep for good.
+        self.pts.reserve_exact(points.len());
+        self.keys.reserve_exact(points.len());
         let inv = 1.0 / self.config.voxel_m;
         for p in points {
             let v = Vec3::new(p.x as f64, p.y as f64, p.z as f64);

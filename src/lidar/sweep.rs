@@ -147,11 +147,12 @@ const RATE_TOLERANCE: f64 = 0.05;
 /// Number of recent packet fingerprints kept for duplicate detection.
 const RECENT: usize = 32;
 
-/// Assembles sweeps of one sensor into a caller-provided buffer.
+/// Assembles sweeps of one sensor into a caller-provided buffer (or, with `std`, one it
+/// grows itself: [`SweepAssembler::growing`]).
 pub struct SweepAssembler<'b> {
     cal: Calibration,
     config: SweepConfig,
-    buf: &'b mut [Point],
+    buf: Buffer<'b>,
     current: Current,
     stats: SweepStats,
     recent: [Option<u64>; RECENT],
@@ -202,10 +203,14 @@ impl<'b> SweepAssembler<'b> {
     /// An assembler writing into `buffer` (size it for a full turn: e.g. 2 × 64 × 1800 points
     /// for a dual-return Pandar64 at 10 Hz).
     pub fn new(cal: Calibration, config: SweepConfig, buffer: &'b mut [Point]) -> Self {
+        Self::with_buffer(cal, config, Buffer::Slice(buffer))
+    }
+
+    fn with_buffer(cal: Calibration, config: SweepConfig, buf: Buffer<'b>) -> Self {
         SweepAssembler {
             cal,
             config,
-            buf: buffer,
+            buf,
             current: Current::default(),
             stats: SweepStats::default(),
             recent: [None; RECENT],
@@ -223,7 +228,7 @@ impl<'b> SweepAssembler<'b> {
 
     /// Points of the sweep being assembled.
     pub fn pending(&self) -> &[Point] {
-        &self.buf[..self.current.len]
+        self.buf.filled(self.current.len)
     }
 
     /// Feeds one UDP payload received on destination `port`; calls `on_sweep` for each sweep
@@ -281,7 +286,7 @@ impl<'b> SweepAssembler<'b> {
         self.recent_next = (self.recent_next + 1) % RECENT;
         self.stats.reordered += u64::from(reordered);
         let (cut, cal) = (self.config.cut_azimuth, self.cal);
-        let (buf, cur, stats) = (&mut *self.buf, &mut self.current, &mut self.stats);
+        let (buf, cur, stats) = (&mut self.buf, &mut self.current, &mut self.stats);
         let mut sink = |r: Return| {
             let rel = ((36000 + u32::from(r.azimuth) - u32::from(cut)) % 36000) as u16;
             // A drop of more than half a turn is the wrap past the cut (reordered packets lag
@@ -311,7 +316,7 @@ impl<'b> SweepAssembler<'b> {
     pub fn flush(&mut self, on_sweep: &mut dyn FnMut(Sweep<'_>)) {
         if self.current.len > 0 {
             self.current.complete = false;
-            emit(self.buf, &mut self.current, &mut self.stats, on_sweep);
+            emit(&self.buf, &mut self.current, &mut self.stats, on_sweep);
         }
     }
 
@@ -441,19 +446,64 @@ impl<'b> SweepAssembler<'b> {
     }
 }
 
+#[cfg(feature = "std")]
+impl SweepAssembler<'static> {
+    /// An assembler that keeps the sweep in a vector of its own, grown as points arrive up
+    /// to `limit` points (then they count as overflow): memory follows the sensor's real
+    /// sweep (a single-return Pandar64 at 10 Hz fills 115 k points, 3.7 MB) instead of the
+    /// worst case a fixed buffer must be sized for (dual return at 5 Hz: 460 k, 14.7 MB).
+    pub fn growing(cal: Calibration, config: SweepConfig, limit: usize) -> Self {
+        Self::with_buffer(cal, config, Buffer::Growing { points: Vec::new(), limit })
+    }
+}
+
+/// Where the sweep being filled is kept.
+enum Buffer<'b> {
+    /// The caller's, fixed.
+    Slice(&'b mut [Point]),
+    /// The assembler's own, grown on demand up to `limit` points.
+    #[cfg(feature = "std")]
+    Growing { points: Vec<Point>, limit: usize },
+}
+
+impl Buffer<'_> {
+    /// The slot of point `i` (points are pushed in order), or `None` when full.
+    fn slot(&mut self, i: usize) -> Option<&mut Point> {
+        match self {
+            Buffer::Slice(s) => s.get_mut(i),
+            #[cfg(feature = "std")]
+            Buffer::Growing { points, limit } => {
+                if i == points.len() && i < *limit {
+                    points.push(Point::default());
+                }
+                points.get_mut(i)
+            }
+        }
+    }
+
+    /// The first `len` points (`len` never exceeds what [`Buffer::slot`] handed out).
+    fn filled(&self, len: usize) -> &[Point] {
+        match self {
+            Buffer::Slice(s) => &s[..len],
+            #[cfg(feature = "std")]
+            Buffer::Growing { points, .. } => &points[..len],
+        }
+    }
+}
+
 /// Clockwise advance from azimuth `from` to `to`, 0.01° (0 ..< 36000).
 fn advance(from: u16, to: u16) -> u32 {
     (36000 + u32::from(to) - u32::from(from)) % 36000
 }
 
-fn push_point(buf: &mut [Point], cur: &mut Current, stats: &mut SweepStats, p: Point) {
+fn push_point(buf: &mut Buffer<'_>, cur: &mut Current, stats: &mut SweepStats, p: Point) {
     stats.points += 1;
     if cur.len == 0 && cur.overflow == 0 {
         (cur.start_time, cur.end_time) = (p.time, p.time);
     }
     cur.start_time = cur.start_time.min(p.time);
     cur.end_time = cur.end_time.max(p.time);
-    match buf.get_mut(cur.len) {
+    match buf.slot(cur.len) {
         Some(slot) => {
             *slot = p;
             cur.len += 1;
@@ -466,14 +516,14 @@ fn push_point(buf: &mut [Point], cur: &mut Current, stats: &mut SweepStats, p: P
 }
 
 fn emit(
-    buf: &[Point],
+    buf: &Buffer<'_>,
     cur: &mut Current,
     stats: &mut SweepStats,
     on_sweep: &mut dyn FnMut(Sweep<'_>),
 ) {
     stats.sweeps += 1;
     on_sweep(Sweep {
-        points: &buf[..cur.len],
+        points: buf.filled(cur.len),
         start_time: cur.start_time,
         end_time: cur.end_time,
         complete: cur.complete,
