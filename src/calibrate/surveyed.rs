@@ -390,33 +390,40 @@ pub(super) fn room_planes(
     previous: Option<&[(usize, PlanePoints)]>,
 ) -> Vec<(usize, PlanePoints)> {
     let lidar_to_room = room_to_camera.inverse().compose(extrinsic);
-    // Planes and board centres are moved into the LiDAR's frame once, so that each of the
-    // sweep's points costs one dot product per plane (distances are the same in both frames).
+    // Planes and board centres are moved into the LiDAR's frame once, and the sweep is read
+    // once for all planes: each point costs one dot product per plane (distances are the
+    // same in both frames).
     let room_to_lidar = lidar_to_room.inverse();
     let boards: Vec<Vec3> = surveyed.iter().map(|b| room_to_lidar.act(&b.translation)).collect();
+    let planes: Vec<(usize, Vec3, f64, f64)> = (survey.planes.iter().enumerate())
+        .filter_map(|(index, plane)| {
+            let cut = match previous {
+                Some(prev) => 3.0 * prev.iter().find(|(i, _)| *i == index)?.1.sigma_m,
+                None => PLANE_START_CUT_M,
+            };
+            let normal = Vec3::from(plane.normal);
+            let offset = plane.offset - normal.dot(&lidar_to_room.translation);
+            Some((index, lidar_to_room.rotation.transpose() * normal, offset, cut))
+        })
+        .collect();
+    let mut selected: Vec<Vec<Vec3>> = vec![Vec::new(); planes.len()];
+    let clearance2 = PLANE_BOARD_CLEARANCE_M * PLANE_BOARD_CLEARANCE_M;
+    for p in clouds.iter().flat_map(|c| c.iter()) {
+        if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
+            continue;
+        }
+        let q = Vec3::new(p.x as f64, p.y as f64, p.z as f64);
+        for ((_, normal, offset, cut), points) in planes.iter().zip(&mut selected) {
+            if (normal.dot(&q) - offset).abs() <= *cut
+                && boards.iter().all(|b| (b - q).norm_squared() > clearance2)
+            {
+                points.push(q);
+            }
+        }
+    }
     let mut out = Vec::new();
-    for (index, plane) in survey.planes.iter().enumerate() {
-        let cut = match previous {
-            Some(prev) => match prev.iter().find(|(i, _)| *i == index) {
-                Some((_, p)) => 3.0 * p.sigma_m,
-                None => continue,
-            },
-            None => PLANE_START_CUT_M,
-        };
-        let normal = lidar_to_room.rotation.transpose() * Vec3::from(plane.normal);
-        let offset = plane.offset - Vec3::from(plane.normal).dot(&lidar_to_room.translation);
-        let distance = |q: &Vec3| normal.dot(q) - offset;
-        let near = |q: &Vec3| {
-            distance(q).abs() <= cut
-                && boards.iter().all(|b| (b - q).norm() > PLANE_BOARD_CLEARANCE_M)
-        };
-        let points: Vec<Vec3> = clouds
-            .iter()
-            .flat_map(|c| c.iter())
-            .map(|p| Vec3::new(p.x as f64, p.y as f64, p.z as f64))
-            .filter(|p| p.iter().all(|v| v.is_finite()) && near(p))
-            .collect();
-        let rms = (points.iter().map(|p| distance(p).powi(2)).sum::<f64>()
+    for ((index, normal, offset, _), points) in planes.into_iter().zip(selected) {
+        let rms = (points.iter().map(|q| (normal.dot(q) - offset).powi(2)).sum::<f64>()
             / points.len().max(1) as f64)
             .sqrt();
         if let Some(summary) = PlanePoints::from_points(points, rms.max(PLANE_MIN_SIGMA_M)) {
