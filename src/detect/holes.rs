@@ -490,16 +490,26 @@ impl HoleDetector {
         // The band kept about the plane is three robust σ of the residuals (their median
         // absolute value): clutter touching the board a few centimetres off its plane (a box
         // at its foot) inflates the RMS and would stay within 3 RMS, tilting the plane.
-        for _ in 0..3 {
-            let Some((c2, n2, rms2)) = fit_plane(&self.seg) else { return };
+        // Each pass chooses its band from every gathered point, so points an earlier,
+        // tilted band left out come back (cutting one tail of the noise at a board's end
+        // would keep the plane tilted); the plane is fitted on the points in the band on
+        // scan lines that agree with it (`seg[..fitted]`, [`HoleDetector::lines_agreeing`]).
+        let mut fitted = self.seg.len();
+        let mut keep = self.config.plane_tolerance_m;
+        for pass in 0..4 {
+            let Some((c2, n2, rms2)) = fit_plane(&self.seg[..fitted], c, n) else { return };
+            (c, n, rms) = (c2, n2, rms2);
+            if pass == 3 {
+                break;
+            }
             self.residuals.clear();
-            self.residuals.extend(self.seg.iter().map(|p| n2.dot(&(p - c2)).abs()));
+            self.residuals.extend(self.seg[..fitted].iter().map(|p| n.dot(&(p - c)).abs()));
             let mid = self.residuals.len() / 2;
             let mad = *self.residuals.select_nth_unstable_by(mid, f64::total_cmp).1;
-            let keep = (3.0 * 1.4826 * mad).clamp(0.01, self.config.plane_tolerance_m);
-            self.seg.retain(|p| n2.dot(&(p - c2)).abs() < keep);
-            (c, n, rms) = (c2, n2, rms2);
+            keep = (3.0 * 1.4826 * mad).clamp(0.01, self.config.plane_tolerance_m);
+            fitted = self.lines_agreeing((c, n), keep, 1.4826 * mad);
         }
+        self.seg.retain(|p| n.dot(&(p - c)).abs() < keep);
         if n.dot(&c) < 0.0 {
             n = -n;
         }
@@ -816,6 +826,55 @@ impl HoleDetector {
             k += 1;
             keep[k - 1]
         });
+    }
+
+    /// Moves the points within `band` of the plane (`c`, `n`) on scan lines whose mean
+    /// residual (of those points) is within [`LINE_Z`] of its σ (σ the points' own /
+    /// √count) to the front of `seg` and returns how many there are. Range noise is
+    /// zero-mean along every line, so a line off the plane on average carries something
+    /// else within the band: the edge of an occluder in front, clutter at the board's foot,
+    /// a surface crossing the plane at a shallow angle. Left in the fit they tilt the plane
+    /// by degrees, turning the projected points and so the hole mask's fit. When most
+    /// points in the band disagree the plane itself is in doubt: all of them are fitted.
+    fn lines_agreeing(&mut self, (c, n): (Vec3, Vec3), band: f64, sigma: f64) -> usize {
+        self.lines.clear();
+        for (i, p) in self.seg.iter().enumerate() {
+            if n.dot(&(p - c)).abs() < band {
+                self.lines.push((p.z.atan2(p.x.hypot(p.y)), i as u32));
+            }
+        }
+        self.lines.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        self.keep.clear();
+        self.keep.resize(self.seg.len(), false);
+        let (mut start, mut agreeing) = (0, 0);
+        while start < self.lines.len() {
+            let end = line_end(&self.lines, start);
+            let line = &self.lines[start..end];
+            start = end;
+            let sum: f64 = line.iter().map(|&(_, i)| n.dot(&(self.seg[i as usize] - c))).sum();
+            let count = line.len() as f64;
+            if (sum / count).abs() <= LINE_Z * sigma / count.sqrt() {
+                agreeing += line.len();
+                for &(_, i) in line {
+                    self.keep[i as usize] = true;
+                }
+            }
+        }
+        if 2 * agreeing < self.lines.len() {
+            for &(_, i) in &self.lines {
+                self.keep[i as usize] = true;
+            }
+        }
+        // The chosen points first, swapped in place (no buffer; every later step sorts).
+        let mut next = 0;
+        for i in 0..self.seg.len() {
+            if self.keep[i] {
+                self.seg.swap(next, i);
+                self.keep.swap(next, i);
+                next += 1;
+            }
+        }
+        next
     }
 
     /// The sensor's scan lines as seen in this sweep: elevation bins (0.05°) holding
@@ -1674,6 +1733,10 @@ const MEDIUM_POINTS: usize = 600;
 /// corner hole of a rolled board leaves through the bottom edge soon after, and one across
 /// a partly hidden board ends at the occluder; poles and stands are far narrower.
 const MIN_RUN: f64 = 0.25;
+/// A scan line whose mean residual from the board's plane exceeds this many of its σ is
+/// left out of the plane fit ([`HoleDetector::lines_agreeing`]): about 1 in 2000 lines of
+/// pure noise.
+const LINE_Z: f64 = 3.5;
 /// Least part of the board's width the points must span: a board partly hidden behind
 /// another shows a third of it or more; the mask search and the hole checks judge the rest.
 const MIN_WIDTH_SEEN: f64 = 0.35;
@@ -1776,18 +1839,50 @@ fn nearest_hole(spec: &BoardSpec, x: f64, y: f64) -> usize {
     best.1
 }
 
-/// Least-squares plane of `points`: centroid, unit normal, RMS distance.
-fn fit_plane(points: &[Vec3]) -> Option<(Vec3, Vec3, f64)> {
+/// The plane that best explains `points` (LiDAR frame, the sensor at the origin) as ranges
+/// measured along their own beams: a point on the board's centroid, the unit normal and the
+/// RMS distance of the points from the plane.
+///
+/// A LiDAR's noise lies along its beams, nearly parallel over one board, so an orthogonal
+/// least-squares fit (the smallest eigenvector of the scatter) sees the board's scatter
+/// plus σ²·b·bᵀ and turns the normal towards the beam by about σ²·cos θ·sin θ / λ (θ the
+/// incidence, λ the points' variance across the few scan lines that cross the board):
+/// 1–3° for a board pitched 30° at 7 m. Here the plane is m·x = 1 and each point gives
+/// b̂·m = 1/r: the beam direction b̂ is exact and only the inverse range is noisy, so the
+/// linear least squares is unbiased. Weights r̂⁴ (r̂ the range the `prior` plane predicts,
+/// through `prior_c` with normal `prior_n`) make the residuals those of the range itself,
+/// δ(1/r) ≈ −δr/r²; taken from the prior plane rather than the point's own range they carry
+/// none of its noise.
+fn fit_plane(points: &[Vec3], prior_c: Vec3, prior_n: Vec3) -> Option<(Vec3, Vec3, f64)> {
     if points.len() < 3 {
         return None;
     }
-    let mut m = Moments::default();
+    let prior_d = prior_n.dot(&prior_c);
+    let (mut normal, mut rhs, mut sum) = (Mat3::zeros(), Vec3::zeros(), Vec3::zeros());
     for p in points {
-        m.add(p);
+        let r = p.norm();
+        if r < 1e-6 {
+            continue;
+        }
+        let b = p / r;
+        // A beam nearly along the prior plane predicts no sensible range: its own then.
+        let predicted = prior_d / prior_n.dot(&b);
+        let r_hat = if (0.5 * r..2.0 * r).contains(&predicted) { predicted } else { r };
+        let w = r_hat.powi(4);
+        normal += b * b.transpose() * w;
+        rhs += b * (w / r);
+        sum += p;
     }
-    let (c, cov) = m.mean_cov();
-    let (l, n) = smallest_eigen(&cov);
-    Some((c, n, l[0].max(0.0).sqrt()))
+    let m = normal.cholesky()?.solve(&rhs);
+    let d = 1.0 / m.norm();
+    let n = m * d;
+    if !(d.is_finite() && n.iter().all(|v| v.is_finite())) {
+        return None;
+    }
+    let centroid = sum / points.len() as f64;
+    let c = centroid - n * (n.dot(&centroid) - d);
+    let ss: f64 = points.iter().map(|p| (n.dot(p) - d).powi(2)).sum();
+    Some((c, n, (ss / points.len() as f64).sqrt()))
 }
 
 impl Moments {
@@ -2014,5 +2109,47 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A board pitched 30° at 7 m, crossed by three scan lines 0.15 m apart, its ranges
+    /// noisy along the beams (σ 2 cm): the points' scatter across the lines is so small that
+    /// the noise's own scatter along the beams turns an orthogonal least-squares normal by
+    /// about half a degree; the fit along the beams does not. Also its offset and RMS.
+    #[test]
+    fn plane_fit_along_the_beams_is_unbiased_for_range_noise() {
+        let (pitch, range, sigma) = (30f64.to_radians(), 7.0, 0.02);
+        let n_true = Vec3::new(pitch.cos(), 0.0, pitch.sin());
+        let d_true = range * pitch.cos();
+        let mut rng = crate::sim::rng::Rng::new(14);
+        let mut points = Vec::new();
+        for line in -1..=1 {
+            let elevation = (0.15 * line as f64 / range).atan();
+            for k in -20_000..=20_000 {
+                let azimuth = 0.5 / range * k as f64 / 20_000.0;
+                let (se, ce) = elevation.sin_cos();
+                let b = Vec3::new(ce * azimuth.cos(), ce * azimuth.sin(), se);
+                let r = d_true / n_true.dot(&b);
+                points.push(b * (r + sigma * rng.normal()));
+            }
+        }
+        let tilt = |n: Vec3| n.angle(&n_true).to_degrees();
+
+        // Today's orthogonal fit, the prior the detector starts from.
+        let mut m = Moments::default();
+        points.iter().for_each(|p| m.add(p));
+        let (c0, cov) = m.mean_cov();
+        let (_, n0) = smallest_eigen(&cov);
+        let n0 = if n0.dot(&c0) < 0.0 { -n0 } else { n0 };
+        println!("orthogonal fit: normal {:.3}° off", tilt(n0));
+        assert!(tilt(n0) > 0.3, "the orthogonal fit is biased: {:.3}°", tilt(n0));
+
+        let (c, n, rms) = fit_plane(&points, c0, n0).unwrap();
+        // The fitted plane's offset at the board's centre (the origin is 7 m away).
+        let offset = n.dot(&(Vec3::new(range, 0.0, 0.0) - c));
+        println!("fit along the beams: normal {:.3}° off, offset {:.2} mm", tilt(n), 1e3 * offset);
+        assert!(tilt(n) < 0.1, "normal {:.3}° off", tilt(n));
+        assert!(offset.abs() < 1e-3, "offset {:.2} mm", 1e3 * offset);
+        // The orthogonal distance of range noise σ at incidence θ is σ·cos θ.
+        assert!((rms / (sigma * pitch.cos()) - 1.0).abs() < 0.03, "rms {:.2} mm", rms * 1e3);
     }
 }

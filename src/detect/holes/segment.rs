@@ -206,7 +206,10 @@ impl HoleDetector {
                     }
                     for &(_, p) in &self.keys[v.start as usize..v.end as usize] {
                         let p = self.pts[p as usize];
-                        if n.dot(&(p - c)).abs() < tol {
+                        // Twice the band: the segment's plane may be tilted by clutter, and a
+                        // band about it would cut one tail of the noise at the board's ends
+                        // (the refit chooses its own band).
+                        if n.dot(&(p - c)).abs() < 2.0 * tol {
                             self.seg.push(p);
                         }
                     }
