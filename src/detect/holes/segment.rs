@@ -206,10 +206,9 @@ impl HoleDetector {
                     }
                     for &(_, p) in &self.keys[v.start as usize..v.end as usize] {
                         let p = self.pts[p as usize];
-                        // Twice the band: the segment's plane may be tilted by clutter, and a
-                        // band about it would cut one tail of the noise at the board's ends
-                        // (the refit chooses its own band).
-                        if n.dot(&(p - c)).abs() < 2.0 * tol {
+                        // The band, not twice it: a wider gather let a neighbouring
+                        // surface into issue 14's 4.5 m board and lost its plane.
+                        if n.dot(&(p - c)).abs() < tol {
                             self.seg.push(p);
                         }
                     }
