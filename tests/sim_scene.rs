@@ -173,6 +173,29 @@ fn rendered_corners_match_the_camera_model() {
     }
 }
 
+/// One sample per pixel (the fixtures' and the tests' renders) integrates the checker over
+/// the pixel, so its corners are as true as eight-by-eight supersampling's (a point sample
+/// per pixel put them 0.3 px off, the same way over each board).
+#[test]
+fn one_sample_per_pixel_renders_true_corners() {
+    for seed in [3, 4] {
+        let options = SimOptions {
+            seed,
+            image: ImageNoise { noise_grey: 0.0, supersample: 1, ..ImageNoise::default() },
+            ..SimOptions::default()
+        };
+        let scene = simulate(&room(), &options).expect("scene");
+        let errors = corner_errors(&scene);
+        let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+        let worst = errors.iter().cloned().fold(0.0, f64::max);
+        println!(
+            "seed {seed}: {} corners, saddle vs truth mean {mean:.4} px, worst {worst:.4} px",
+            errors.len()
+        );
+        assert!(mean < 0.02 && worst < 0.06, "seed {seed}: mean {mean} px, worst {worst} px");
+    }
+}
+
 #[test]
 fn the_same_seed_gives_the_same_scene() {
     let options = SimOptions {

@@ -479,14 +479,10 @@ fn mistakes_name_the_visit_and_the_board() {
     assert!(message(&visits[..1]).contains("at least 2 visits"));
 }
 
-// Not yet green on supersample-1 renders (seed 4): their corners are off the true ones by
-// 0.3 px RMS, correlated over each board (a board's pose from them turned up to 0.8°, the
-// same way visit after visit), which no per-corner σ describes; in the survey's frame (the
-// boards' mean) boards come out within 2.9σ but the wall ahead, the wall behind and the
-// floor at 3.1–3.2σ. With the true corners plus independent noise every board and plane
-// is within 1.9σ (`tests/survey_gauge.rs`). Run with `--ignored` to see the figures.
+// On supersample-1 renders (seed 4). Before the renderer integrated the checker over each
+// sample's footprint their corners were 0.3 px off the true ones, the same way over each
+// board, and the walls and floor came out at 3.1–3.2σ.
 #[test]
-#[ignore = "supersample-1 corners are biased per board beyond their σ (see the comment)"]
 fn a_survey_of_8_simulated_visits_recovers_every_board_and_plane_within_3_sigma() {
     use roomcal::sim::visits::simulate_visits;
     use roomcal::sim::{ImageNoise, SimOptions};

@@ -124,9 +124,15 @@ pub(super) fn solve_all(
     if options.two_stage {
         mask = mask.fix_intrinsics();
     }
-    let report = problem
-        .solve(&mut params, &LmOptions { mask, ..LmOptions::default() })
-        .map_err(solver_reason)?;
+    let lm = LmOptions { mask, ..LmOptions::default() };
+    let report = problem.solve(&mut params, &lm).map_err(solver_reason)?;
+    iterations += report.iterations;
+    // Once more with each kind's σ from its own residuals (corners, holes, faces): the
+    // detector's corner σ and the LiDAR's nominal σ are guesses, and the face points,
+    // thousands of them, would otherwise outweigh corners that fit better than guessed.
+    let variances = covariance(&problem, &params, mask).map_err(solver_reason)?.kind_variances;
+    problem.rescale_sigmas(variances);
+    let report = problem.solve(&mut params, &lm).map_err(solver_reason)?;
     iterations += report.iterations;
     let sigma = if options.two_stage && problem.has_holes() {
         // The intrinsics came from the corners alone: their σ is that stage's, and it

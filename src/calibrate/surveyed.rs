@@ -481,6 +481,8 @@ fn calibration(
         residual_variance: 1.0,
         dof: report.residuals,
         mask: ParamMask::free(),
+        // The surveyed room's covariance is its own (`schur_covariance`): one factor.
+        kind_variances: crate::solve::lm::KindWeights::ALL,
     };
     let solve_report = SolveReport {
         iterations: report.iterations,

@@ -198,30 +198,51 @@ impl Tracer<'_> {
     }
 
     /// The albedo seen at (fx, fy) ∈ [0, 1)² within pixel (x, y), whose corner rays are
-    /// `corners` (top left, top right, bottom left, bottom right).
+    /// `corners` (top left, top right, bottom left, bottom right), integrated over the
+    /// sample's share of the pixel (1/supersample of it along each axis) where it falls on
+    /// a board's checker ([`World::board_albedo_over`]).
     fn albedo_at(&self, x: usize, y: usize, fx: f64, fy: f64, corners: [Option<Vec3>; 4]) -> f64 {
-        let ray = match corners {
-            [Some(a), Some(b), Some(c), Some(d)] => Some(
-                (a * (1.0 - fx) * (1.0 - fy)
-                    + b * fx * (1.0 - fy)
-                    + c * (1.0 - fx) * fy
-                    + d * fx * fy)
-                    .normalize(),
-            ),
-            _ => self.camera.unproject(&Vec2::new(x as f64 - 0.5 + fx, y as f64 - 0.5 + fy)),
+        let [Some(a), Some(b), Some(c), Some(d)] = corners else {
+            let ray = self.camera.unproject(&Vec2::new(x as f64 - 0.5 + fx, y as f64 - 0.5 + fy));
+            return ray.map_or(0.0, |ray| self.albedo_seen(&ray, None));
         };
-        ray.map_or(0.0, |ray| self.albedo_seen(&ray))
+        let ray =
+            a * (1.0 - fx) * (1.0 - fy) + b * fx * (1.0 - fy) + c * (1.0 - fx) * fy + d * fx * fy;
+        // The ray's change across the sample's cell, along the pixel's x and y.
+        let cell = 1.0 / self.noise.supersample.max(1) as f64;
+        let along_x = ((b - a) * (1.0 - fy) + (d - c) * fy) * cell;
+        let along_y = ((c - a) * (1.0 - fx) + (d - b) * fx) * cell;
+        self.albedo_seen(&ray, Some((along_x, along_y)))
     }
 
-    /// The albedo of whatever the camera ray (camera frame) looks at.
-    fn albedo_seen(&self, ray: &Vec3) -> f64 {
-        let dir = self.camera_in_lidar.rotation * ray;
-        match self.world.cast(&self.camera_in_lidar.translation, &dir) {
-            Some(hit) => match hit.surface {
-                Surface::Board { x, y, .. } => self.world.board_albedo(x, y),
-                Surface::Background { albedo } => albedo,
-            },
-            None => 0.0,
+    /// The albedo of whatever the camera ray `ray` (camera frame, any length) looks at,
+    /// averaged over a board's checker across the parallelogram the rays `ray ± along_x/2
+    /// ± along_y/2` cut from the board's plane (its bounding box in the board's axes).
+    fn albedo_seen(&self, ray: &Vec3, footprint: Option<(Vec3, Vec3)>) -> f64 {
+        let scale = ray.norm();
+        let dir = self.camera_in_lidar.rotation * ray / scale;
+        let Some(hit) = self.world.cast(&self.camera_in_lidar.translation, &dir) else {
+            return 0.0;
+        };
+        match hit.surface {
+            Surface::Board { index, x, y } => {
+                let Some((along_x, along_y)) = footprint else {
+                    return self.world.board_albedo(x, y);
+                };
+                let to_board =
+                    self.world.boards[index].rotation.transpose() * self.camera_in_lidar.rotation;
+                // A ray v meets the plane at t·v, t = (n·p₀)/(n·v): a change δv moves the hit by
+                // t·(δv − v·(n·δv)/(n·v)), here in the board's axes (its normal is z).
+                let (v, t) = (to_board * ray, hit.distance / scale);
+                let moved = |delta: Vec3| {
+                    let delta = to_board * delta;
+                    (delta - v * (delta.z / v.z)) * t
+                };
+                let (dx, dy) = (moved(along_x), moved(along_y));
+                let (width, height) = (dx.x.abs() + dy.x.abs(), dx.y.abs() + dy.y.abs());
+                self.world.board_albedo_over(x, y, width, height)
+            }
+            Surface::Background { albedo } => albedo,
         }
     }
 }

@@ -167,6 +167,25 @@ impl World {
         }
     }
 
+    /// The mean albedo of a board over the box `width × height` (board-plane metres)
+    /// centred on (x, y): what a camera sample whose footprint covers that box integrates.
+    ///
+    /// A point sample per pixel aliases the checker's edges: the rendered corners then sit
+    /// off the true ones by a third of a pixel, the same way over a whole board. The black
+    /// print is inside(u)·inside(v)·(1 + s(u)·s(v))/2, s the ±1 square wave of the squares,
+    /// so its box mean is separable into 1-D means, each a difference of antiderivatives
+    /// (of the checker's extent, and of the square wave: a triangle wave). Any box centred
+    /// on the sample is point-symmetric, so it moves no corner (a saddle is point-symmetric).
+    pub fn board_albedo_over(&self, x: f64, y: f64, width: f64, height: f64) -> f64 {
+        let spec = &self.board;
+        let (hx, hy) = spec.checker_half_extent();
+        let (u, v) = (x - spec.checker_offset[0] + hx, y - spec.checker_offset[1] + hy);
+        let (inside_u, wave_u) = box_means(u, width, 2.0 * hx, spec.square);
+        let (inside_v, wave_v) = box_means(v, height, 2.0 * hy, spec.square);
+        let black = 0.5 * (inside_u * inside_v + wave_u * wave_v);
+        WHITE - (WHITE - BLACK) * black
+    }
+
     fn cast_board(&self, index: usize, pose: &Se3, origin: &Vec3, dir: &Vec3) -> Option<Hit> {
         let normal = pose.rotation.column(2).into_owned();
         let denom = normal.dot(dir);
@@ -259,5 +278,74 @@ impl World {
             best = Some(Hit { distance: s, surface: Surface::Background { albedo } });
         }
         best
+    }
+}
+
+/// The means over [t − w/2, t + w/2] of the indicator of [0, `length`] and of the ±1
+/// square wave of period 2·`square` (+1 on the first square) cut to that interval; the
+/// point values when `w` is too small to integrate.
+fn box_means(t: f64, w: f64, length: f64, square: f64) -> (f64, f64) {
+    if w < 1e-9 * square {
+        if !(0.0..length).contains(&t) {
+            return (0.0, 0.0);
+        }
+        let wave = if (t / square).floor() as i64 % 2 == 0 { 1.0 } else { -1.0 };
+        return (1.0, wave);
+    }
+    let (lo, hi) = ((t - w / 2.0).clamp(0.0, length), (t + w / 2.0).clamp(0.0, length));
+    let triangle = |t: f64| {
+        let phase = t.rem_euclid(2.0 * square);
+        if phase < square {
+            phase
+        } else {
+            2.0 * square - phase
+        }
+    };
+    ((hi - lo) / w, (triangle(hi) - triangle(lo)) / w)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn world() -> World {
+        let mut board = crate::sim::random_room::issue_board();
+        board.checker_offset = [0.013, -0.021];
+        World::new(&board, Vec::new(), &mut Rng::new(1))
+    }
+
+    /// Without a footprint the mean is the point value, on every square and off the checker.
+    #[test]
+    fn a_vanishing_footprint_gives_the_point_albedo() {
+        let (world, mut rng) = (world(), Rng::new(7));
+        for _ in 0..10_000 {
+            let (x, y) = (rng.range(-0.6, 0.6), rng.range(-0.6, 0.6));
+            let (over, point) = (world.board_albedo_over(x, y, 0.0, 0.0), world.board_albedo(x, y));
+            assert!((over - point).abs() < 1e-12, "({x}, {y}): {over} vs {point}");
+        }
+    }
+
+    /// The closed form against a dense average of point values over the same box, for
+    /// boxes inside one square, across edges and corners, and over the checker's rim.
+    #[test]
+    fn the_footprint_mean_is_the_average_of_the_points_it_covers() {
+        let (world, mut rng) = (world(), Rng::new(8));
+        let square = world.board.square;
+        for _ in 0..300 {
+            let (x, y) = (rng.range(-0.6, 0.6), rng.range(-0.6, 0.6));
+            let (w, h) = (rng.range(0.01, 1.5) * square, rng.range(0.01, 1.5) * square);
+            let k = 200;
+            let mut sum = 0.0;
+            for i in 0..k {
+                for j in 0..k {
+                    let px = x + w * ((i as f64 + 0.5) / k as f64 - 0.5);
+                    let py = y + h * ((j as f64 + 0.5) / k as f64 - 0.5);
+                    sum += world.board_albedo(px, py);
+                }
+            }
+            let dense = sum / (k * k) as f64;
+            let closed = world.board_albedo_over(x, y, w, h);
+            assert!((closed - dense).abs() < 0.01, "({x}, {y}) {w}×{h}: {closed} vs {dense}");
+        }
     }
 }

@@ -1,7 +1,8 @@
 //! Covariance of the shared parameters (intrinsics, extrinsic) at a solution, for the
 //! quality gate: the inverse of the undamped reduced normal matrix `S` (the Schur
 //! complement, i.e. the shared block of the full inverse with the board poses
-//! marginalised) scaled by the residual variance `σ̂² = 2·cost / (m − n)`.
+//! marginalised), each residual kind's information scaled by that kind's own residual
+//! variance ([`covariance`]).
 //!
 //! For a two-stage run (intrinsics from the corners, then the extrinsic with them held),
 //! [`with_fixed_intrinsics`] adds what the first stage's intrinsic uncertainty does to the
@@ -14,8 +15,8 @@
 use nalgebra::SMatrix;
 
 use super::linalg::{max_eigenvalue3, Cholesky};
-use super::lm::NormalEquations;
-use super::problem::{JointParams, JointProblem, ParamMask};
+use super::lm::{KindWeights, NormalEquations};
+use super::problem::{JointParams, JointProblem, ParamMask, ResidualKind};
 use super::{Projector, SolveError, EXT_ROTATION, EXT_TRANSLATION, INTRINSICS, SHARED};
 use crate::geometry::Mat3;
 
@@ -27,6 +28,9 @@ pub struct SharedCovariance {
     pub residual_variance: f64,
     /// Degrees of freedom `m − n`.
     pub dof: usize,
+    /// Each residual kind's own `σ̂ₖ²` (the global one where a kind has too little
+    /// redundancy, 1 for a kind the problem lacks).
+    pub kind_variances: KindWeights,
     /// Parameters that were held fixed.
     pub mask: ParamMask,
 }
@@ -78,6 +82,15 @@ impl SharedCovariance {
 
 /// Covariance of the shared parameters at `params` (normally the solution), holding the
 /// parameters in `mask` (plus the problem's structural mask) fixed.
+///
+/// Each residual kind (corners, holes, board planes) gets its own variance factor
+/// `σ̂ₖ² = 2·costₖ / rₖ`, `rₖ = mₖ − tr(H⁻¹Hₖ)` its share of the redundancy, and the
+/// covariance is the estimate's own under those factors, `H⁻¹ (Σₖ σ̂ₖ² Hₖ) H⁻¹` (the
+/// boards' blocks marginalised). One factor for all kinds would let the worst-modelled
+/// kind scale the others: corners that fit five times better than their σ, beside hole
+/// centres that fit as their σ says, made the joint solve's σ larger than the corners'
+/// alone. A kind with less than [`MIN_KIND_REDUNDANCY`] of the redundancy takes the
+/// global factor (its own would rest on too few residuals).
 pub fn covariance<C: Projector, const B: usize>(
     problem: &JointProblem<'_, B>,
     params: &JointParams<C, B>,
@@ -91,13 +104,83 @@ pub fn covariance<C: Projector, const B: usize>(
     }
     let dof = ne.residuals - n;
     let residual_variance = 2.0 * ne.cost / dof as f64;
-    let (s, _) = ne.reduce(0.0, mask)?;
-    let mut matrix = Cholesky::new(&s)?.inverse() * residual_variance;
-    for i in (0..SHARED).filter(|&i| mask.is_fixed(i)) {
-        matrix.row_mut(i).fill(0.0);
-        matrix.column_mut(i).fill(0.0);
+    let inverse = InverseBlocks::new(&ne, mask)?;
+    let mut factors = KindWeights::ALL;
+    for kind in [ResidualKind::Corner(0), ResidualKind::Hole(0), ResidualKind::Plane(0)] {
+        let only = NormalEquations::build_weighted(problem, params, KindWeights::only(kind))?;
+        let redundancy = only.residuals as f64 - inverse.trace_with(&only);
+        *factors.of_mut(kind) = if only.residuals == 0 {
+            1.0
+        } else if redundancy >= MIN_KIND_REDUNDANCY {
+            2.0 * only.cost / redundancy
+        } else {
+            residual_variance
+        };
     }
-    Ok(SharedCovariance { matrix, residual_variance, dof, mask })
+    let weighted = NormalEquations::build_weighted(problem, params, factors)?;
+    let matrix = inverse.sandwich(&weighted);
+    Ok(SharedCovariance { matrix, residual_variance, dof, mask, kind_variances: factors })
+}
+
+/// Least redundancy (residuals less the parameters they determine) a residual kind needs
+/// for a variance factor of its own.
+pub const MIN_KIND_REDUNDANCY: f64 = 5.0;
+
+/// The blocks of `H⁻¹` that the shared covariance needs, from the Schur complement:
+/// `Σ_ss = S⁻¹` (fixed rows zero), per board `Σ_sb = −Σ_ss W U⁻¹` and `U⁻¹`.
+struct InverseBlocks<const B: usize> {
+    shared: SMatrix<f64, SHARED, SHARED>,
+    shared_board: [SMatrix<f64, SHARED, 6>; B],
+    board: [SMatrix<f64, 6, 6>; B],
+    boards: usize,
+}
+
+impl<const B: usize> InverseBlocks<B> {
+    fn new(ne: &NormalEquations<B>, mask: ParamMask) -> Result<Self, SolveError> {
+        let (s, _) = ne.reduce(0.0, mask)?;
+        let mut shared = Cholesky::new(&s)?.inverse();
+        for i in (0..SHARED).filter(|&i| mask.is_fixed(i)) {
+            shared.row_mut(i).fill(0.0);
+            shared.column_mut(i).fill(0.0);
+        }
+        let mut out = InverseBlocks {
+            shared,
+            shared_board: [SMatrix::zeros(); B],
+            board: [SMatrix::zeros(); B],
+            boards: ne.boards,
+        };
+        for b in 0..ne.boards {
+            let u_inv = Cholesky::new(&ne.u[b])?.inverse();
+            let shared_board = -(out.shared * ne.w[b] * u_inv);
+            // Σ_bb = U⁻¹ + U⁻¹ Wᵀ Σ_ss W U⁻¹ = U⁻¹ − U⁻¹ Wᵀ Σ_sb.
+            out.board[b] = u_inv - u_inv * ne.w[b].transpose() * shared_board;
+            out.shared_board[b] = shared_board;
+        }
+        Ok(out)
+    }
+
+    /// `tr(H⁻¹ Hₖ)`, `part` holding the normal equations `Hₖ` of some of the residuals:
+    /// the number of parameters they determine.
+    fn trace_with(&self, part: &NormalEquations<B>) -> f64 {
+        let mut trace = (self.shared * part.v).trace();
+        for b in 0..self.boards {
+            trace +=
+                2.0 * self.shared_board[b].dot(&part.w[b]) + (self.board[b] * part.u[b]).trace();
+        }
+        trace
+    }
+
+    /// The shared block of `H⁻¹ M H⁻¹` (`M`'s board blocks are block-diagonal: every
+    /// residual sees one board).
+    fn sandwich(&self, m: &NormalEquations<B>) -> SMatrix<f64, SHARED, SHARED> {
+        let mut out = self.shared * m.v * self.shared;
+        for b in 0..self.boards {
+            let cross = self.shared * m.w[b] * self.shared_board[b].transpose();
+            out += cross + cross.transpose();
+            out += self.shared_board[b] * m.u[b] * self.shared_board[b].transpose();
+        }
+        out
+    }
 }
 
 /// The covariance of a second stage that solved the extrinsic (and board poses) with the

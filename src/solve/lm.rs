@@ -106,6 +106,44 @@ pub struct NormalEquations<const B: usize> {
     pub residuals: usize,
 }
 
+/// A factor per residual kind (corners, holes, board planes) for
+/// [`NormalEquations::build_weighted`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct KindWeights {
+    pub corner: f64,
+    pub hole: f64,
+    pub plane: f64,
+}
+
+impl KindWeights {
+    /// Every kind as the problem weights it.
+    pub const ALL: Self = KindWeights { corner: 1.0, hole: 1.0, plane: 1.0 };
+    /// One kind alone (the kind of `kind`; its index is ignored).
+    pub fn only(kind: ResidualKind) -> Self {
+        let mut w = KindWeights { corner: 0.0, hole: 0.0, plane: 0.0 };
+        *w.of_mut(kind) = 1.0;
+        w
+    }
+
+    /// The factor of `kind`.
+    pub fn of(&self, kind: ResidualKind) -> f64 {
+        match kind {
+            ResidualKind::Corner(_) => self.corner,
+            ResidualKind::Hole(_) => self.hole,
+            ResidualKind::Plane(_) => self.plane,
+        }
+    }
+
+    /// The factor of `kind`, to set.
+    pub fn of_mut(&mut self, kind: ResidualKind) -> &mut f64 {
+        match kind {
+            ResidualKind::Corner(_) => &mut self.corner,
+            ResidualKind::Hole(_) => &mut self.hole,
+            ResidualKind::Plane(_) => &mut self.plane,
+        }
+    }
+}
+
 /// One LM step: shared update and one update per board.
 #[derive(Clone, Debug)]
 pub struct Step<const B: usize> {
@@ -119,6 +157,16 @@ impl<const B: usize> NormalEquations<B> {
         problem: &JointProblem<'_, B>,
         params: &JointParams<C, B>,
     ) -> Result<Self, SolveError> {
+        Self::build_weighted(problem, params, KindWeights::ALL)
+    }
+
+    /// The normal equations with every block of a residual kind weighted by that kind's
+    /// factor in `weights` (its cost too); kinds weighted 0 are left out, rows and cost.
+    pub fn build_weighted<C: Projector>(
+        problem: &JointProblem<'_, B>,
+        params: &JointParams<C, B>,
+        weights: KindWeights,
+    ) -> Result<Self, SolveError> {
         let mut ne = NormalEquations {
             boards: problem.boards().len(),
             u: [SMatrix::zeros(); B],
@@ -130,8 +178,13 @@ impl<const B: usize> NormalEquations<B> {
             residuals: 0,
         };
         problem.for_each_residual(params, |res| {
+            let factor = weights.of(res.kind);
+            if factor == 0.0 {
+                return;
+            }
             let (rho, weight) = problem.loss_for(res.kind).eval(res.r.norm_squared());
-            ne.cost += 0.5 * rho;
+            let weight = weight * factor;
+            ne.cost += 0.5 * rho * factor;
             ne.residuals += res.rows;
             let b = res.board;
             ne.u[b].gemm_tr(weight, &res.j_board, &res.j_board, 1.0);

@@ -397,6 +397,27 @@ impl<'a, const B: usize> JointProblem<'a, B> {
         Ok(self.boards.len() - 1)
     }
 
+    /// Every σ of each residual kind multiplied by the square root of that kind's factor
+    /// in `variances` (a covariance's [`super::covariance::SharedCovariance::kind_variances`]):
+    /// the problem re-weighted so that each kind's residuals fit as their σ says. The
+    /// corners' σ comes from the detector and the LiDAR's from its data sheet; weighted
+    /// by wrong ones the kinds pull the estimate in the wrong proportions.
+    pub fn rescale_sigmas(&mut self, variances: super::lm::KindWeights) {
+        let scale = |v: f64| if v.is_finite() && v > 0.0 { libm::sqrt(v) } else { 1.0 };
+        let (corner, hole, plane) =
+            (scale(variances.corner), scale(variances.hole), scale(variances.plane));
+        self.corner_sigma_px *= corner;
+        self.hole_sigma_px *= hole;
+        for board in self.boards.iter_mut() {
+            if let Some(sigma) = board.hole_sigma_px.as_mut() {
+                *sigma *= hole;
+            }
+            if let Some(points) = board.plane.as_mut() {
+                points.sigma_m *= plane;
+            }
+        }
+    }
+
     /// The board observations in order.
     pub fn boards(&self) -> &[BoardObservation<'a>] {
         &self.boards
