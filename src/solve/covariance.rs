@@ -104,21 +104,18 @@ pub fn covariance<C: Projector, const B: usize>(
     }
     let dof = ne.residuals - n;
     let residual_variance = 2.0 * ne.cost / dof as f64;
-    let inverse = InverseBlocks::new(&ne, mask)?;
+    let (s, _) = ne.reduce(0.0, mask)?;
+    let inverse: InverseBlocks<SHARED, B> =
+        InverseBlocks::new(&s, |i| mask.is_fixed(i), ne.system())?;
     let mut factors = KindWeights::ALL;
     for kind in [ResidualKind::Corner(0), ResidualKind::Hole(0), ResidualKind::Plane(0)] {
         let only = NormalEquations::build_weighted(problem, params, KindWeights::only(kind))?;
-        let redundancy = only.residuals as f64 - inverse.trace_with(&only);
-        *factors.of_mut(kind) = if only.residuals == 0 {
-            1.0
-        } else if redundancy >= MIN_KIND_REDUNDANCY {
-            2.0 * only.cost / redundancy
-        } else {
-            residual_variance
-        };
+        let redundancy = only.residuals as f64 - inverse.trace_with(only.system());
+        *factors.of_mut(kind) =
+            kind_variance(only.residuals, only.cost, redundancy, residual_variance);
     }
     let weighted = NormalEquations::build_weighted(problem, params, factors)?;
-    let matrix = inverse.sandwich(&weighted);
+    let matrix = inverse.sandwich(weighted.system());
     Ok(SharedCovariance { matrix, residual_variance, dof, mask, kind_variances: factors })
 }
 
@@ -126,60 +123,92 @@ pub fn covariance<C: Projector, const B: usize>(
 /// for a variance factor of its own.
 pub const MIN_KIND_REDUNDANCY: f64 = 5.0;
 
-/// The blocks of `H⁻¹` that the shared covariance needs, from the Schur complement:
-/// `Σ_ss = S⁻¹` (fixed rows zero), per board `Σ_sb = −Σ_ss W U⁻¹` and `U⁻¹`.
-struct InverseBlocks<const B: usize> {
-    shared: SMatrix<f64, SHARED, SHARED>,
-    shared_board: [SMatrix<f64, SHARED, 6>; B],
-    board: [SMatrix<f64, 6, 6>; B],
-    boards: usize,
+/// A residual kind's variance factor from its `rows` scalar residuals, their robust
+/// `cost` and `redundancy`: `2·cost / redundancy`, the `pooled` factor where the
+/// redundancy is below [`MIN_KIND_REDUNDANCY`], 1 for a kind with no residuals.
+pub(crate) fn kind_variance(rows: usize, cost: f64, redundancy: f64, pooled: f64) -> f64 {
+    if rows == 0 {
+        1.0
+    } else if redundancy >= MIN_KIND_REDUNDANCY {
+        2.0 * cost / redundancy
+    } else {
+        pooled
+    }
 }
 
-impl<const B: usize> InverseBlocks<B> {
-    fn new(ne: &NormalEquations<B>, mask: ParamMask) -> Result<Self, SolveError> {
-        let (s, _) = ne.reduce(0.0, mask)?;
-        let mut shared = Cholesky::new(&s)?.inverse();
-        for i in (0..SHARED).filter(|&i| mask.is_fixed(i)) {
+/// The blocks of `H⁻¹` that a shared covariance needs, from the Schur complement `S` of a
+/// system with `N` shared parameters and blocks of 6 (board poses, frames): `Σ_ss = S⁻¹`
+/// (fixed rows zero), per block `Σ_sb = −Σ_ss W U⁻¹` and `Σ_bb = U⁻¹ − U⁻¹ Wᵀ Σ_sb`.
+pub(crate) struct InverseBlocks<const N: usize, const B: usize> {
+    shared: SMatrix<f64, N, N>,
+    shared_block: [SMatrix<f64, N, 6>; B],
+    block: [SMatrix<f64, 6, 6>; B],
+    blocks: usize,
+}
+
+/// One system's blocks as [`InverseBlocks`] reads them: `V` (shared × shared), per block
+/// `W` (shared × block) and `U` (block × block).
+pub(crate) struct SystemBlocks<'s, const N: usize> {
+    pub v: &'s SMatrix<f64, N, N>,
+    pub w: &'s [SMatrix<f64, N, 6>],
+    pub u: &'s [SMatrix<f64, 6, 6>],
+}
+
+impl<const N: usize, const B: usize> InverseBlocks<N, B> {
+    /// From the undamped reduced matrix `s` (fixed rows already unit) and the system.
+    pub(crate) fn new(
+        s: &SMatrix<f64, N, N>,
+        is_fixed: impl Fn(usize) -> bool,
+        system: SystemBlocks<'_, N>,
+    ) -> Result<Self, SolveError> {
+        let mut shared = Cholesky::new(s)?.inverse();
+        for i in (0..N).filter(|&i| is_fixed(i)) {
             shared.row_mut(i).fill(0.0);
             shared.column_mut(i).fill(0.0);
         }
         let mut out = InverseBlocks {
             shared,
-            shared_board: [SMatrix::zeros(); B],
-            board: [SMatrix::zeros(); B],
-            boards: ne.boards,
+            shared_block: [SMatrix::zeros(); B],
+            block: [SMatrix::zeros(); B],
+            blocks: system.u.len(),
         };
-        for b in 0..ne.boards {
-            let u_inv = Cholesky::new(&ne.u[b])?.inverse();
-            let shared_board = -(out.shared * ne.w[b] * u_inv);
-            // Σ_bb = U⁻¹ + U⁻¹ Wᵀ Σ_ss W U⁻¹ = U⁻¹ − U⁻¹ Wᵀ Σ_sb.
-            out.board[b] = u_inv - u_inv * ne.w[b].transpose() * shared_board;
-            out.shared_board[b] = shared_board;
+        for (b, (u, w)) in system.u.iter().zip(system.w).enumerate() {
+            let u_inv = Cholesky::new(u)?.inverse();
+            let shared_block = -(out.shared * w * u_inv);
+            out.block[b] = u_inv - u_inv * w.transpose() * shared_block;
+            out.shared_block[b] = shared_block;
         }
         Ok(out)
     }
 
-    /// `tr(H⁻¹ Hₖ)`, `part` holding the normal equations `Hₖ` of some of the residuals:
-    /// the number of parameters they determine.
-    fn trace_with(&self, part: &NormalEquations<B>) -> f64 {
+    /// `tr(H⁻¹ Hₖ)`, `part` the system `Hₖ` of some of the residuals: the number of
+    /// parameters they determine.
+    pub(crate) fn trace_with(&self, part: SystemBlocks<'_, N>) -> f64 {
         let mut trace = (self.shared * part.v).trace();
-        for b in 0..self.boards {
+        for b in 0..self.blocks {
             trace +=
-                2.0 * self.shared_board[b].dot(&part.w[b]) + (self.board[b] * part.u[b]).trace();
+                2.0 * self.shared_block[b].dot(&part.w[b]) + (self.block[b] * part.u[b]).trace();
         }
         trace
     }
 
-    /// The shared block of `H⁻¹ M H⁻¹` (`M`'s board blocks are block-diagonal: every
-    /// residual sees one board).
-    fn sandwich(&self, m: &NormalEquations<B>) -> SMatrix<f64, SHARED, SHARED> {
+    /// The shared block of `H⁻¹ M H⁻¹` (`M`'s block-block part is block-diagonal: every
+    /// residual sees one block).
+    pub(crate) fn sandwich(&self, m: SystemBlocks<'_, N>) -> SMatrix<f64, N, N> {
         let mut out = self.shared * m.v * self.shared;
-        for b in 0..self.boards {
-            let cross = self.shared * m.w[b] * self.shared_board[b].transpose();
+        for b in 0..self.blocks {
+            let cross = self.shared * m.w[b] * self.shared_block[b].transpose();
             out += cross + cross.transpose();
-            out += self.shared_board[b] * m.u[b] * self.shared_board[b].transpose();
+            out += self.shared_block[b] * m.u[b] * self.shared_block[b].transpose();
         }
         out
+    }
+}
+
+impl<const B: usize> NormalEquations<B> {
+    /// The blocks [`InverseBlocks`] reads.
+    fn system(&self) -> SystemBlocks<'_, SHARED> {
+        SystemBlocks { v: &self.v, w: &self.w[..self.boards], u: &self.u[..self.boards] }
     }
 }
 

@@ -21,8 +21,10 @@
 
 use nalgebra::{SMatrix, SVector};
 
+use super::covariance::{kind_variance, InverseBlocks, SystemBlocks};
 use super::init::perturb;
 use super::linalg::Cholesky;
+use super::lm::KindWeights;
 use super::problem::{BoardObservation, JointParams, JointProblem, Loss, ResidualKind};
 use super::{Projector, SolveError, EXT_ROTATION, EXT_TRANSLATION, INTRINSICS, SHARED};
 use crate::geometry::se3::{skew, so3_left_jacobian_inv, so3_log};
@@ -208,6 +210,23 @@ impl<'a, const B: usize> RoomProblem<'a, B> {
         }
     }
 
+    /// The measurements' normal equations alone (no priors), each residual kind weighted
+    /// by its factor in `weights` (0 leaves it out).
+    pub fn weighted_equations<C: Projector + Clone>(
+        &self,
+        params: &RoomParams<C, B>,
+        weights: KindWeights,
+    ) -> Result<RoomNormalEquations<B>, SolveError> {
+        let mut ne = SchurSystem::new(self.priors.len(), 0);
+        self.for_each_residual(params, |k, kind, r, js, jb, rows| {
+            let factor = weights.of(kind);
+            if factor != 0.0 {
+                ne.add_weighted(k, (self.inner.loss_for(kind), factor), r, js, jb, rows);
+            }
+        })?;
+        ne.finite()
+    }
+
     /// Whether any hole or LiDAR plane term exists (otherwise the extrinsic is unseen).
     pub fn sees_lidar(&self) -> bool {
         self.inner.boards().iter().any(|b| !b.holes_lidar.is_empty() || b.plane.is_some())
@@ -354,8 +373,22 @@ impl<const N: usize, const B: usize> SchurSystem<N, B> {
         jb: &SMatrix<f64, 2, 6>,
         rows: usize,
     ) {
+        self.add_weighted(k, (loss, 1.0), r, js, jb, rows);
+    }
+
+    /// [`Self::add`] with the block's weight and cost multiplied by `factor`.
+    pub fn add_weighted(
+        &mut self,
+        k: usize,
+        (loss, factor): (Loss, f64),
+        r: &SVector<f64, 2>,
+        js: &SMatrix<f64, 2, N>,
+        jb: &SMatrix<f64, 2, 6>,
+        rows: usize,
+    ) {
         let (rho, weight) = loss.eval(r.norm_squared());
-        self.cost += 0.5 * rho;
+        let weight = weight * factor;
+        self.cost += 0.5 * rho * factor;
         self.residuals += rows;
         self.u[k].gemm_tr(weight, jb, jb, 1.0);
         self.g_block[k].gemv_tr(weight, jb, r, 1.0);
@@ -369,6 +402,11 @@ impl<const N: usize, const B: usize> SchurSystem<N, B> {
         self.cost += 0.5 * r.norm_squared();
         self.u[k].gemm_tr(1.0, j, j, 1.0);
         self.g_block[k].gemv_tr(1.0, j, r, 1.0);
+    }
+
+    /// The blocks a covariance reads.
+    pub(crate) fn system(&self) -> SystemBlocks<'_, N> {
+        SystemBlocks { v: &self.v, w: &self.w[..self.blocks], u: &self.u[..self.blocks] }
     }
 
     /// The equations, or [`SolveError::NonFinite`] if the cost overflowed.
@@ -567,14 +605,52 @@ pub fn solve_room<C: Projector + Clone, const B: usize>(
     })
 }
 
-/// Covariance of the 21 shared parameters at `params` (normally the solution), scaled
-/// by the residual variance `2·cost/dof` as the free-board covariance is. Fixed
-/// parameters have zero rows and columns.
+/// Covariance of the 21 shared parameters at `params` (normally the solution), each
+/// measurement kind (corners, holes, board faces and surveyed planes) scaled by its own
+/// variance factor as the free-board covariance is ([`super::covariance::covariance`]);
+/// the survey's priors keep their σ. Fixed parameters have zero rows and columns.
 pub fn room_covariance<C: Projector + Clone, const B: usize>(
     problem: &RoomProblem<'_, B>,
     params: &RoomParams<C, B>,
 ) -> Result<SMatrix<f64, ROOM_SHARED, ROOM_SHARED>, SolveError> {
-    schur_covariance(problem, params)
+    Ok(room_covariance_by_kind(problem, params)?.0)
+}
+
+/// [`room_covariance`] and the kinds' variance factors `σ̂ₖ² = 2·costₖ / rₖ` (the pooled
+/// `2·cost/dof` for a kind with less than [`super::covariance::MIN_KIND_REDUNDANCY`], 1 for an absent kind).
+pub fn room_covariance_by_kind<C: Projector + Clone, const B: usize>(
+    problem: &RoomProblem<'_, B>,
+    params: &RoomParams<C, B>,
+) -> Result<(SMatrix<f64, ROOM_SHARED, ROOM_SHARED>, KindWeights), SolveError> {
+    let ne = problem.normal_equations(params)?;
+    let fixed = ne.mask(&SchurProblem::structural_mask(problem, params));
+    let free = fixed.iter().filter(|f| !**f).count() + 6 * ne.blocks;
+    if ne.residuals <= free {
+        return Err(SolveError::TooFewPoints { needed: free + 1, got: ne.residuals });
+    }
+    let pooled = 2.0 * ne.cost / (ne.residuals - free) as f64;
+    let (s, _) = ne.reduce(0.0, &fixed)?;
+    let inverse: InverseBlocks<ROOM_SHARED, B> = InverseBlocks::new(&s, |i| fixed[i], ne.system())?;
+    let mut factors = KindWeights::ALL;
+    for kind in [ResidualKind::Corner(0), ResidualKind::Hole(0), ResidualKind::Plane(0)] {
+        let only = problem.weighted_equations(params, KindWeights::only(kind))?;
+        let redundancy = only.residuals as f64 - inverse.trace_with(only.system());
+        *factors.of_mut(kind) = kind_variance(only.residuals, only.cost, redundancy, pooled);
+    }
+    // M = H + Σₖ (σ̂ₖ² − 1) Hₖ: the measurements scaled, the priors as they are.
+    let excess = KindWeights {
+        corner: factors.corner - 1.0,
+        hole: factors.hole - 1.0,
+        plane: factors.plane - 1.0,
+    };
+    let delta = problem.weighted_equations(params, excess)?;
+    let mut m = ne;
+    m.v += delta.v;
+    for b in 0..m.blocks {
+        m.u[b] += delta.u[b];
+        m.w[b] += delta.w[b];
+    }
+    Ok((inverse.sandwich(m.system()), factors))
 }
 
 /// `params ⊕ step`: additive intrinsics, left-perturbed extrinsic, room pose and blocks.
