@@ -117,6 +117,10 @@ fn fit_corner(
     [back.x, back.y]
 }
 
+fn mean_and_worst(errors: &[f64]) -> (f64, f64) {
+    (errors.iter().sum::<f64>() / errors.len() as f64, errors.iter().cloned().fold(0.0, f64::max))
+}
+
 fn corner_errors(scene: &Scene) -> Vec<f64> {
     let camera = scene.truth.camera.to_camera();
     let (cols, _) = scene.room.board.grid();
@@ -163,8 +167,7 @@ fn rendered_corners_match_the_camera_model() {
             "{name}: a corner is hidden"
         );
         let errors = corner_errors(&scene);
-        let mean = errors.iter().sum::<f64>() / errors.len() as f64;
-        let worst = errors.iter().cloned().fold(0.0, f64::max);
+        let (mean, worst) = mean_and_worst(&errors);
         println!(
             "{name}: {} corners, saddle vs truth mean {mean:.4} px, worst {worst:.4} px",
             errors.len()
@@ -186,8 +189,7 @@ fn one_sample_per_pixel_renders_true_corners() {
         };
         let scene = simulate(&room(), &options).expect("scene");
         let errors = corner_errors(&scene);
-        let mean = errors.iter().sum::<f64>() / errors.len() as f64;
-        let worst = errors.iter().cloned().fold(0.0, f64::max);
+        let (mean, worst) = mean_and_worst(&errors);
         println!(
             "seed {seed}: {} corners, saddle vs truth mean {mean:.4} px, worst {worst:.4} px",
             errors.len()

@@ -486,7 +486,7 @@ fn calibration(
         residual_variance: 1.0,
         dof: report.residuals,
         mask: ParamMask::free(),
-        // The surveyed room's covariance is its own (`schur_covariance`): one factor.
+        // `room_covariance` applied each kind's factor; this summary does not carry them.
         kind_variances: crate::solve::lm::KindWeights::ALL,
     };
     let solve_report = SolveReport {

@@ -107,13 +107,9 @@ pub fn covariance<C: Projector, const B: usize>(
     let (s, _) = ne.reduce(0.0, mask)?;
     let inverse: InverseBlocks<SHARED, B> =
         InverseBlocks::new(&s, |i| mask.is_fixed(i), ne.system())?;
-    let mut factors = KindWeights::ALL;
-    for kind in [ResidualKind::Corner(0), ResidualKind::Hole(0), ResidualKind::Plane(0)] {
-        let only = NormalEquations::build_weighted(problem, params, KindWeights::only(kind))?;
-        let redundancy = only.residuals as f64 - inverse.trace_with(only.system());
-        *factors.of_mut(kind) =
-            kind_variance(only.residuals, only.cost, redundancy, residual_variance);
-    }
+    let factors = kind_variances(&inverse, residual_variance, |w| {
+        NormalEquations::build_weighted(problem, params, w)
+    })?;
     let weighted = NormalEquations::build_weighted(problem, params, factors)?;
     let matrix = inverse.sandwich(weighted.system());
     Ok(SharedCovariance { matrix, residual_variance, dof, mask, kind_variances: factors })
@@ -123,17 +119,35 @@ pub fn covariance<C: Projector, const B: usize>(
 /// for a variance factor of its own.
 pub const MIN_KIND_REDUNDANCY: f64 = 5.0;
 
-/// A residual kind's variance factor from its `rows` scalar residuals, their robust
-/// `cost` and `redundancy`: `2·cost / redundancy`, the `pooled` factor where the
-/// redundancy is below [`MIN_KIND_REDUNDANCY`], 1 for a kind with no residuals.
-pub(crate) fn kind_variance(rows: usize, cost: f64, redundancy: f64, pooled: f64) -> f64 {
-    if rows == 0 {
-        1.0
-    } else if redundancy >= MIN_KIND_REDUNDANCY {
-        2.0 * cost / redundancy
-    } else {
-        pooled
+/// Each residual kind's variance factor `2·costₖ / rₖ`, `rₖ = mₖ − tr(H⁻¹Hₖ)` its share
+/// of the redundancy (`equations` builds one kind's system `Hₖ`, given that kind alone):
+/// the `pooled` factor where `rₖ` is below [`MIN_KIND_REDUNDANCY`], 1 for an absent kind.
+pub(crate) fn kind_variances<const N: usize, const B: usize, E: KindSystem<N>>(
+    inverse: &InverseBlocks<N, B>,
+    pooled: f64,
+    mut equations: impl FnMut(KindWeights) -> Result<E, SolveError>,
+) -> Result<KindWeights, SolveError> {
+    let mut factors = KindWeights::ALL;
+    for kind in [ResidualKind::Corner(0), ResidualKind::Hole(0), ResidualKind::Plane(0)] {
+        let part = equations(KindWeights::only(kind))?;
+        let redundancy = part.rows() as f64 - inverse.trace_with(part.system());
+        *factors.of_mut(kind) = if part.rows() == 0 {
+            1.0
+        } else if redundancy >= MIN_KIND_REDUNDANCY {
+            2.0 * part.cost() / redundancy
+        } else {
+            pooled
+        };
     }
+    Ok(factors)
+}
+
+/// Normal equations of some residuals, as [`kind_variances`] reads them: scalar residuals,
+/// robust cost and blocks.
+pub(crate) trait KindSystem<const N: usize> {
+    fn rows(&self) -> usize;
+    fn cost(&self) -> f64;
+    fn system(&self) -> SystemBlocks<'_, N>;
 }
 
 /// The blocks of `H⁻¹` that a shared covariance needs, from the Schur complement `S` of a
@@ -205,8 +219,13 @@ impl<const N: usize, const B: usize> InverseBlocks<N, B> {
     }
 }
 
-impl<const B: usize> NormalEquations<B> {
-    /// The blocks [`InverseBlocks`] reads.
+impl<const B: usize> KindSystem<SHARED> for NormalEquations<B> {
+    fn rows(&self) -> usize {
+        self.residuals
+    }
+    fn cost(&self) -> f64 {
+        self.cost
+    }
     fn system(&self) -> SystemBlocks<'_, SHARED> {
         SystemBlocks { v: &self.v, w: &self.w[..self.boards], u: &self.u[..self.boards] }
     }

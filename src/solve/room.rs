@@ -21,7 +21,7 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use super::covariance::{kind_variance, InverseBlocks, SystemBlocks};
+use super::covariance::{kind_variances, InverseBlocks, KindSystem, SystemBlocks};
 use super::init::perturb;
 use super::linalg::Cholesky;
 use super::lm::KindWeights;
@@ -330,6 +330,18 @@ pub struct SchurSystem<const N: usize, const B: usize> {
     pub residuals: usize,
 }
 
+impl<const N: usize, const B: usize> KindSystem<N> for SchurSystem<N, B> {
+    fn rows(&self) -> usize {
+        self.residuals
+    }
+    fn cost(&self) -> f64 {
+        self.cost
+    }
+    fn system(&self) -> SystemBlocks<'_, N> {
+        SystemBlocks { v: &self.v, w: &self.w[..self.blocks], u: &self.u[..self.blocks] }
+    }
+}
+
 /// The room problem's normal equations (21 shared parameters).
 pub type RoomNormalEquations<const B: usize> = SchurSystem<ROOM_SHARED, B>;
 
@@ -402,11 +414,6 @@ impl<const N: usize, const B: usize> SchurSystem<N, B> {
         self.cost += 0.5 * r.norm_squared();
         self.u[k].gemm_tr(1.0, j, j, 1.0);
         self.g_block[k].gemv_tr(1.0, j, r, 1.0);
-    }
-
-    /// The blocks a covariance reads.
-    pub(crate) fn system(&self) -> SystemBlocks<'_, N> {
-        SystemBlocks { v: &self.v, w: &self.w[..self.blocks], u: &self.u[..self.blocks] }
     }
 
     /// The equations, or [`SolveError::NonFinite`] if the cost overflowed.
@@ -613,15 +620,6 @@ pub fn room_covariance<C: Projector + Clone, const B: usize>(
     problem: &RoomProblem<'_, B>,
     params: &RoomParams<C, B>,
 ) -> Result<SMatrix<f64, ROOM_SHARED, ROOM_SHARED>, SolveError> {
-    Ok(room_covariance_by_kind(problem, params)?.0)
-}
-
-/// [`room_covariance`] and the kinds' variance factors `σ̂ₖ² = 2·costₖ / rₖ` (the pooled
-/// `2·cost/dof` for a kind with less than [`super::covariance::MIN_KIND_REDUNDANCY`], 1 for an absent kind).
-pub fn room_covariance_by_kind<C: Projector + Clone, const B: usize>(
-    problem: &RoomProblem<'_, B>,
-    params: &RoomParams<C, B>,
-) -> Result<(SMatrix<f64, ROOM_SHARED, ROOM_SHARED>, KindWeights), SolveError> {
     let ne = problem.normal_equations(params)?;
     let fixed = ne.mask(&SchurProblem::structural_mask(problem, params));
     let free = fixed.iter().filter(|f| !**f).count() + 6 * ne.blocks;
@@ -631,26 +629,11 @@ pub fn room_covariance_by_kind<C: Projector + Clone, const B: usize>(
     let pooled = 2.0 * ne.cost / (ne.residuals - free) as f64;
     let (s, _) = ne.reduce(0.0, &fixed)?;
     let inverse: InverseBlocks<ROOM_SHARED, B> = InverseBlocks::new(&s, |i| fixed[i], ne.system())?;
-    let mut factors = KindWeights::ALL;
-    for kind in [ResidualKind::Corner(0), ResidualKind::Hole(0), ResidualKind::Plane(0)] {
-        let only = problem.weighted_equations(params, KindWeights::only(kind))?;
-        let redundancy = only.residuals as f64 - inverse.trace_with(only.system());
-        *factors.of_mut(kind) = kind_variance(only.residuals, only.cost, redundancy, pooled);
-    }
-    // M = H + Σₖ (σ̂ₖ² − 1) Hₖ: the measurements scaled, the priors as they are.
-    let excess = KindWeights {
-        corner: factors.corner - 1.0,
-        hole: factors.hole - 1.0,
-        plane: factors.plane - 1.0,
-    };
-    let delta = problem.weighted_equations(params, excess)?;
-    let mut m = ne;
-    m.v += delta.v;
-    for b in 0..m.blocks {
-        m.u[b] += delta.u[b];
-        m.w[b] += delta.w[b];
-    }
-    Ok((inverse.sandwich(m.system()), factors))
+    let factors = kind_variances(&inverse, pooled, |w| problem.weighted_equations(params, w))?;
+    // The measurements scaled by their factors, the priors as they are.
+    let mut m = problem.weighted_equations(params, factors)?;
+    problem.for_each_prior(params, |k, r, j| m.add_prior(k, r, j));
+    Ok(inverse.sandwich(m.system()))
 }
 
 /// `params ⊕ step`: additive intrinsics, left-perturbed extrinsic, room pose and blocks.
