@@ -75,6 +75,9 @@ pub struct Survey {
     /// Visits that saw each room board and each plane.
     pub board_visits: Vec<usize>,
     pub plane_visits: Vec<usize>,
+    /// Each plane's covariance in the boards' mean frame (`[turn (2); offset]`, see
+    /// [`gauge::mean_frame_sigmas`]): its offset σ moves with the frame's origin.
+    pub plane_covariances: Vec<Mat3>,
     /// `labels[v][i]`: the room board of visit `v`'s board `i`.
     pub labels: Vec<Vec<chain::ChainedBoard>>,
     pub report: bundle::BundleReport,
@@ -258,7 +261,8 @@ pub fn survey(room: &Room, visits: &[SurveyVisit]) -> Result<Survey, SurveyError
     let mut workspace = bundle::Workspace::new(&problem);
     workspace.build(&problem, &state)?;
     let covariance = workspace.global_covariance()?;
-    let (board_sigma, plane_sigma) = gauge::mean_frame_sigmas(&state, &covariance);
+    let (board_sigma, plane_sigma, plane_covariances) =
+        gauge::mean_frame_sigmas(&state, &covariance);
     let corner_rms_px = problem.corner_rms_px(&state)?;
     let state = gauge::in_mean_frame(&state);
     let names: Vec<&str> = room_planes.planes.iter().map(|p| p.name.as_str()).collect();
@@ -268,6 +272,7 @@ pub fn survey(room: &Room, visits: &[SurveyVisit]) -> Result<Survey, SurveyError
         state,
         board_visits,
         plane_visits: room_planes.planes.iter().map(|p| p.visits).collect(),
+        plane_covariances,
         labels: chained.labels,
         report,
         corner_rms_px,
@@ -276,7 +281,7 @@ pub fn survey(room: &Room, visits: &[SurveyVisit]) -> Result<Survey, SurveyError
 
 /// How the written room file's frame is defined (see [`Survey::in_parking_frame`]).
 pub const PARKING_FRAME: &str = "the nominal LiDAR frame at the visits' mean parking spot (every \
-visit's room→camera pose is the room's [lidar] mounting, on average); σ are relative to the boards' mean frame";
+visit's room→camera pose is the room's [lidar] mounting, on average); σ are relative to the boards' mean frame, a plane's offset σ at this frame's origin";
 
 impl Survey {
     /// The survey in the frame the room file holds: the room's nominal LiDAR frame at the
@@ -285,7 +290,10 @@ impl Survey {
     /// gate's parking box. The survey's frame (the boards' mean, [`gauge`]) only fixes the
     /// frame; this is one rigid motion `G` of the whole solution (boards `G⁻¹ B`, planes
     /// carried along), which leaves every relative pose, and so every measurement,
-    /// unchanged. The σ stay those of the boards' mean frame.
+    /// unchanged. The σ stay those of the boards' mean frame, except a plane's offset σ,
+    /// which is its offset's at the new origin ([`gauge::plane_offset_sigma_at`]): the
+    /// calibration holds each plane's offset and turn apart, at the file's origin, where the
+    /// vehicle stands.
     pub fn in_parking_frame(&self, lidar: &crate::target::LidarSpec) -> SurveySpec {
         let nominal = super::association::lidar_nominal(lidar);
         let g = mean_motion(
@@ -302,9 +310,11 @@ impl Survey {
             board.rotation = rows(&pose.rotation);
             board.translation = pose.translation.into();
         }
-        for plane in spec.planes.iter_mut() {
+        for (plane, block) in spec.planes.iter_mut().zip(&self.plane_covariances) {
             // n · p_room = d with p_room = G p_new: (R_Gᵀ n) · p_new = d − n · t_G.
             let n = Vec3::from(plane.normal);
+            let mean_frame = bundle::RoomPlane { normal: n, offset: plane.offset };
+            plane.sigma_m = gauge::plane_offset_sigma_at(&mean_frame, block, &g.translation);
             plane.normal = (g.rotation.transpose() * n).into();
             plane.offset -= n.dot(&g.translation);
         }

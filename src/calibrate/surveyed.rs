@@ -16,6 +16,9 @@ use super::{
     median, solver_reason, CalibrateOptions, Calibration, CameraBoard, FrameDetections, UsedBoard,
     MAX_OBSERVATIONS,
 };
+use crate::detect::planes::{
+    select_plane_points, trimmed_plane_points, PlaneCut, PlaneSelection, PLANE_FLOOR_SIGMA_M,
+};
 use crate::geometry::{Camera, Se3, Vec3};
 use crate::lidar::Point;
 use crate::result::Extrinsic;
@@ -35,8 +38,6 @@ pub const MOVED_BOARD_CHI2: f64 = 36.0;
 /// Points within this distance (m) of a surveyed plane predicted from the start are
 /// its candidates; the final selection is 3σ of their own spread.
 const PLANE_START_CUT_M: f64 = 0.10;
-/// Floor of a surveyed plane's per-point σ (m).
-const PLANE_MIN_SIGMA_M: f64 = 0.002;
 /// Points closer than this to a board's centre (m, in the room) are its face, not a plane.
 const PLANE_BOARD_CLEARANCE_M: f64 = 1.0;
 
@@ -383,9 +384,11 @@ fn add_observations<'a>(
 }
 
 /// The LiDAR's points on every surveyed plane, over all clouds: those within a cut of
-/// the plane carried into the LiDAR frame by `room_to_camera` and `extrinsic`, and not
-/// near a board. The cut is [`PLANE_START_CUT_M`] at first, then 3σ of the previous
-/// selection of that plane.
+/// the plane carried into the LiDAR frame by `room_to_camera` and `extrinsic`, not near a
+/// board and not within the cut of a second plane (where two planes meet, a point could be
+/// either's). The cut is [`PLANE_START_CUT_M`] at first, then 3σ of each point's own noise
+/// along the normal as the previous selection of that plane measured it
+/// ([`PlanePoints::along_beams`]); the points are summarised with those weights.
 pub(super) fn room_planes(
     survey: &SurveySpec,
     surveyed: &[Se3],
@@ -400,42 +403,34 @@ pub(super) fn room_planes(
     // same in both frames).
     let room_to_lidar = lidar_to_room.inverse();
     let boards: Vec<Vec3> = surveyed.iter().map(|b| room_to_lidar.act(&b.translation)).collect();
-    let planes: Vec<(usize, Vec3, f64, f64)> = (survey.planes.iter().enumerate())
-        .filter_map(|(index, plane)| {
-            let cut = match previous {
-                Some(prev) => 3.0 * prev.iter().find(|(i, _)| *i == index)?.1.sigma_m,
-                None => PLANE_START_CUT_M,
-            };
-            let normal = Vec3::from(plane.normal);
-            let offset = plane.offset - normal.dot(&lidar_to_room.translation);
-            Some((index, lidar_to_room.rotation.transpose() * normal, offset, cut))
-        })
-        .collect();
-    let mut selected: Vec<Vec<Vec3>> = vec![Vec::new(); planes.len()];
-    let clearance2 = PLANE_BOARD_CLEARANCE_M * PLANE_BOARD_CLEARANCE_M;
-    for p in clouds.iter().flat_map(|c| c.iter()) {
-        if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
-            continue;
-        }
-        let q = Vec3::new(p.x as f64, p.y as f64, p.z as f64);
-        for ((_, normal, offset, cut), points) in planes.iter().zip(&mut selected) {
-            if (normal.dot(&q) - offset).abs() <= *cut
-                && boards.iter().all(|b| (b - q).norm_squared() > clearance2)
-            {
-                points.push(q);
+    let (indices, selections): (Vec<usize>, Vec<PlaneSelection>) = (survey
+        .planes
+        .iter()
+        .enumerate())
+    .filter_map(|(index, plane)| {
+        let cut = match previous {
+            Some(prev) => {
+                PlaneCut::measured(&prev.iter().find(|(i, _)| *i == index)?.1, PLANE_FLOOR_SIGMA_M)
             }
-        }
-    }
-    let mut out = Vec::new();
-    for ((index, normal, offset, _), points) in planes.into_iter().zip(selected) {
-        let rms = (points.iter().map(|q| (normal.dot(q) - offset).powi(2)).sum::<f64>()
-            / points.len().max(1) as f64)
-            .sqrt();
-        if let Some(summary) = PlanePoints::from_points(points, rms.max(PLANE_MIN_SIGMA_M)) {
-            out.push((index, summary));
-        }
-    }
-    out
+            None => PlaneCut::band(PLANE_START_CUT_M),
+        };
+        let normal = Vec3::from(plane.normal);
+        let offset = plane.offset - normal.dot(&lidar_to_room.translation);
+        Some((
+            index,
+            PlaneSelection { normal: lidar_to_room.rotation.transpose() * normal, offset, cut },
+        ))
+    })
+    .unzip();
+    let clearance2 = PLANE_BOARD_CLEARANCE_M * PLANE_BOARD_CLEARANCE_M;
+    let clear_of_boards = |q: &Vec3| boards.iter().all(|b| (b - q).norm_squared() > clearance2);
+    let selected =
+        select_plane_points(clouds.iter().flat_map(|c| c.iter()), &selections, clear_of_boards);
+    (indices.into_iter().zip(&selections).zip(selected))
+        .filter_map(|((index, s), points)| {
+            Some((index, trimmed_plane_points(&points, &s.normal, s.offset, PLANE_FLOOR_SIGMA_M)?))
+        })
+        .collect()
 }
 
 /// The board block farthest outside its survey σ, if any is beyond [`MOVED_BOARD_CHI2`]:

@@ -7,6 +7,13 @@
 //! plane is kept only when its points spread like a room surface, not a board
 //! ([`PlaneConfig::min_long_spread_m`], [`PlaneConfig::min_spread_m`]). Sampling is
 //! seeded, so the same cloud gives the same planes. Non-finite points are ignored; no cloud panics.
+//!
+//! The measurement each plane gives is then collected once more from the whole cloud
+//! ([`select_plane_points`], shared with the calibration in a surveyed room): a point near
+//! two planes (where a wall meets the floor) is neither's, since it would pull the one
+//! seen at a grazing angle towards the other by centimetres; and each point is weighted by
+//! its own noise along the normal ([`PlanePoints::along_beams`]): range noise moves a
+//! point seen at a grazing angle little off the plane.
 
 use crate::geometry::{Mat3, Vec3};
 use crate::lidar::Point;
@@ -27,6 +34,9 @@ pub struct PlaneConfig {
     pub min_spread_m: f64,
     /// Hypotheses tried per plane.
     pub hypotheses: usize,
+    /// Least σ of a point along the normal (m), whatever its incidence
+    /// ([`PlanePoints::along_beams`]).
+    pub floor_sigma_m: f64,
     /// Most planes returned.
     pub max_planes: usize,
 }
@@ -40,6 +50,7 @@ impl Default for PlaneConfig {
             min_spread_m: 0.45,
             hypotheses: 400,
             max_planes: 8,
+            floor_sigma_m: PLANE_FLOOR_SIGMA_M,
         }
     }
 }
@@ -55,6 +66,75 @@ pub struct FoundPlane {
     /// Standard deviations of the inliers along the plane's two in-plane axes (m),
     /// larger first.
     pub spread_m: [f64; 2],
+}
+
+/// Least σ of a plane point along the normal (m): beam angle, footprint and a surface that
+/// is not quite flat; a point seen at a grazing angle is trusted no more than this.
+pub const PLANE_FLOOR_SIGMA_M: f64 = 0.002;
+
+/// Which points are a plane's: `|e| ≤ 3σ` with `σ² = σ_r²·cos²θ + floor²` (range noise `σ_r`
+/// along a beam of incidence θ), or one band for every point before `σ_r` is known.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlaneCut {
+    range2: f64,
+    floor2: f64,
+}
+
+impl PlaneCut {
+    /// Every point within `half_width_m` of the plane.
+    pub fn band(half_width_m: f64) -> Self {
+        PlaneCut { range2: 0.0, floor2: (half_width_m / 3.0).powi(2) }
+    }
+
+    /// 3σ of each point's own noise, as a selection summarised by
+    /// [`PlanePoints::along_beams`] with `floor_m` measured it (its weight-1 σ is
+    /// `√(σ_r² + floor²)`).
+    pub fn measured(points: &PlanePoints, floor_m: f64) -> Self {
+        let floor2 = floor_m * floor_m;
+        PlaneCut { range2: (points.sigma_m * points.sigma_m - floor2).max(0.0), floor2 }
+    }
+
+    /// Whether a point `residual` off the plane, seen along a beam of squared incidence
+    /// cosine `cos2`, is the plane's.
+    pub fn admits(&self, residual: f64, cos2: f64) -> bool {
+        residual * residual <= 9.0 * (self.range2 * cos2 + self.floor2)
+    }
+}
+
+/// One plane to collect points for (sensor frame): `normal · p = offset`, and its cut.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlaneSelection {
+    pub normal: Vec3,
+    pub offset: f64,
+    pub cut: PlaneCut,
+}
+
+/// The points of `cloud` (sensor frame, the sensor at the origin) on each of `planes`: a
+/// point is a plane's when its cut admits it, no other plane's cut does, and `keep` says
+/// yes (e.g. it is clear of every board). One pass, one dot product per point and plane.
+pub fn select_plane_points<'a>(
+    cloud: impl Iterator<Item = &'a Point>,
+    planes: &[PlaneSelection],
+    keep: impl Fn(&Vec3) -> bool,
+) -> Vec<Vec<Vec3>> {
+    let mut selected: Vec<Vec<Vec3>> = vec![Vec::new(); planes.len()];
+    for p in cloud {
+        if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
+            continue;
+        }
+        let q = Vec3::new(p.x as f64, p.y as f64, p.z as f64);
+        let range2 = q.norm_squared().max(1e-12);
+        let mut within = planes.iter().enumerate().filter(|(_, plane)| {
+            let along = plane.normal.dot(&q);
+            plane.cut.admits(along - plane.offset, along * along / range2)
+        });
+        if let (Some((only, _)), None) = (within.next(), within.next()) {
+            if keep(&q) {
+                selected[only].push(q);
+            }
+        }
+    }
+    selected
 }
 
 /// Draws in a row that give no plane before the search stops.
@@ -105,7 +185,69 @@ pub fn find_planes(cloud: &[Point], config: &PlaneConfig) -> Vec<FoundPlane> {
             found.push(plane);
         }
     }
-    found
+    exclusive_measurements(cloud, found, config)
+}
+
+/// Each found plane's points collected again from the whole cloud, each point on one plane
+/// only (in the search's band), then trimmed ([`trimmed_plane_points`]). A plane left with
+/// too few points is dropped.
+fn exclusive_measurements(
+    cloud: &[Point],
+    found: Vec<FoundPlane>,
+    config: &PlaneConfig,
+) -> Vec<FoundPlane> {
+    let selections: Vec<PlaneSelection> = (found.iter())
+        .map(|p| PlaneSelection {
+            normal: p.normal,
+            offset: p.offset,
+            cut: PlaneCut::band(config.inlier_m),
+        })
+        .collect();
+    let points = select_plane_points(cloud.iter(), &selections, |_| true);
+    (found.into_iter().zip(&points))
+        .filter_map(|(plane, points)| {
+            let summary =
+                trimmed_plane_points(points, &plane.normal, plane.offset, config.floor_sigma_m)?;
+            let (normal, offset) = summary.fitted_plane_towards(&plane.normal);
+            let enough = summary.count >= config.min_points;
+            enough.then_some(FoundPlane { normal, offset, points: summary, ..plane })
+        })
+        .collect()
+}
+
+/// Rounds of [`trimmed_plane_points`] (it settles in two or three).
+const TRIM_ROUNDS: usize = 4;
+
+/// `points` (sensor frame), candidates for the plane `normal · p = offset`, without what is
+/// not the plane's, summarised along the beams ([`PlanePoints::along_beams`]): the plane is
+/// fitted to the points kept, the points beyond 3σ of their own noise about it dropped, and
+/// again, [`TRIM_ROUNDS`] times. What stands on a floor or against a wall (a box, a pole, a
+/// board's foot) leaves points a few centimetres off it, all on one side: kept, a few
+/// hundred of them move a floor by millimetres.
+pub fn trimmed_plane_points(
+    points: &[Vec3],
+    normal: &Vec3,
+    offset: f64,
+    floor_m: f64,
+) -> Option<PlanePoints> {
+    let mut summary = PlanePoints::along_beams(points, normal, offset, floor_m)?;
+    let mut kept: Vec<Vec3> = Vec::with_capacity(points.len());
+    for _ in 0..TRIM_ROUNDS {
+        let (n, d) = summary.fitted_plane_towards(normal);
+        let cut = PlaneCut::measured(&summary, floor_m);
+        kept.clear();
+        kept.extend(points.iter().filter(|q| {
+            let along = n.dot(q);
+            cut.admits(along - d, along * along / q.norm_squared().max(1e-12))
+        }));
+        let next = PlanePoints::along_beams(&kept, &n, d, floor_m)?;
+        let settled = next.count == summary.count;
+        summary = next;
+        if settled {
+            break;
+        }
+    }
+    Some(summary)
 }
 
 /// The three-point hypothesis with most inliers on a thinned copy of `points`.

@@ -173,17 +173,20 @@ impl BoardObservation<'_> {
 
 /// The LiDAR points of one board summarised for the point-to-plane term: with
 /// `a = R_LCᵀ n` (the board normal in the LiDAR frame) and `b` the plane's offset at the
-/// centroid `c`, `Σ (aᵀ(p − c) + b)² = |Lᵀ a|² + count · b²` where `L Lᵀ` is the
-/// points' scatter about `c`. Fixed size whatever the number of points.
+/// centroid `c`, `Σ wᵢ (aᵀ(pᵢ − c) + b)² = |Lᵀ a|² + W · b²` where `L Lᵀ` is the points'
+/// weighted scatter about their weighted centroid `c` and `W = Σ wᵢ`. Each point's σ is
+/// `sigma_m / √wᵢ` (all `wᵢ = 1` for points alike). Fixed size whatever the number of points.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PlanePoints {
-    /// Centroid of the points (LiDAR frame, m).
+    /// Weighted centroid of the points (LiDAR frame, m).
     pub centroid: Vec3,
-    /// `Lᵀ`, the transposed Cholesky factor of the scatter `Σ (p − c)(p − c)ᵀ` (m).
+    /// `Lᵀ`, the transposed Cholesky factor of the scatter `Σ wᵢ (pᵢ − c)(pᵢ − c)ᵀ` (m).
     pub spread: Mat3,
-    /// Points summarised.
+    /// Points summarised (the term's scalar measurements).
     pub count: usize,
-    /// Point-to-plane σ of one point (m).
+    /// `W = Σ wᵢ`, the points' weights (`count` when they are alike).
+    pub weight: f64,
+    /// Point-to-plane σ of a point of weight 1 (m).
     pub sigma_m: f64,
 }
 
@@ -191,37 +194,107 @@ impl PlanePoints {
     /// Fewest points worth a plane term.
     pub const MIN_POINTS: usize = 10;
 
-    /// Summarises `points` (LiDAR frame, m) with a per-point σ; `None` for fewer than
+    /// Summarises `points` (LiDAR frame, m) with one per-point σ; `None` for fewer than
     /// [`Self::MIN_POINTS`] points, a σ that is not positive, or non-finite points.
     pub fn from_points<I: IntoIterator<Item = Vec3>>(points: I, sigma_m: f64) -> Option<Self> {
+        Self::from_weighted_points(points.into_iter().map(|p| (p, 1.0)), sigma_m)
+    }
+
+    /// Summarises points with weights `(p, wᵢ)`: point `i`'s σ is `sigma_m / √wᵢ`. `None`
+    /// as [`Self::from_points`], or for a weight that is not positive and finite.
+    pub fn from_weighted_points<I: IntoIterator<Item = (Vec3, f64)>>(
+        points: I,
+        sigma_m: f64,
+    ) -> Option<Self> {
         // Moments about the first point, then shifted to the centroid: no cancellation
         // for points far from the sensor.
         let mut iter = points.into_iter();
-        let origin = iter.next()?;
-        let (mut sum, mut outer, mut count) = (Vec3::zeros(), Mat3::zeros(), 1usize);
-        for p in iter {
+        let (origin, w0) = iter.next()?;
+        let (mut sum, mut outer, mut weight, mut count) =
+            (Vec3::zeros(), Mat3::zeros(), w0, 1usize);
+        let mut weights_valid = w0.is_finite() && w0 > 0.0;
+        for (p, w) in iter {
+            weights_valid &= w.is_finite() && w > 0.0;
             let d = p - origin;
-            sum += d;
-            outer += d * d.transpose();
+            sum += d * w;
+            outer += d * d.transpose() * w;
+            weight += w;
             count += 1;
         }
-        let n = count as f64;
-        let scatter = outer - sum * sum.transpose() / n;
+        let scatter = outer - sum * sum.transpose() / weight;
         let positive = sigma_m.is_finite() && sigma_m > 0.0;
-        if count < Self::MIN_POINTS || !positive || !scatter.iter().all(|v| v.is_finite()) {
+        if count < Self::MIN_POINTS
+            || !positive
+            || !weights_valid
+            || !scatter.iter().all(|v| v.is_finite())
+        {
             return None;
         }
         // A ridge far below any real spread keeps points on one scan line factorable.
         let ridge = 1e-12 * (scatter.trace() + 1e-12);
         let l = Cholesky::new(&(scatter + Mat3::identity() * ridge)).ok()?;
-        Some(PlanePoints { centroid: origin + sum / n, spread: l.l().transpose(), count, sigma_m })
+        let centroid = origin + sum / weight;
+        Some(PlanePoints { centroid, spread: l.l().transpose(), count, weight, sigma_m })
     }
 
-    /// The unwhitened residual 4-vector (m·√points) for a board whose normal in the
+    /// Summarises the points a range sensor at the origin saw on the plane `n·p = d`,
+    /// each weighted by its own noise along the normal: range noise `σ_r` along the beam
+    /// moves a point by `σ_r·|cos θ|` off the plane (θ the beam's incidence), and no point
+    /// is trusted below `floor_m` (beam angle, footprint, a plane that is not quite flat).
+    /// `σ_r` is estimated from the points' own residuals; the weight-1 σ is the normal
+    /// incidence one, `√(σ_r² + floor²)`. `None` as [`Self::from_points`].
+    pub fn along_beams(points: &[Vec3], normal: &Vec3, offset: f64, floor_m: f64) -> Option<Self> {
+        let incidence2 = |p: &Vec3| {
+            let (along, r2) = (normal.dot(p), p.norm_squared());
+            if r2 > 0.0 {
+                along * along / r2
+            } else {
+                1.0
+            }
+        };
+        let (mut excess, mut cos2) = (0.0f64, 0.0f64);
+        for p in points {
+            let residual = normal.dot(p) - offset;
+            excess += residual * residual - floor_m * floor_m;
+            cos2 += incidence2(p);
+        }
+        let range2 = if cos2 > 0.0 { (excess / cos2).max(0.0) } else { 0.0 };
+        let reference2 = range2 + floor_m * floor_m;
+        let weighted =
+            points.iter().map(|p| (*p, reference2 / (range2 * incidence2(p) + floor_m * floor_m)));
+        Self::from_weighted_points(weighted, libm::sqrt(reference2))
+    }
+
+    /// The plane through the points, `normal · p = offset`: the weighted least-squares fit
+    /// (the scatter's smallest eigenvector through the centroid).
+    pub fn fitted_plane(&self) -> (Vec3, f64) {
+        let scatter = self.spread.transpose() * self.spread;
+        let eigen = nalgebra::SymmetricEigen::new(scatter);
+        let smallest = eigen.eigenvalues.imin();
+        let normal = eigen.eigenvectors.column(smallest).into_owned();
+        (normal, normal.dot(&self.centroid))
+    }
+
+    /// [`Self::fitted_plane`] with its normal on the side of `towards`.
+    pub fn fitted_plane_towards(&self, towards: &Vec3) -> (Vec3, f64) {
+        let (normal, offset) = self.fitted_plane();
+        if normal.dot(towards) < 0.0 {
+            (-normal, -offset)
+        } else {
+            (normal, offset)
+        }
+    }
+
+    /// `√W`, the offset row's factor.
+    pub fn root_weight(&self) -> f64 {
+        libm::sqrt(self.weight)
+    }
+
+    /// The unwhitened residual 4-vector (m·√weight) for a board whose normal in the
     /// LiDAR frame is `a` and whose plane passes `offset` from the centroid along it.
     fn residual(&self, a: &Vec3, offset: f64) -> nalgebra::Vector4<f64> {
         let top = self.spread * a;
-        nalgebra::Vector4::new(top.x, top.y, top.z, libm::sqrt(self.count as f64) * offset)
+        nalgebra::Vector4::new(top.x, top.y, top.z, self.root_weight() * offset)
     }
 }
 
@@ -562,7 +635,7 @@ fn plane_geometry(plane: &PlanePoints, pose: &Se3, ext: &Se3) -> (Vec3, f64, Vec
 /// Streams the two whitened 2-row blocks of a board's point-to-plane term.
 ///
 /// With `w = [a; b]` (normal in the LiDAR frame, offset at the centroid) the residual is
-/// `G w / σ`, `G = diag(Lᵀ, √count)`, and under the left perturbations
+/// `G w / σ`, `G = diag(Lᵀ, √W)`, and under the left perturbations
 /// - board `δω`: `δa = −R_LCᵀ [n]× δω`, `δb = (n × m)ᵀ δω`;  board `δt`: `δb = −nᵀ δt`;
 /// - extrinsic `δω`: `δa = R_LCᵀ [n]× δω`, `δb = (R_LC c × n)ᵀ δω`;  extrinsic `δt`: `δb = nᵀ δt`.
 fn plane_blocks(
@@ -588,7 +661,7 @@ fn plane_blocks(
     dw.fixed_view_mut::<1, 3>(3, 9).copy_from(&n.transpose());
     let mut g = SMatrix::<f64, 4, 4>::zeros();
     g.fixed_view_mut::<3, 3>(0, 0).copy_from(&plane.spread);
-    g[(3, 3)] = libm::sqrt(plane.count as f64);
+    g[(3, 3)] = plane.root_weight();
     let j = g * dw * w;
     let half = plane.count / 2;
     for k in 0..2 {

@@ -643,7 +643,7 @@ fn board_chain(room: &Se3) -> SMatrix<f64, 6, 6> {
 /// With `n_c = R_RC n` (the plane's normal in the camera), `q = R_LC c + t_LC` (the
 /// points' centroid in the camera), the residual is `G [a; b] / σ` with
 /// `a = R_LCᵀ n_c` (the normal in the LiDAR frame), `b = n_c · (q − t_RC) − offset`, and
-/// `G = diag(Lᵀ, √count)` as in [`PlanePoints`]. Under the left perturbations:
+/// `G = diag(Lᵀ, √W)` as in [`PlanePoints`]. Under the left perturbations:
 /// - extrinsic: `δa = R_LCᵀ [n_c]× δω`, `δb = (R_LC c × n_c)ᵀ δω + n_cᵀ δt`;
 /// - room→camera: `δa = −R_LCᵀ [n_c]× δω`, `δb = (n_c × (q − t_RC))ᵀ δω − n_cᵀ δt`;
 /// - plane: `δn = −[n]× B δφ`, so `δa = R_LCᵀ R_RC δn`, `δb = (q − t_RC)ᵀ R_RC δn − δd`.
@@ -678,7 +678,7 @@ fn room_plane_blocks(
     dw[(3, 14)] = -1.0;
     let mut g = SMatrix::<f64, 4, 4>::zeros();
     g.fixed_view_mut::<3, 3>(0, 0).copy_from(&points.spread);
-    let root = (points.count as f64).sqrt();
+    let root = points.root_weight();
     g[(3, 3)] = root;
     let w = 1.0 / points.sigma_m;
     let top = points.spread * a;
