@@ -103,7 +103,13 @@ pub enum SurveyError {
     #[error("visit {visit}: only {matched} of its boards match boards of the earlier visits (2 needed to chain it into the room)")]
     Unchained { visit: usize, matched: usize },
     #[error("the visits show {found} different boards, the room file has board.count = {expected}{}",
-            first_extra.map_or(String::new(), |(v, i)| format!(" (visit {v}'s board {i} is near no board the earlier visits saw)")))]
+            match first_extra {
+                Some((v, i)) => format!(" (visit {v}'s board {i} is near no board the earlier visits saw)"),
+                // Fewer: the camera saw some board whole in no visit (another board or a
+                // post in front of part of it); only whole boards can be surveyed.
+                None if *found < *expected as usize => " (no visit's camera saw the others whole: survey the boards it sees with board.count set to them, or clear their view)".to_string(),
+                None => String::new(),
+            })]
     BoardCount { found: usize, expected: u32, first_extra: Option<(usize, usize)> },
     #[error("room board {board} (visit {visit}'s board {index}) is seen by that visit alone: every board needs at least 2 visits")]
     BoardSeenOnce { board: usize, visit: usize, index: usize },
