@@ -11,9 +11,10 @@
 //! The measurement each plane gives is then collected once more from the whole cloud
 //! ([`select_plane_points`], shared with the calibration in a surveyed room): a point near
 //! two planes (where a wall meets the floor) is neither's, since it would pull the one
-//! seen at a grazing angle towards the other by centimetres; and each point is weighted by
-//! its own noise along the normal ([`PlanePoints::along_beams`]): range noise moves a
-//! point seen at a grazing angle little off the plane.
+//! seen at a grazing angle towards the other by centimetres; what stands on a plane (a box,
+//! a pole) is trimmed away ([`trimmed_plane_points`]); and each point is weighted by its own
+//! noise along the normal ([`PlanePoints::along_beams`]): range noise moves a point seen at
+//! a grazing angle little off the plane.
 
 use crate::geometry::{Mat3, Vec3};
 use crate::lidar::Point;
@@ -61,7 +62,8 @@ impl Default for PlaneConfig {
 pub struct FoundPlane {
     pub normal: Vec3,
     pub offset: f64,
-    /// The inliers summarised for the point-to-plane term, their RMS distance as σ.
+    /// The plane's points summarised for the point-to-plane term, each weighted along its
+    /// beam ([`PlanePoints::along_beams`]).
     pub points: PlanePoints,
     /// Standard deviations of the inliers along the plane's two in-plane axes (m),
     /// larger first.
@@ -221,9 +223,9 @@ const TRIM_ROUNDS: usize = 4;
 /// `points` (sensor frame), candidates for the plane `normal · p = offset`, without what is
 /// not the plane's, summarised along the beams ([`PlanePoints::along_beams`]): the plane is
 /// fitted to the points kept, the points beyond 3σ of their own noise about it dropped, and
-/// again, [`TRIM_ROUNDS`] times. What stands on a floor or against a wall (a box, a pole, a
-/// board's foot) leaves points a few centimetres off it, all on one side: kept, a few
-/// hundred of them move a floor by millimetres.
+/// again, at most `TRIM_ROUNDS` (4) times. What stands on a floor or against a wall (a box,
+/// a pole, a board's foot) leaves points a few centimetres off it, all on one side: kept, a
+/// few hundred of them move a floor by millimetres.
 pub fn trimmed_plane_points(
     points: &[Vec3],
     normal: &Vec3,
