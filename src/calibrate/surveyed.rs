@@ -36,7 +36,7 @@ use crate::target::{Room, SurveySpec};
 /// survey's σ) exceeds this: χ²₆ passes 36 with probability 5·10⁻⁶.
 pub const MOVED_BOARD_CHI2: f64 = 36.0;
 /// Points within this distance (m) of a surveyed plane predicted from the start are
-/// its candidates; the final selection is 3σ of their own spread.
+/// its candidates; later selections are 3σ of each point's own noise ([`room_planes`]).
 const PLANE_START_CUT_M: f64 = 0.10;
 /// Points closer than this to a board's centre (m, in the room) are its face, not a plane.
 const PLANE_BOARD_CLEARANCE_M: f64 = 1.0;
@@ -388,7 +388,8 @@ fn add_observations<'a>(
 /// board and not within the cut of a second plane (where two planes meet, a point could be
 /// either's). The cut is [`PLANE_START_CUT_M`] at first, then 3σ of each point's own noise
 /// along the normal as the previous selection of that plane measured it
-/// ([`PlanePoints::along_beams`]); the points are summarised with those weights.
+/// ([`PlanePoints::along_beams`]); each plane's points are then trimmed of what stands on
+/// it and summarised with those weights ([`trimmed_plane_points`]).
 pub(super) fn room_planes(
     survey: &SurveySpec,
     surveyed: &[Se3],

@@ -18,6 +18,7 @@
 
 use crate::geometry::{Mat3, Vec3};
 use crate::lidar::Point;
+use crate::solve::problem::incidence2;
 use crate::solve::PlanePoints;
 
 /// How planes are searched for.
@@ -125,10 +126,8 @@ pub fn select_plane_points<'a>(
             continue;
         }
         let q = Vec3::new(p.x as f64, p.y as f64, p.z as f64);
-        let range2 = q.norm_squared().max(1e-12);
         let mut within = planes.iter().enumerate().filter(|(_, plane)| {
-            let along = plane.normal.dot(&q);
-            plane.cut.admits(along - plane.offset, along * along / range2)
+            plane.cut.admits(plane.normal.dot(&q) - plane.offset, incidence2(&plane.normal, &q))
         });
         if let (Some((only, _)), None) = (within.next(), within.next()) {
             if keep(&q) {
@@ -238,10 +237,7 @@ pub fn trimmed_plane_points(
         let (n, d) = summary.fitted_plane_towards(normal);
         let cut = PlaneCut::measured(&summary, floor_m);
         kept.clear();
-        kept.extend(points.iter().filter(|q| {
-            let along = n.dot(q);
-            cut.admits(along - d, along * along / q.norm_squared().max(1e-12))
-        }));
+        kept.extend(points.iter().filter(|q| cut.admits(n.dot(q) - d, incidence2(&n, q))));
         let next = PlanePoints::along_beams(&kept, &n, d, floor_m)?;
         let settled = next.count == summary.count;
         summary = next;

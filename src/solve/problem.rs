@@ -244,14 +244,7 @@ impl PlanePoints {
     /// `σ_r` is estimated from the points' own residuals; the weight-1 σ is the normal
     /// incidence one, `√(σ_r² + floor²)`. `None` as [`Self::from_points`].
     pub fn along_beams(points: &[Vec3], normal: &Vec3, offset: f64, floor_m: f64) -> Option<Self> {
-        let incidence2 = |p: &Vec3| {
-            let (along, r2) = (normal.dot(p), p.norm_squared());
-            if r2 > 0.0 {
-                along * along / r2
-            } else {
-                1.0
-            }
-        };
+        let incidence2 = |p: &Vec3| incidence2(normal, p);
         let (mut excess, mut cos2) = (0.0f64, 0.0f64);
         for p in points {
             let residual = normal.dot(p) - offset;
@@ -295,6 +288,17 @@ impl PlanePoints {
     fn residual(&self, a: &Vec3, offset: f64) -> nalgebra::Vector4<f64> {
         let top = self.spread * a;
         nalgebra::Vector4::new(top.x, top.y, top.z, self.root_weight() * offset)
+    }
+}
+
+/// `cos²θ` of the beam from a sensor at the origin to `p` against the unit `normal` (1 for
+/// a point at the origin, which no beam reaches).
+pub fn incidence2(normal: &Vec3, p: &Vec3) -> f64 {
+    let (along, r2) = (normal.dot(p), p.norm_squared());
+    if r2 > 0.0 {
+        along * along / r2
+    } else {
+        1.0
     }
 }
 
