@@ -244,20 +244,17 @@ fn assert_targets(figures: &[(&str, Figures)]) {
 }
 
 /// The reduced study as a regression guard, at what the detector reaches today. Measured
-/// on the first 20 rooms per model: found 97.0 % / 98.2 % / 98.2 % (before the
-/// see-through points 90.9 / 91.2 / 92.7 %), one false placement, on the VLP-32C, room 8:
-/// a rolled corner-hole board 7.9 m away whose holes two and three alone are crossed (by
-/// 2 and 3 lines as seen), its plane tilted 3.2° by clutter at its foot (`one_room` with
-/// `HOLES_STUDY_ROOM=8` shows it); `min_hole_lines` 3 refuses it. The targets are
-/// the ignored tests.
+/// on the full study (200 rooms per model, 2026-12-03): found 98.0 % / 96.7 % / 98.8 %, no
+/// false placement (before the board's points were gathered again about their refitted
+/// plane, four: boards pitched 26–34° at 6–8 m whose plane stayed 2° off, among them the
+/// VLP-32C's room 8 here). The targets are the ignored tests.
 #[test]
 fn reduced_study_figures() {
     let figures = study(8);
     for (name, f) in &figures {
         assert!(f.placeable >= 10, "{name}: too few placeable boards to judge ({})", f.placeable);
         assert!(f.found_percent() >= 88.0, "{name}: {:.1} % of placeable found", f.found_percent());
-        let allowed = usize::from(*name == "VLP-32C");
-        assert!(f.false_placements <= allowed, "{name}: {} false placements", f.false_placements);
+        assert_eq!(f.false_placements, 0, "{name}: false placements");
         assert!(f.mean_error_mm() <= 4.0, "{name}: mean hole error {:.2} mm", f.mean_error_mm());
     }
 }

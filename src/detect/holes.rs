@@ -15,7 +15,9 @@
 //! 3. **Scan lines**: of each line only its longest run without a gap wider than a hole
 //!    is kept, and lines shorter than a quarter of the board drop out (poles, stands,
 //!    clutter touching the plane; a line through a rolled board's corner hole, or across a
-//!    partly hidden board, is shorter than the width but kept). The plane is refitted on what remains.
+//!    partly hidden board, is shorter than the width but kept). The plane is refitted on what
+//!    remains, and the points are gathered again about the refit while it still moves: the
+//!    group's own plane, from voxels that may cover part of the board, can be degrees off.
 //! 4. **Ray projection**: each inlier is moved along its own beam onto the fitted plane.
 //!    The beam direction is exact and the range noise lies along it, so the projected
 //!    points carry no range noise in the plane (the key to millimetre hole centres).
@@ -473,19 +475,33 @@ impl HoleDetector {
         self.grow_regions();
         self.merge_fragments();
         for k in 0..self.group_roots() {
-            if let Some((c, n)) = self.gather(self.roots[k]) {
-                self.examine(c, n, out);
+            let root = self.roots[k];
+            let Some(group_plane) = self.gather(root) else { continue };
+            let Some(mut plane) = self.fit_board_plane(group_plane) else { continue };
+            // The group's plane comes from its planar voxels, which may cover part of the
+            // board only: degrees off (issue 14's study: 5° on boards pitched 26–34° at
+            // 6–7 m), its band left the board's far end out and the refit, on the rest,
+            // stayed 2° off, putting holes off the tilt axis 2–4 cm out. Gathered again
+            // about the refitted plane until it settles.
+            let mut previous = group_plane.1;
+            for _ in 0..REGATHER_ROUNDS {
+                if plane.1.angle(&previous) < REGATHER_ANGLE_RAD {
+                    break;
+                }
+                previous = plane.1;
+                self.gather_about(root, (plane.0, plane.1));
+                let Some(refit) = self.fit_board_plane((plane.0, plane.1)) else { break };
+                plane = refit;
             }
+            self.examine(plane, out);
         }
     }
 
-    /// Refits the plane of one group's points (in `seg`) and, when it is board-sized,
-    /// places the board.
-    #[inline(never)]
-    fn examine(&mut self, c: Vec3, n: Vec3, out: &mut Vec<LidarBoard>) {
-        let spec = self.spec.clone();
-        let mut n = n;
-        let (mut c, mut rms) = (c, 0.0);
+    /// Keeps the board's scan-line runs in `seg` (see [`HoleDetector::keep_board_runs`]),
+    /// refits their plane (starting from `c`, `n`) and keeps the points within its band:
+    /// the plane's centroid, normal (towards the sensor's far side, `n·c > 0`) and RMS.
+    fn fit_board_plane(&mut self, (c, n): (Vec3, Vec3)) -> Option<(Vec3, Vec3, f64)> {
+        let (mut c, mut n, mut rms) = (c, n, 0.0);
         self.keep_board_runs();
         // The band kept about the plane is three robust σ of the residuals (their median
         // absolute value): clutter touching the board a few centimetres off its plane (a box
@@ -497,8 +513,7 @@ impl HoleDetector {
         let mut fitted = self.seg.len();
         let mut keep = self.config.plane_tolerance_m;
         for pass in 0..4 {
-            let Some((c2, n2, rms2)) = fit_plane(&self.seg[..fitted], c, n) else { return };
-            (c, n, rms) = (c2, n2, rms2);
+            (c, n, rms) = fit_plane(&self.seg[..fitted], c, n)?;
             if pass == 3 {
                 break;
             }
@@ -513,6 +528,14 @@ impl HoleDetector {
         if n.dot(&c) < 0.0 {
             n = -n;
         }
+        Some((c, n, rms))
+    }
+
+    /// Places the board on one group's points (in `seg`, within the band of the refitted
+    /// plane `c`, `n` of RMS `rms`) when it is board-sized.
+    #[inline(never)]
+    fn examine(&mut self, (c, n, rms): (Vec3, Vec3, f64), out: &mut Vec<LidarBoard>) {
+        let spec = self.spec.clone();
         let points = self.seg.len();
         if points < self.config.min_points {
             return;
@@ -1733,6 +1756,10 @@ const MEDIUM_POINTS: usize = 600;
 /// corner hole of a rolled board leaves through the bottom edge soon after, and one across
 /// a partly hidden board ends at the occluder; poles and stands are far narrower.
 const MIN_RUN: f64 = 0.25;
+/// A board's points are gathered again about their refitted plane while it moves more than
+/// [`REGATHER_ANGLE_RAD`] from the plane they were gathered about, at most this often.
+const REGATHER_ROUNDS: usize = 3;
+const REGATHER_ANGLE_RAD: f64 = 0.3 * PI / 180.0;
 /// A scan line whose mean residual from the board's plane exceeds this many of its σ is
 /// left out of the plane fit ([`HoleDetector::lines_agreeing`]): about 1 in 2000 lines of
 /// pure noise.
