@@ -1010,7 +1010,65 @@ impl HoleDetector {
         let (_, a, b) = best;
         // Every scan line across the board spans its width unless something hides part of it;
         // the height may be covered only in part.
-        a <= spec.width + tol && b <= spec.height + tol && a >= MIN_WIDTH_SEEN * spec.width
+        if a < MIN_WIDTH_SEEN * spec.width {
+            return false;
+        }
+        if a <= spec.width + tol && b <= spec.height + tol {
+            return true;
+        }
+        // Wider or taller than the board: a board with clutter in its plane beside or below
+        // it (a box it stands by, the floor's crossing of its plane under a pitched board,
+        // a stand) or no board. Issue 14's study missed 10 of 606 placeable boards so. The
+        // mask search places a board among such points; it is tried when one board-sized
+        // window holds nearly all of them.
+        let (w, h) = (spec.width + tol, spec.height + tol);
+        a <= 2.0 * w && b <= 2.0 * h && self.board_window_share(w, h) >= BOARD_WINDOW_SHARE
+    }
+
+    /// Largest share of `flat` inside one `w` × `h` window, turned in 3° steps up to ±45°
+    /// (counted on a 4 cm grid through a summed-area table kept in `hist`).
+    fn board_window_share(&mut self, w: f64, h: f64) -> f64 {
+        const CELL: f64 = 0.04;
+        const SIDE: usize = 128;
+        let (kw, kh) = (((w / CELL).round() as usize).max(1), ((h / CELL).round() as usize).max(1));
+        let mut most = 0;
+        for k in -15..=15 {
+            let (s, co) = (k as f64 * 3.0).to_radians().sin_cos();
+            let turn = |p: &[f64; 2]| (co * p[0] + s * p[1], -s * p[0] + co * p[1]);
+            let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
+            for p in &self.flat {
+                let (u, v) = turn(p);
+                (lo, hi) = ([lo[0].min(u), lo[1].min(v)], [hi[0].max(u), hi[1].max(v)]);
+            }
+            let cells = |d: usize| (((hi[d] - lo[d]) / CELL) as usize + 1).min(SIDE);
+            let (nu, nv) = (cells(0), cells(1));
+            // The table's row and column 0 stay zero: entry (i, j) sums the cells < (i, j).
+            let stride = nu + 1;
+            self.hist.clear();
+            self.hist.resize(stride * (nv + 1), 0);
+            for p in &self.flat {
+                let (u, v) = turn(p);
+                let (i, j) = (((u - lo[0]) / CELL) as usize, ((v - lo[1]) / CELL) as usize);
+                if i < nu && j < nv {
+                    self.hist[(j + 1) * stride + i + 1] += 1;
+                }
+            }
+            for j in 1..=nv {
+                for i in 1..=nu {
+                    self.hist[j * stride + i] += self.hist[j * stride + i - 1]
+                        + self.hist[(j - 1) * stride + i]
+                        - self.hist[(j - 1) * stride + i - 1];
+                }
+            }
+            let at = |i: usize, j: usize| self.hist[j * stride + i];
+            for j in kh.min(nv)..=nv {
+                for i in kw.min(nu)..=nu {
+                    let (i0, j0) = (i - kw.min(i), j - kh.min(j));
+                    most = most.max(at(i, j) + at(i0, j0) - at(i0, j) - at(i, j0));
+                }
+            }
+        }
+        most as f64 / self.flat.len().max(1) as f64
     }
 
     /// Span of `f` over `flat` without the `trim` lowest and highest values (1 cm bins).
@@ -1767,6 +1825,9 @@ const LINE_Z: f64 = 3.5;
 /// Least part of the board's width the points must span: a board partly hidden behind
 /// another shows a third of it or more; the mask search and the hole checks judge the rest.
 const MIN_WIDTH_SEEN: f64 = 0.35;
+/// Least share of a plane's points inside one board-sized window for a plane larger than
+/// the board to be searched for one ([`HoleDetector::extent_fits`]).
+const BOARD_WINDOW_SHARE: f64 = 0.85;
 /// How far beyond the plane along its beam a return must lie to be a see-through point
 /// (m): well over the range noise (2 cm σ) and the plane's thickness.
 const BEHIND_M: f64 = 0.15;
