@@ -993,7 +993,8 @@ impl HoleDetector {
 
     /// Whether the points' smallest bounding rectangle fits the board outline, a few
     /// stray points (3 %: clutter touching the plane, an occluder's edge) left out on
-    /// each side; the mask search weighs those.
+    /// each side, or, for points up to twice the board's size, whether one board-sized
+    /// window holds [`BOARD_WINDOW_SHARE`] of them; the mask search weighs the rest.
     #[inline(never)]
     fn extent_fits(&mut self, spec: &BoardSpec) -> bool {
         let tol = self.config.size_tolerance_m;
