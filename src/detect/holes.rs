@@ -65,6 +65,11 @@
 //!    error / σ is 1.11 (Pandar64-like) and 0.98 (VLP-32C-like) over 12 scenes each
 //!    (`tests/holes_sim.rs`, `sigma_calibration_over_many_scenes`).
 //!
+//! **Where a board is expected** ([`HoleDetector::detect_expected`], `holes/expected.rs`):
+//! given each board's predicted pose (a surveyed room's, through the camera's room pose and
+//! the LiDAR's nominal mounting) steps 1–2 are replaced by the densest band about the
+//! predicted plane near the predicted centre; steps 3–7 are the same.
+//!
 //! Several sweeps of a static scene may be concatenated into one `detect` call: the
 //! lines interleave, the gaps and the plateau narrow (the simulator's four sweeps halve
 //! the mean hole error).
@@ -78,6 +83,7 @@
 //! board by 180° about its z axis (reordering the holes 0↔3, 1↔2 for the usual pattern)
 //! when the camera says otherwise; see [`LidarBoard::turned`].
 
+mod expected;
 mod segment;
 
 use core::f64::consts::PI;
@@ -406,6 +412,28 @@ impl HoleDetector {
 
     #[inline(never)]
     fn voxelise(&mut self, points: &[Point]) {
+        self.load(points);
+        self.keys.sort_unstable();
+        self.voxels.clear();
+        self.map.clear();
+        let mut i = 0;
+        while i < self.keys.len() {
+            let key = self.keys[i].0;
+            let start = i;
+            let mut m = Moments::default();
+            while i < self.keys.len() && self.keys[i].0 == key {
+                m.add(&self.pts[self.keys[i].1 as usize]);
+                i += 1;
+            }
+            self.map.insert(key, self.voxels.len() as u32);
+            let v = Voxel { key, start: start as u32, end: i as u32, m, ..Voxel::default() };
+            self.voxels.push(v);
+        }
+    }
+
+    /// The points within the range limits into `pts` (with their voxel keys, unsorted),
+    /// and the sweep's scan lines learnt from them.
+    fn load(&mut self, points: &[Point]) {
         let (near, far) = self.config.range_m;
         self.pts.clear();
         self.keys.clear();
@@ -425,22 +453,6 @@ impl HoleDetector {
             self.pts.push(v);
         }
         self.learn_rings();
-        self.keys.sort_unstable();
-        self.voxels.clear();
-        self.map.clear();
-        let mut i = 0;
-        while i < self.keys.len() {
-            let key = self.keys[i].0;
-            let start = i;
-            let mut m = Moments::default();
-            while i < self.keys.len() && self.keys[i].0 == key {
-                m.add(&self.pts[self.keys[i].1 as usize]);
-                i += 1;
-            }
-            self.map.insert(key, self.voxels.len() as u32);
-            let v = Voxel { key, start: start as u32, end: i as u32, m, ..Voxel::default() };
-            self.voxels.push(v);
-        }
     }
 
     /// Plane of every voxel's 3×3×3 neighbourhood.
@@ -476,24 +488,39 @@ impl HoleDetector {
         self.merge_fragments();
         for k in 0..self.group_roots() {
             let root = self.roots[k];
-            let Some(group_plane) = self.gather(root) else { continue };
-            let Some(mut plane) = self.fit_board_plane(group_plane) else { continue };
-            // The group's plane comes from its planar voxels, which may cover part of the
-            // board only: degrees off (issue 14's study: 5° on boards pitched 26–34° at
-            // 6–7 m), its band left the board's far end out and the refit, on the rest,
-            // stayed 2° off, putting holes off the tilt axis 2–4 cm out. Gathered again
-            // about the refitted plane until it settles.
-            let mut previous = group_plane.1;
-            for _ in 0..REGATHER_ROUNDS {
-                if plane.1.angle(&previous) < REGATHER_ANGLE_RAD {
-                    break;
-                }
-                previous = plane.1;
-                self.gather_about(root, (plane.0, plane.1));
-                let Some(refit) = self.fit_board_plane((plane.0, plane.1)) else { break };
-                plane = refit;
+            let Some(group_plane) = self.group_plane(root) else { continue };
+            if let Some(plane) = self.settled_plane(Region::Group(root), group_plane) {
+                self.examine(plane, out);
             }
-            self.examine(plane, out);
+        }
+    }
+
+    /// Gathers the points of `region` about the plane `start` into `seg`, fits the board's
+    /// plane on them ([`HoleDetector::fit_board_plane`]) and gathers again about the fit while
+    /// it moves: the plane gathered about may be degrees off (a group's, from planar voxels
+    /// that cover part of the board: 5° on boards pitched 26–34° at 6–8 m in issue 14's
+    /// study, whose band left the board's far end out and whose refit, on the rest, stayed 2°
+    /// off, putting holes off the tilt axis 2–4 cm out; or an expected pose's).
+    fn settled_plane(&mut self, region: Region, start: (Vec3, Vec3)) -> Option<(Vec3, Vec3, f64)> {
+        self.gather_in(region, start);
+        let mut plane = self.fit_board_plane(start)?;
+        let mut previous = start.1;
+        for _ in 0..REGATHER_ROUNDS {
+            if plane.1.angle(&previous) < REGATHER_ANGLE_RAD {
+                break;
+            }
+            previous = plane.1;
+            self.gather_in(region, (plane.0, plane.1));
+            let Some(refit) = self.fit_board_plane((plane.0, plane.1)) else { break };
+            plane = refit;
+        }
+        Some(plane)
+    }
+
+    fn gather_in(&mut self, region: Region, plane: (Vec3, Vec3)) {
+        match region {
+            Region::Group(root) => self.gather_in_group(root, plane),
+            Region::Ball(centre, radius) => self.gather_in_ball(centre, radius, plane),
         }
     }
 
@@ -1581,6 +1608,14 @@ impl HoleDetector {
             pose_sigma: [cv[0].sqrt(), cv[4].sqrt(), cv[8].sqrt()],
         }
     }
+}
+
+/// Where a board's points are gathered from: a plane group's voxels, or a ball about where
+/// a board is expected (centre, radius in m).
+#[derive(Clone, Copy)]
+enum Region {
+    Group(u32),
+    Ball(Vec3, f64),
 }
 
 /// Result of a grid search: pose (x, y, yaw) in the plane frame, its covariance

@@ -181,26 +181,23 @@ impl HoleDetector {
         self.roots.len()
     }
 
-    /// Collects into `seg` every point near the plane of group `root` within its voxel box
-    /// widened by [`REACH`] voxels (the scan lines whose own voxels were not planar); returns
-    /// the group's centroid and normal, or `None` when the group cannot be a board.
+    /// The plane of group `root` (its voxels' centroid and normal), or `None` when the
+    /// group cannot be a board.
     #[inline(never)]
-    pub(super) fn gather(&mut self, root: u32) -> Option<(Vec3, Vec3)> {
+    pub(super) fn group_plane(&mut self, root: u32) -> Option<(Vec3, Vec3)> {
         let (c, cov) = self.segs[root as usize].m.mean_cov();
         let (l, n) = smallest_eigen(&cov);
         // Longer than the board's diagonal: a piece of wall or floor.
         if l[2].max(0.0).sqrt() > self.board_diagonal() / 2.0 {
             return None;
         }
-        self.gather_about(root, (c, n));
         Some((c, n))
     }
 
     /// Collects into `seg` every point within the plane tolerance of the plane (`c`, `n`)
-    /// in group `root`'s widened voxel box: [`HoleDetector::gather`] with a plane refitted
-    /// on the points, when the group's own plane (of its voxels, which may cover part of the
-    /// board only) was degrees off and left the board's far end outside the band.
-    pub(super) fn gather_about(&mut self, root: u32, (c, n): (Vec3, Vec3)) {
+    /// in group `root`'s voxel box widened by [`REACH`] voxels (the scan lines whose own
+    /// voxels were not planar).
+    pub(super) fn gather_in_group(&mut self, root: u32, (c, n): (Vec3, Vec3)) {
         let g = self.segs[root as usize];
         let tol = self.config.plane_tolerance_m;
         let voxel_reach = tol + 0.87 * self.config.voxel_m;
