@@ -657,28 +657,10 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
     }
     let mut detectors = Detectors::new(&room).map_err(bad_input)?;
     let mut frames = Vec::new();
-    let mut refused = Vec::new();
     for (i, image) in images.iter().enumerate() {
         progress.step(&format!("detecting boards, frame {} of {}", i + 1, images.len()));
-        let mut frame = FrameDetections {
-            camera: detectors.detect_image(image).map_err(bad_input)?,
-            lidar: Vec::new(),
-        };
-        if let Some(cloud) = clouds.get(i) {
-            frame.lidar = detectors.detect_cloud(cloud);
-            let name = match args.standing {
-                true => "the accumulated sweeps".to_string(),
-                false => args.cloud[i].display().to_string(),
-            };
-            let planes = detectors.refused_in_cloud().to_vec();
-            if !args.quiet {
-                for plane in &planes {
-                    progress.note(&refused_message(&name, plane));
-                }
-            }
-            refused.push(planes);
-        }
-        frames.push(frame);
+        let camera = detectors.detect_image(image).map_err(bad_input)?;
+        frames.push(FrameDetections { camera, lidar: Vec::new() });
     }
     // Room without a LiDAR, or images only: intrinsics only.
     let mut room = room;
@@ -687,10 +669,13 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
     }
     let sweeps: Vec<&[roomcal::lidar::Point]> = clouds.iter().map(Vec::as_slice).collect();
     progress.step("solving");
-    let run = roomcal::calibrate::calibrate_with_clouds(
+    // The LiDAR's boards are found by the calibration: in a surveyed room where the room
+    // expects them, from the camera's room pose.
+    let (run, refused) = roomcal::calibrate::calibrate_detecting(
         &room,
-        &frames,
+        &mut frames,
         &sweeps,
+        &mut detectors,
         &CalibrateOptions {
             two_stage: args.two_stage,
             current,
@@ -698,6 +683,17 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
             free_boards: args.free_boards,
         },
     );
+    if !args.quiet {
+        for (i, planes) in refused.iter().enumerate() {
+            let name = match args.standing {
+                true => "the accumulated sweeps".to_string(),
+                false => args.cloud[i].display().to_string(),
+            };
+            for plane in planes {
+                progress.note(&refused_message(&name, plane));
+            }
+        }
+    }
     progress.step("writing the results");
     let mut written = write_result(&args.out, &run.result)?;
     if let Some(report) = &args.report {

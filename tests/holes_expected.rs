@@ -13,6 +13,12 @@ use roomcal::target::LidarModel;
 /// `tests/holes_study.rs`.
 const FALSE_HOLE_M: f64 = 0.02;
 
+/// Mean hole error (m) of `found` against truth board `t`.
+fn mean_error(found: &LidarBoard, t: &RandomBoard) -> f64 {
+    let errors = found.holes.iter().zip(&t.holes).map(|(h, th)| (h - th).norm());
+    errors.sum::<f64>() / found.holes.len().max(1) as f64
+}
+
 /// Worst hole error (m) of `found` against truth board `t`.
 fn worst_error(found: &LidarBoard, t: &RandomBoard) -> f64 {
     found.holes.iter().zip(&t.holes).map(|(h, th)| (h - th).norm()).fold(0.0, f64::max)
@@ -36,6 +42,10 @@ struct Tally {
     expected_false: usize,
     global_only: usize,
     expected_only: usize,
+    /// Boards both place right, and the sums of their mean hole errors (m).
+    both: usize,
+    global_error_m: f64,
+    expected_error_m: f64,
 }
 
 fn tally(model: LidarModel, rooms: u64, deg: f64, m: f64) -> Tally {
@@ -51,10 +61,11 @@ fn tally(model: LidarModel, rooms: u64, deg: f64, m: f64) -> Tally {
         detector.detect_expected(&room.cloud, &expected, &mut found);
         for (i, truth) in room.boards.iter().enumerate() {
             t.boards += 1;
-            let global_right = global.iter().any(|g| {
+            let global_board = global.iter().find(|g| {
                 (g.pose.translation - truth.pose.translation).norm() < 0.3
                     && worst_error(g, truth) <= FALSE_HOLE_M
             });
+            let global_right = global_board.is_some();
             let expected_right = match &found[i] {
                 Some(b) if worst_error(b, truth) <= FALSE_HOLE_M => true,
                 Some(b) => {
@@ -67,6 +78,11 @@ fn tally(model: LidarModel, rooms: u64, deg: f64, m: f64) -> Tally {
                 }
                 None => false,
             };
+            if let (Some(g), Some(Some(e)), true) = (global_board, found.get(i), expected_right) {
+                t.both += 1;
+                t.global_error_m += mean_error(g, truth);
+                t.expected_error_m += mean_error(e, truth);
+            }
             t.global_right += usize::from(global_right);
             t.expected_right += usize::from(expected_right);
             t.global_only += usize::from(global_right && !expected_right);
@@ -93,6 +109,10 @@ fn expected_boards_are_placed_as_the_global_detector_places_them() {
             t.global_only * 20 <= t.global_right,
             "{name}: the expectation misses boards: {t:?}"
         );
+        let (global_mm, expected_mm) =
+            (t.global_error_m / t.both as f64 * 1e3, t.expected_error_m / t.both as f64 * 1e3);
+        println!("{name}: mean hole error over {} boards: global {global_mm:.2} mm, expected {expected_mm:.2} mm", t.both);
+        assert!(expected_mm <= 1.1 * global_mm, "{name}: the expectation places holes worse");
     }
 }
 

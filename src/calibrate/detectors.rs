@@ -14,6 +14,7 @@ pub struct Detectors {
     chess: ChessboardDetector,
     holes: HoleDetector,
     found_holes: Vec<crate::detect::holes::LidarBoard>,
+    found_expected: Vec<Option<crate::detect::holes::LidarBoard>>,
 }
 
 /// The detectors of a rig: one per camera (its own image size, in its pair room); the
@@ -52,25 +53,52 @@ impl Detectors {
             chess: ChessboardDetector::new(room.camera.width, room.camera.height, &room.board)?,
             holes: HoleDetector::new(&room.board, HoleConfig::default()),
             found_holes: Vec::new(),
+            found_expected: Vec::new(),
         })
     }
 
     /// Every board the LiDAR places in the cloud, with its hole centres.
     pub fn detect_cloud(&mut self, points: &[crate::lidar::Point]) -> Vec<LidarBoard> {
         self.holes.detect(points, &mut self.found_holes);
-        self.found_holes
-            .iter()
-            .map(|b| LidarBoard {
-                holes: b.holes.to_vec(),
-                sigma_m: median(b.hole_sigma_m.iter().copied()),
-                plane: plane_points(
-                    &self.spec,
-                    &b.pose,
-                    PLANE_CUT_SIGMAS * b.plane_rms_m.max(PLANE_MIN_SIGMA_M),
-                    points.iter().map(|p| Vec3::new(p.x as f64, p.y as f64, p.z as f64)),
-                ),
-            })
-            .collect()
+        let found = core::mem::take(&mut self.found_holes);
+        let boards = found.iter().map(|b| self.lidar_board(b, points)).collect();
+        self.found_holes = found;
+        boards
+    }
+
+    /// The boards expected at `expected` (board → LiDAR, e.g. predicted from the surveyed
+    /// room): one entry per expected pose, `None` where no board was placed there
+    /// ([`HoleDetector::detect_expected`]).
+    pub fn detect_expected(
+        &mut self,
+        points: &[crate::lidar::Point],
+        expected: &[Se3],
+    ) -> Vec<Option<LidarBoard>> {
+        let mut found = core::mem::take(&mut self.found_expected);
+        self.holes.detect_expected(points, expected, &mut found);
+        let boards =
+            found.iter().map(|b| b.as_ref().map(|b| self.lidar_board(b, points))).collect();
+        self.found_expected = found;
+        boards
+    }
+
+    /// A placed board as the calibration uses it: its holes, their typical σ, and its
+    /// face points for the point-to-plane term.
+    fn lidar_board(
+        &self,
+        board: &crate::detect::holes::LidarBoard,
+        points: &[crate::lidar::Point],
+    ) -> LidarBoard {
+        LidarBoard {
+            holes: board.holes.to_vec(),
+            sigma_m: median(board.hole_sigma_m.iter().copied()),
+            plane: plane_points(
+                &self.spec,
+                &board.pose,
+                PLANE_CUT_SIGMAS * board.plane_rms_m.max(PLANE_MIN_SIGMA_M),
+                points.iter().map(|p| Vec3::new(p.x as f64, p.y as f64, p.z as f64)),
+            ),
+        }
     }
 
     /// Why boards seen in the last cloud were not placed (for the operator).

@@ -34,6 +34,7 @@ pub use detectors::{plane_points, Detectors, RigDetectors};
 pub use gate::coverage;
 pub use surveyed::{identify_detections, FrameIdentities};
 
+use crate::detect::holes::RefusedBoard;
 use crate::geometry::{Camera, CameraModel, Se3, Vec2, Vec3};
 use crate::result::{CalibrationResult, Status};
 use crate::solve::{PlanePoints, SolveError};
@@ -158,11 +159,110 @@ pub fn calibrate_with_clouds(
     clouds: &[&[crate::lidar::Point]],
     options: &CalibrateOptions,
 ) -> Calibration {
-    let fallback_camera = nominal_camera(room, default_fov(room.camera.model));
-    let solved = match room.survey.as_ref().filter(|_| !options.free_boards) {
-        Some(survey) => surveyed::solve_surveyed(room, survey, frames, clouds, options),
+    let solved = match surveyed_room(room, options) {
+        Some(survey) => surveyed::solve_surveyed(room, survey, frames, clouds, None),
         None => free::solve_free(room, frames, options),
     };
+    gated(room, frames, options, solved)
+}
+
+/// [`calibrate_with_clouds`] that finds the LiDAR's boards itself (`frames[f].lidar` is
+/// replaced by what it found in `clouds[f]`): in a surveyed room (unless `free_boards`)
+/// only where the room expects them, each identified camera board carried into the sweep
+/// by the camera's room pose and the nominal mounting (no global search; a sweep where
+/// that places fewer than two boards is searched globally); otherwise by global search.
+/// Also returns, per cloud, why boards were refused (for the operator).
+pub fn calibrate_detecting(
+    room: &Room,
+    frames: &mut [FrameDetections],
+    clouds: &[&[crate::lidar::Point]],
+    detectors: &mut Detectors,
+    options: &CalibrateOptions,
+) -> (Calibration, Vec<Vec<RefusedBoard>>) {
+    let mut finder = SweepFinder {
+        detectors,
+        clouds,
+        found: vec![Vec::new(); frames.len()],
+        refused: vec![Vec::new(); clouds.len()],
+    };
+    let solved = match surveyed_room(room, options) {
+        Some(survey) => {
+            let solved = surveyed::solve_surveyed(room, survey, frames, clouds, Some(&mut finder));
+            for (frame, found) in frames.iter_mut().zip(finder.found) {
+                frame.lidar = found;
+            }
+            solved
+        }
+        None => {
+            for (f, frame) in frames.iter_mut().enumerate().take(clouds.len()) {
+                frame.lidar = finder.everywhere(f);
+            }
+            free::solve_free(room, frames, options)
+        }
+    };
+    (gated(room, frames, options, solved), finder.refused)
+}
+
+/// Where a run that detects its own LiDAR boards finds them ([`calibrate_detecting`]).
+pub(crate) trait FindLidarBoards {
+    /// The boards of frame `frame`'s sweep expected at `expected` (board → LiDAR): one
+    /// entry per pose.
+    fn expected(&mut self, frame: usize, expected: &[Se3]) -> Vec<Option<LidarBoard>>;
+    /// Every board frame `frame`'s sweep places (global search).
+    fn everywhere(&mut self, frame: usize) -> Vec<LidarBoard>;
+}
+
+/// Two refused planes whose centroids are this close (m) are one board seen twice.
+const SAME_PLANE_M: f64 = 0.3;
+
+/// The room's detectors over a run's sweeps, keeping what they found and refused.
+struct SweepFinder<'a, 'c> {
+    detectors: &'a mut Detectors,
+    clouds: &'a [&'c [crate::lidar::Point]],
+    /// Per frame, every board found in its sweep (all rounds).
+    found: Vec<Vec<LidarBoard>>,
+    refused: Vec<Vec<RefusedBoard>>,
+}
+
+impl FindLidarBoards for SweepFinder<'_, '_> {
+    fn expected(&mut self, frame: usize, expected: &[Se3]) -> Vec<Option<LidarBoard>> {
+        let Some(cloud) = self.clouds.get(frame) else { return vec![None; expected.len()] };
+        let boards = self.detectors.detect_expected(cloud, expected);
+        // A board predicted again (a second round) is refused once, as the last round saw it.
+        let again = self.detectors.refused_in_cloud();
+        let near =
+            |a: &RefusedBoard, b: &RefusedBoard| (a.centroid - b.centroid).norm() < SAME_PLANE_M;
+        self.refused[frame].retain(|r| !again.iter().any(|a| near(a, r)));
+        self.refused[frame].extend_from_slice(again);
+        self.found[frame].extend(boards.iter().flatten().cloned());
+        boards
+    }
+
+    fn everywhere(&mut self, frame: usize) -> Vec<LidarBoard> {
+        let Some(cloud) = self.clouds.get(frame) else { return Vec::new() };
+        let boards = self.detectors.detect_cloud(cloud);
+        self.refused[frame] = self.detectors.refused_in_cloud().to_vec();
+        self.found[frame] = boards.clone();
+        boards
+    }
+}
+
+/// The survey the run uses: the room's, unless the options ask for free boards.
+fn surveyed_room<'r>(
+    room: &'r Room,
+    options: &CalibrateOptions,
+) -> Option<&'r crate::target::SurveySpec> {
+    room.survey.as_ref().filter(|_| !options.free_boards)
+}
+
+/// The run's outcome through the quality gate (a solve that failed is a rejected run).
+fn gated(
+    room: &Room,
+    frames: &[FrameDetections],
+    options: &CalibrateOptions,
+    solved: Result<Calibration, String>,
+) -> Calibration {
+    let fallback_camera = nominal_camera(room, default_fov(room.camera.model));
     match solved {
         Ok(mut calibration) => {
             if let Err(reason) = gate::gate(room, frames, options, &calibration) {

@@ -13,9 +13,10 @@ use super::association::{associate, lidar_nominal};
 use super::free::{accepted, camera_start, intrinsics_start, CameraStart};
 use super::identify::{identify, oriented, Identity};
 use super::{
-    median, solver_reason, CalibrateOptions, Calibration, CameraBoard, FrameDetections, UsedBoard,
-    MAX_OBSERVATIONS,
+    median, solver_reason, Calibration, CameraBoard, FindLidarBoards, FrameDetections, LidarBoard,
+    UsedBoard, MAX_OBSERVATIONS,
 };
+use crate::detect::holes::EXPECTED_REACH_M;
 use crate::detect::planes::{
     select_plane_points, trimmed_plane_points, PlaneCut, PlaneSelection, PLANE_FLOOR_SIGMA_M,
 };
@@ -50,7 +51,7 @@ pub(super) fn solve_surveyed(
     survey: &SurveySpec,
     frames: &[FrameDetections],
     clouds: &[&[Point]],
-    _options: &CalibrateOptions,
+    finder: Option<&mut dyn FindLidarBoards>,
 ) -> Result<Calibration, String> {
     let spec = &room.board;
     let CameraStart {
@@ -70,18 +71,24 @@ pub(super) fn solve_surveyed(
     let camera_boards: Vec<(u32, &CameraBoard)> =
         identified.iter().map(|(f, b, _, _)| (*f, b)).collect();
     let board_poses: Vec<Se3> = identified.iter().map(|(_, _, _, p)| *p).collect();
+    let found;
+    let lidar_frames = match (finder, lidar) {
+        (Some(finder), Some(l)) => {
+            let expected =
+                Expected { identified: &identified, room_to_camera, surveyed: &surveyed };
+            found = expected.find(finder, &lidar_nominal(l), frames.len(), clouds, &holes_board);
+            &found
+        }
+        _ => frames,
+    };
     let pairs = match lidar {
-        Some(l) => associate(&lidar_nominal(l), frames, &camera_boards, &board_poses, &holes_board),
+        Some(l) => {
+            associate(&lidar_nominal(l), lidar_frames, &camera_boards, &board_poses, &holes_board)
+        }
         None => vec![None; camera_boards.len()],
     };
-    let holes_model = &holes_board;
     let extrinsic = lidar.map(|l| {
-        let correspondences = pairs.iter().zip(&board_poses).flat_map(|(pair, pose)| {
-            pair.iter().flat_map(move |p| {
-                p.holes_lidar.iter().zip(holes_model).map(move |(l, h)| (*l, pose.act(h)))
-            })
-        });
-        kabsch_from_pairs(correspondences).unwrap_or_else(|_| lidar_nominal(l))
+        paired_extrinsic(&pairs, &board_poses, &holes_board).unwrap_or_else(|| lidar_nominal(l))
     });
 
     let mut left_out: Vec<usize> = Vec::new();
@@ -158,6 +165,104 @@ pub(super) fn solve_surveyed(
             run.notes.extend(unmatched);
             return Ok(run);
         }
+    }
+}
+
+/// LiDAR → camera from the paired boards' holes (Kabsch), `None` when they do not fix it.
+fn paired_extrinsic(
+    pairs: &[Option<super::association::Pair>],
+    board_poses: &[Se3],
+    holes_board: &[Vec3],
+) -> Option<Se3> {
+    let correspondences = pairs.iter().zip(board_poses).flat_map(|(pair, pose)| {
+        pair.iter()
+            .flat_map(|p| p.holes_lidar.iter().zip(holes_board).map(|(l, h)| (*l, pose.act(h))))
+    });
+    kabsch_from_pairs(correspondences).ok()
+}
+
+/// A board whose prediction under the re-estimated mounting lies farther than this (m)
+/// from its prediction under the nominal one is looked for again: closer, the first search
+/// (within [`EXPECTED_REACH_M`] of the prediction) already covered where it is.
+const REPREDICT_SHIFT_M: f64 = EXPECTED_REACH_M / 2.0;
+
+/// The LiDAR boards where the surveyed room expects them: every identified camera board
+/// carried into its frame's sweep by the camera's room pose and a mounting.
+struct Expected<'a> {
+    identified: &'a [(u32, CameraBoard, usize, Se3)],
+    room_to_camera: Se3,
+    surveyed: &'a [Se3],
+}
+
+impl Expected<'_> {
+    /// Per frame, the LiDAR boards found: at the nominal mounting's predictions first; in a
+    /// sweep where that places fewer than two of two or more expected boards, by global
+    /// search; then again for each board still missing whose prediction under the mounting
+    /// re-estimated from what was found moved by more than [`REPREDICT_SHIFT_M`].
+    fn find(
+        &self,
+        finder: &mut dyn FindLidarBoards,
+        nominal: &Se3,
+        frame_count: usize,
+        clouds: &[&[Point]],
+        holes_board: &[Vec3],
+    ) -> Vec<FrameDetections> {
+        let mut frames = vec![FrameDetections::default(); frame_count];
+        let with_cloud = |f: usize| clouds.get(f).is_some_and(|c| !c.is_empty());
+        for (f, frame) in frames.iter_mut().enumerate().filter(|(f, _)| with_cloud(*f)) {
+            let boards = self.in_frame(f, |_| true);
+            let placed: Vec<LidarBoard> = finder
+                .expected(f, &self.predicted(nominal, &boards))
+                .into_iter()
+                .flatten()
+                .collect();
+            frame.lidar = match placed.len() < 2 && boards.len() >= 2 {
+                true => finder.everywhere(f),
+                false => placed,
+            };
+        }
+        let camera_boards: Vec<(u32, &CameraBoard)> =
+            self.identified.iter().map(|(f, b, _, _)| (*f, b)).collect();
+        let poses: Vec<Se3> = self.identified.iter().map(|(_, _, _, p)| *p).collect();
+        let pairs = associate(nominal, &frames, &camera_boards, &poses, holes_board);
+        let Some(mounting) = paired_extrinsic(&pairs, &poses, holes_board) else { return frames };
+        for (f, frame) in frames.iter_mut().enumerate().filter(|(f, _)| with_cloud(*f)) {
+            let missing = self.in_frame(f, |i| pairs[i].is_none());
+            let moved: Vec<usize> = (missing.iter().copied())
+                .zip(self.predicted(&mounting, &missing))
+                .zip(self.predicted(nominal, &missing))
+                .filter(|((_, now), before)| {
+                    (now.translation - before.translation).norm() > REPREDICT_SHIFT_M
+                })
+                .map(|((i, _), _)| i)
+                .collect();
+            if !moved.is_empty() {
+                let placed = finder.expected(f, &self.predicted(&mounting, &moved));
+                frame.lidar.extend(placed.into_iter().flatten());
+            }
+        }
+        frames
+    }
+
+    /// The identified boards of frame `f` (indices into `identified`) that `keep` keeps.
+    fn in_frame(&self, f: usize, keep: impl Fn(usize) -> bool) -> Vec<usize> {
+        (0..self.identified.len())
+            .filter(|&i| self.identified[i].0 as usize == f && keep(i))
+            .collect()
+    }
+
+    /// Where each of `boards` (indices into `identified`) lies in the LiDAR frame under
+    /// `lidar_to_camera`: board → LiDAR from its surveyed pose and the camera's room pose.
+    fn predicted(&self, lidar_to_camera: &Se3, boards: &[usize]) -> Vec<Se3> {
+        let camera_to_lidar = lidar_to_camera.inverse();
+        boards
+            .iter()
+            .map(|&i| {
+                let board_to_camera =
+                    self.room_to_camera.compose(&self.surveyed[self.identified[i].2]);
+                camera_to_lidar.compose(&board_to_camera)
+            })
+            .collect()
     }
 }
 

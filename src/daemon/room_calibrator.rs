@@ -7,7 +7,7 @@ use std::path::PathBuf;
 
 use crate::calibrate::rig::{calibrate_rig, LidarInput};
 use crate::calibrate::{
-    calibrate_with_clouds, CalibrateOptions, Detectors, FrameDetections, LidarBoard, RigDetectors,
+    calibrate_detecting, CalibrateOptions, Detectors, FrameDetections, LidarBoard, RigDetectors,
 };
 use crate::capture::GreyFrame;
 use crate::detect::holes::RefusedBoard;
@@ -95,23 +95,25 @@ impl Calibrator for RoomCalibrator {
         current: Option<&CalibrationResult>,
     ) -> CalibrationOutcome {
         let mut detections = Vec::with_capacity(frames.len());
-        let mut refused_first = Vec::new();
         for (i, frame) in frames.iter().enumerate() {
             let camera = match self.detectors.first().detect_pixels(&frame.pixels) {
                 Ok(boards) => boards,
                 Err(e) => return CalibrationOutcome::Failed(format!("frame {i}: {e}")),
             };
-            let lidar =
-                sweeps.get(i).map_or(Vec::new(), |sweep| self.detectors.detect_cloud(sweep));
-            if i == 0 && self.report.is_some() {
-                refused_first = self.detectors.first().refused_in_cloud().to_vec();
-            }
-            detections.push(FrameDetections { camera, lidar });
+            detections.push(FrameDetections { camera, lidar: Vec::new() });
         }
         let options = CalibrateOptions { current: current.cloned(), ..CalibrateOptions::default() };
-        // In a surveyed room the sweeps' points on the surveyed planes enter the solve.
+        // The run finds the LiDAR's boards (in a surveyed room where the room expects them),
+        // and the sweeps' points on the surveyed planes enter the solve.
         let clouds: Vec<&[Point]> = sweeps.iter().map(Vec::as_slice).collect();
-        let run = calibrate_with_clouds(&self.room, &detections, &clouds, &options);
+        let (run, refused) = calibrate_detecting(
+            &self.room,
+            &mut detections,
+            &clouds,
+            self.detectors.first(),
+            &options,
+        );
+        let refused_first = refused.into_iter().next().unwrap_or_default();
         if let Some(first) = frames.first() {
             self.write_report(first, sweeps.first(), &run, &refused_first);
         }

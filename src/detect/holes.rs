@@ -84,6 +84,7 @@
 //! when the camera says otherwise; see [`LidarBoard::turned`].
 
 mod expected;
+pub use expected::EXPECTED_REACH_M;
 mod segment;
 
 use core::f64::consts::PI;
@@ -317,6 +318,8 @@ pub struct HoleDetector {
     lattice: Vec<i32>,
     keep: Vec<bool>,
     hist: Vec<u32>,
+    /// The other expected boards' centres near the one searched ([`HoleDetector::detect_expected`]).
+    rivals: Vec<Vec3>,
     rings: Vec<u32>,
     spacings: Vec<f64>,
     residuals: Vec<f64>,
@@ -385,6 +388,7 @@ impl HoleDetector {
             lattice: Vec::new(),
             keep: Vec::new(),
             hist: Vec::new(),
+            rivals: Vec::new(),
             rings: Vec::new(),
             spacings: Vec::new(),
             residuals: Vec::new(),

@@ -12,7 +12,7 @@
 use super::{HoleDetector, LidarBoard, Point, Region, Se3, Vec3};
 
 /// How far (m) a board may lie from where it is expected, beyond its half diagonal.
-const EXPECTED_REACH_M: f64 = 0.3;
+pub const EXPECTED_REACH_M: f64 = 0.3;
 /// Half-width (m) of the band about the expected plane searched for the board's own.
 const EXPECTED_BAND_M: f64 = 0.3;
 /// Bin of the offsets along the expected normal (m).
@@ -32,10 +32,16 @@ impl HoleDetector {
         self.refused.clear();
         self.load(points);
         let reach = self.board_diagonal() / 2.0 + EXPECTED_REACH_M;
+        self.keep_in_sight(expected, reach);
         let mut placed = Vec::with_capacity(1);
         for pose in expected {
             placed.clear();
             let centre = pose.translation;
+            // Where two expected boards stand close, each point is the nearer one's: the
+            // search about one board never fuses it with its neighbour's face.
+            self.rivals.clear();
+            let close = |c: &Vec3| c != &centre && (c - centre).norm() < 2.0 * reach;
+            self.rivals.extend(expected.iter().map(|e| e.translation).filter(close));
             if let Some(start) = self.densest_band(pose, reach) {
                 if let Some(plane) = self.settled_plane(Region::Ball(centre, reach), start) {
                     self.examine(plane, &mut placed);
@@ -44,6 +50,32 @@ impl HoleDetector {
             let near = |b: &LidarBoard| (b.pose.translation - centre).norm() <= reach;
             out.push(placed.pop().filter(near));
         }
+    }
+
+    /// Keeps only the points a search about `expected` (within `reach` of a centre) can
+    /// use: those whose beam passes within `reach` plus half the board's diagonal of an
+    /// expected centre, which covers the board's own points and what its holes show behind
+    /// it ([`HoleDetector::find_see_through`]). The placements are the same as on the whole
+    /// sweep; every later pass over the points reads a few thousand instead of the sweep.
+    /// The points' voxel keys are dropped (the expected search uses none).
+    fn keep_in_sight(&mut self, expected: &[Se3], reach: f64) {
+        let sight = reach + self.board_diagonal() / 2.0;
+        // Per expected centre: its direction and the cosine of the cone it subtends.
+        let cones: Vec<(Vec3, f64)> = expected
+            .iter()
+            .map(|pose| {
+                let range = pose.translation.norm();
+                match sight < range {
+                    true => (pose.translation / range, (1.0 - (sight / range).powi(2)).sqrt()),
+                    false => (Vec3::zeros(), -1.0),
+                }
+            })
+            .collect();
+        self.pts.retain(|p| {
+            let range = p.norm();
+            cones.iter().any(|(towards, cos)| towards.dot(p) >= cos * range)
+        });
+        self.keys.clear();
     }
 
     /// The plane parallel to the expected board's through the densest band
@@ -57,7 +89,8 @@ impl HoleDetector {
         for p in &self.pts {
             let d = p - c;
             let offset = n.dot(&d);
-            if d.norm_squared() <= reach * reach && offset.abs() < EXPECTED_BAND_M {
+            let within = d.norm_squared() <= reach * reach && nearest_to(&self.rivals, p, &c);
+            if within && offset.abs() < EXPECTED_BAND_M {
                 let bin = ((offset + EXPECTED_BAND_M) / OFFSET_BIN_M) as usize;
                 self.hist[bin.min(bins - 1)] += 1;
             }
@@ -80,11 +113,20 @@ impl HoleDetector {
     }
 
     /// Collects into `seg` every point within the plane tolerance of the plane (`c`, `n`)
-    /// and within `radius` of `centre`.
+    /// and within `radius` of `centre`, nearer it than any other expected board's.
     pub(super) fn gather_in_ball(&mut self, centre: Vec3, radius: f64, (c, n): (Vec3, Vec3)) {
         let tol = self.config.plane_tolerance_m;
         self.seg.clear();
-        let within = |p: &Vec3| (p - centre).norm_squared() <= radius * radius;
+        let rivals = &self.rivals;
+        let within = |p: &Vec3| {
+            (p - centre).norm_squared() <= radius * radius && nearest_to(rivals, p, &centre)
+        };
         self.seg.extend(self.pts.iter().filter(|p| within(p) && n.dot(&(*p - c)).abs() < tol));
     }
+}
+
+/// Whether `p` is at least as near `centre` as every one of `rivals`.
+fn nearest_to(rivals: &[Vec3], p: &Vec3, centre: &Vec3) -> bool {
+    let own = (p - centre).norm_squared();
+    rivals.iter().all(|r| own <= (p - r).norm_squared())
 }
