@@ -439,6 +439,23 @@ fn a_wrongly_placed_lidar_board_is_named_and_left_out() {
     within_3_sigma(&e, &run, "wrong board left out");
 }
 
+/// The visit's camera boards (noise from `seed`, no LiDAR boards), its sweep, the room's
+/// detectors, and the same frame with the LiDAR boards the global search places in the
+/// sweep (the detectors' refusals are that search's).
+fn global_search(
+    room: &Room,
+    visit: &Visit,
+    seed: u64,
+) -> (FrameDetections, Vec<Point>, Detectors, FrameDetections) {
+    let mut frame = detections(visit, room, &mut Rng(seed));
+    frame.lidar.clear();
+    let cloud = visit.scene.cloud.clone().unwrap();
+    let mut detectors = Detectors::new(room).unwrap();
+    let mut global_frame = frame.clone();
+    global_frame.lidar = detectors.detect_cloud(&cloud);
+    (frame, cloud, detectors, global_frame)
+}
+
 /// Used boards with LiDAR holes.
 fn lidar_boards(run: &Calibration) -> usize {
     run.boards.iter().filter(|b| !b.holes_lidar.is_empty()).count()
@@ -474,13 +491,7 @@ fn lidar_boards_are_found_where_the_survey_expects_them() {
     for seed in 2026..2034 {
         let (mut room, truth, visit) = vehicle(seed);
         room.survey = Some(survey(&truth, None));
-        let mut rng = Rng(seed);
-        let mut frame = detections(&visit, &room, &mut rng);
-        frame.lidar.clear();
-        let cloud = visit.scene.cloud.clone().unwrap();
-        let mut detectors = Detectors::new(&room).unwrap();
-        let mut global_frame = frame.clone();
-        global_frame.lidar = detectors.detect_cloud(&cloud);
+        let (frame, cloud, mut detectors, global_frame) = global_search(&room, &visit, seed);
         let global = run(&room, &global_frame, &cloud, false);
         let options = CalibrateOptions::default();
         let clouds: [&[Point]; 1] = [&cloud];
@@ -503,7 +514,7 @@ fn lidar_boards_are_found_where_the_survey_expects_them() {
             "seed {seed}: expected search placed fewer boards than the global one"
         );
         assert!(counts[2] >= counts[1], "seed {seed}: a nominal mounting 4° off lost boards");
-        assert_eq!(frames[0].lidar.len(), counts[1].max(frames[0].lidar.len()));
+        assert!(frames[0].lidar.len() >= counts[1], "seed {seed}: paired boards not reported");
         for (what, r) in [("expected", &expected), ("nominal off", &off)] {
             if global.result.status == Status::Accepted {
                 assert_eq!(
@@ -533,13 +544,7 @@ fn lidar_boards_are_found_where_the_survey_expects_them() {
 #[test]
 fn detecting_in_a_room_without_survey_is_the_global_search() {
     let (room, _, visit) = new_vehicle();
-    let mut rng = Rng(5);
-    let mut frame = detections(&visit, &room, &mut rng);
-    frame.lidar.clear();
-    let cloud = visit.scene.cloud.clone().unwrap();
-    let mut detectors = Detectors::new(&room).unwrap();
-    let mut global_frame = frame.clone();
-    global_frame.lidar = detectors.detect_cloud(&cloud);
+    let (frame, cloud, mut detectors, global_frame) = global_search(&room, &visit, 5);
     let refused = detectors.refused_in_cloud().to_vec();
     let global = run(&room, &global_frame, &cloud, true);
     let mut frames = [frame];

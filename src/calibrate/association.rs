@@ -46,17 +46,26 @@ pub(super) fn associate(
             &centroid_board,
             gate,
         );
-        let correspondences = pairs.iter().zip(poses).flat_map(|(pair, pose)| {
-            pair.iter().flat_map(move |p: &Pair| {
-                p.holes_lidar.iter().zip(holes_board).map(move |(l, h)| (*l, pose.act(h)))
-            })
-        });
-        match kabsch_from_pairs(correspondences) {
-            Ok(better) => extrinsic = better,
-            Err(_) => break,
+        match paired_extrinsic(&pairs, poses, holes_board) {
+            Some(better) => extrinsic = better,
+            None => break,
         }
     }
     pairs
+}
+
+/// LiDAR → camera from the paired boards' holes (Kabsch; `poses[i]` is camera board `i`'s
+/// board → camera), `None` when they do not fix it.
+pub(super) fn paired_extrinsic(
+    pairs: &[Option<Pair>],
+    poses: &[Se3],
+    holes_board: &[Vec3],
+) -> Option<Se3> {
+    let correspondences = pairs.iter().zip(poses).flat_map(|(pair, pose)| {
+        pair.iter()
+            .flat_map(|p| p.holes_lidar.iter().zip(holes_board).map(|(l, h)| (*l, pose.act(h))))
+    });
+    kabsch_from_pairs(correspondences).ok()
 }
 
 /// One round of pairing under `extrinsic`: greedy, nearest centroids first, within `gate`.

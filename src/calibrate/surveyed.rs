@@ -9,7 +9,7 @@
 //! A board whose solved pose lies far outside its survey σ (moved, knocked over) is
 //! named, left out, and the room solved again; two such boards reject the run.
 
-use super::association::{associate, lidar_nominal};
+use super::association::{associate, lidar_nominal, paired_extrinsic};
 use super::free::{accepted, camera_start, intrinsics_start, CameraStart};
 use super::identify::{identify, oriented, Identity};
 use super::{
@@ -23,7 +23,6 @@ use crate::detect::planes::{
 use crate::geometry::{Camera, Se3, Vec3};
 use crate::lidar::Point;
 use crate::result::Extrinsic;
-use crate::solve::init::kabsch_from_pairs;
 use crate::solve::room::{
     plane_frame, room_covariance, solve_room, BlockPrior, RoomParams, RoomProblem, ROOM_SHARED,
 };
@@ -74,8 +73,13 @@ pub(super) fn solve_surveyed(
     let found;
     let lidar_frames = match (finder, lidar) {
         (Some(finder), Some(l)) => {
-            let expected =
-                Expected { identified: &identified, room_to_camera, surveyed: &surveyed };
+            let expected = Expected {
+                identified: &identified,
+                camera_boards: &camera_boards,
+                poses: &board_poses,
+                room_to_camera,
+                surveyed: &surveyed,
+            };
             found = expected.find(finder, &lidar_nominal(l), frames.len(), clouds, &holes_board);
             &found
         }
@@ -168,19 +172,6 @@ pub(super) fn solve_surveyed(
     }
 }
 
-/// LiDAR → camera from the paired boards' holes (Kabsch), `None` when they do not fix it.
-fn paired_extrinsic(
-    pairs: &[Option<super::association::Pair>],
-    board_poses: &[Se3],
-    holes_board: &[Vec3],
-) -> Option<Se3> {
-    let correspondences = pairs.iter().zip(board_poses).flat_map(|(pair, pose)| {
-        pair.iter()
-            .flat_map(|p| p.holes_lidar.iter().zip(holes_board).map(|(l, h)| (*l, pose.act(h))))
-    });
-    kabsch_from_pairs(correspondences).ok()
-}
-
 /// A board whose prediction under the re-estimated mounting lies farther than this (m)
 /// from its prediction under the nominal one is looked for again: closer, the first search
 /// (within [`EXPECTED_REACH_M`] of the prediction) already covered where it is.
@@ -190,6 +181,9 @@ const REPREDICT_SHIFT_M: f64 = EXPECTED_REACH_M / 2.0;
 /// carried into its frame's sweep by the camera's room pose and a mounting.
 struct Expected<'a> {
     identified: &'a [(u32, CameraBoard, usize, Se3)],
+    /// `identified`'s (frame, board) and board → camera, as the association takes them.
+    camera_boards: &'a [(u32, &'a CameraBoard)],
+    poses: &'a [Se3],
     room_to_camera: Se3,
     surveyed: &'a [Se3],
 }
@@ -221,11 +215,10 @@ impl Expected<'_> {
                 false => placed,
             };
         }
-        let camera_boards: Vec<(u32, &CameraBoard)> =
-            self.identified.iter().map(|(f, b, _, _)| (*f, b)).collect();
-        let poses: Vec<Se3> = self.identified.iter().map(|(_, _, _, p)| *p).collect();
-        let pairs = associate(nominal, &frames, &camera_boards, &poses, holes_board);
-        let Some(mounting) = paired_extrinsic(&pairs, &poses, holes_board) else { return frames };
+        let pairs = associate(nominal, &frames, self.camera_boards, self.poses, holes_board);
+        let Some(mounting) = paired_extrinsic(&pairs, self.poses, holes_board) else {
+            return frames;
+        };
         for (f, frame) in frames.iter_mut().enumerate().filter(|(f, _)| with_cloud(*f)) {
             let missing = self.in_frame(f, |i| pairs[i].is_none());
             let moved: Vec<usize> = (missing.iter().copied())
@@ -338,12 +331,8 @@ pub fn identify_detections(
             lidar[pair.lidar_index] = Some(id.board);
         }
     }
-    let correspondences = pairs.iter().zip(&board_poses).flat_map(|(pair, pose)| {
-        pair.iter()
-            .flat_map(|p| p.holes_lidar.iter().zip(&holes_board).map(|(l, h)| (*l, pose.act(h))))
-    });
-    let extrinsic =
-        kabsch_from_pairs(correspondences).unwrap_or_else(|_| lidar_nominal(spec_lidar));
+    let extrinsic = paired_extrinsic(&pairs, &board_poses, &holes_board)
+        .unwrap_or_else(|| lidar_nominal(spec_lidar));
     let lidar_to_room = room_to_camera.inverse().compose(&extrinsic);
     let centre_board = holes_board.iter().sum::<Vec3>() / holes_board.len().max(1) as f64;
     for (l, board) in frame.lidar.iter().enumerate() {
