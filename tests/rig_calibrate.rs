@@ -396,6 +396,9 @@ fn study(survey: impl Fn(&RoomTruth, u64) -> SurveySpec, honest_sigma: bool) {
             failures.push(format!("{what}: joint RMS error {e:.4} above the target {target}"));
         }
     }
+    if honest_sigma && accepted < SEEDS {
+        failures.push(format!("{accepted}/{SEEDS} rigs accepted"));
+    }
     assert!(failures.is_empty(), "{failures:#?}");
 }
 
@@ -511,4 +514,52 @@ fn a_board_moved_since_the_survey_is_left_out_of_the_joint_solve() {
     let run = run(&sim, &room, false);
     println!("board {moved} moved by 30 mm");
     check_against_truth("moved board", &sim, &run);
+}
+
+/// In a surveyed room each sensor's verdict is the joint solve's: seed 4's bumper VLP-32C
+/// places no board a camera sees (its pair run with either camera is rejected for it), yet
+/// the room's planes and the survey tie it to the room, and it is accepted within its σ. A
+/// LiDAR that sees nothing of the room, or a camera that sees too few boards, is named and
+/// rejects the rig.
+#[test]
+fn in_a_surveyed_room_each_sensor_is_judged_by_the_joint_solve() {
+    let sim = with_wide_coverage(simulated(4));
+    let mut room = sim.room.clone();
+    room.survey = Some(realistic_survey(&sim.room_truth, &mut Rng(1004)));
+    let (cameras, lidars) = detections(&sim, &mut Rng(4));
+    let bumper = sim.rig.lidars.iter().position(|l| l.name.as_str() == "bumper").unwrap();
+    assert!(lidars[bumper].is_empty(), "seed 4's bumper places no board");
+    let options = CalibrateOptions::default();
+    let calibrate = |cameras: &[Vec<CameraBoard>], clouds: &[&[roomcal::lidar::Point]]| {
+        let inputs: Vec<LidarInput<'_>> =
+            lidars.iter().zip(clouds).map(|(b, c)| LidarInput { boards: b, cloud: c }).collect();
+        calibrate_rig(&room, &sim.rig, cameras, &inputs, &options)
+    };
+    let clouds: Vec<&[roomcal::lidar::Point]> = sim.clouds.iter().map(|c| c.as_slice()).collect();
+    let run = calibrate(&cameras, &clouds);
+    let pair_run = &run.runs[&(0, Some(bumper))];
+    assert_eq!(pair_run.result.status, Status::Rejected, "the bumper's pair run alone fails");
+    let entry = &run.result.sensors["bumper"];
+    assert_eq!((entry.status, &entry.reason), (Status::Accepted, &None), "{entry:?}");
+    assert_eq!(run.result.pair.status, Status::Accepted, "{:?}", run.result.pair.reason);
+    check_against_truth("bumper by the room", &sim, &run);
+
+    let mut blind = clouds.clone();
+    blind[bumper] = &[];
+    let run = calibrate(&cameras, &blind);
+    let reason = run.result.pair.reason.clone().unwrap_or_default();
+    println!("bumper blind: {reason}");
+    assert_eq!(run.result.pair.status, Status::Rejected);
+    assert!(reason.contains("lidar `bumper`"), "{reason}");
+    assert_eq!(run.result.sensors["top"].status, Status::Accepted, "{reason}");
+
+    let wide = sim.rig.cameras.iter().position(|c| c.name.as_str() == "wide").unwrap();
+    let mut few = cameras.clone();
+    few[wide].truncate(2);
+    let run = calibrate(&few, &clouds);
+    let reason = run.result.pair.reason.clone().unwrap_or_default();
+    println!("wide camera with 2 boards: {reason}");
+    assert_eq!(run.result.pair.status, Status::Rejected);
+    assert!(reason.contains("camera `wide`"), "{reason}");
+    assert_eq!(run.result.sensors["front"].status, Status::Accepted, "{reason}");
 }

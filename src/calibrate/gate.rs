@@ -3,8 +3,8 @@
 
 use super::{CalibrateOptions, Calibration, FrameDetections, UsedBoard};
 use crate::geometry::Camera;
-use crate::result::CalibrationResult;
-use crate::target::Room;
+use crate::result::{CalibrationResult, CameraResult, Uncertainty};
+use crate::target::{QualitySpec, Room};
 
 /// The quality gate: `Err(reason)` names the first threshold the run fails.
 pub(super) fn gate(
@@ -25,19 +25,53 @@ pub(super) fn gate(
             ));
         }
     }
-    check(r.quality.corner_rms_px <= q.max_corner_rms_px, || {
-        format!("corner RMS {:.3} px exceeds {} px", r.quality.corner_rms_px, q.max_corner_rms_px)
-    })?;
-    let coverage = coverage(&run.camera, &run.boards);
+    corners_fit(q, r.quality.corner_rms_px)?;
+    covers(q, coverage(&run.camera, &run.boards))?;
+    intrinsics_certain(q, &r.camera, &r.uncertainty)?;
+    if run.lidar_to_camera.is_some() {
+        let lidar_boards = run.boards.iter().filter(|b| !b.holes_lidar.is_empty()).count();
+        check(lidar_boards >= q.min_lidar_boards as usize, || {
+            format!(
+                "{lidar_boards} boards seen by both sensors, at least {} needed",
+                q.min_lidar_boards
+            )
+        })?;
+        holes_fit(q, r.quality.hole_rms_px)?;
+        extrinsic_certain(q, &r.uncertainty)?;
+    }
+    if let (Some(in_room), Some(lidar)) = (&r.camera_in_room, &room.lidar) {
+        check_parking(q, lidar, in_room)?;
+    }
+    if let Some(current) = &options.current {
+        check_change(q, current, r)?;
+    }
+    Ok(())
+}
+
+/// The corners' RMS reprojection error within `max_corner_rms_px`.
+pub(super) fn corners_fit(q: &QualitySpec, rms_px: f64) -> Result<(), String> {
+    check(rms_px <= q.max_corner_rms_px, || {
+        format!("corner RMS {rms_px:.3} px exceeds {} px", q.max_corner_rms_px)
+    })
+}
+
+/// The used corners cover at least `min_coverage` of the image.
+pub(super) fn covers(q: &QualitySpec, coverage: f64) -> Result<(), String> {
     check(coverage >= q.min_coverage, || {
         format!(
             "corners cover {:.0} % of the image, at least {:.0} % needed",
             coverage * 100.0,
             q.min_coverage * 100.0
         )
-    })?;
-    let u = &r.uncertainty;
-    let c = &r.camera;
+    })
+}
+
+/// The focal lengths' and the principal point's σ within their limits.
+pub(super) fn intrinsics_certain(
+    q: &QualitySpec,
+    c: &CameraResult,
+    u: &Uncertainty,
+) -> Result<(), String> {
     check(u.fx <= q.max_sigma_focal_rel * c.fx && u.fy <= q.max_sigma_focal_rel * c.fy, || {
         format!(
             "focal length uncertain: σ fx {:.2} px, fy {:.2} px (limit {} %)",
@@ -51,39 +85,30 @@ pub(super) fn gate(
             "principal point uncertain: σ cx {:.2} px, cy {:.2} px (limit {} px)",
             u.cx, u.cy, q.max_sigma_principal_px
         )
-    })?;
-    if run.lidar_to_camera.is_some() {
-        let lidar_boards = run.boards.iter().filter(|b| !b.holes_lidar.is_empty()).count();
-        check(lidar_boards >= q.min_lidar_boards as usize, || {
+    })
+}
+
+/// The hole term's RMS within `max_hole_rms_px`.
+pub(super) fn holes_fit(q: &QualitySpec, rms_px: f64) -> Result<(), String> {
+    check(rms_px <= q.max_hole_rms_px, || {
+        format!("hole RMS {rms_px:.3} px exceeds {} px", q.max_hole_rms_px)
+    })
+}
+
+/// The LiDAR→camera σ (`u.rotation_deg`, `u.translation_m`) within their limits.
+pub(super) fn extrinsic_certain(q: &QualitySpec, u: &Uncertainty) -> Result<(), String> {
+    check(
+        u.rotation_deg <= q.max_sigma_rotation_deg && u.translation_m <= q.max_sigma_translation_m,
+        || {
             format!(
-                "{lidar_boards} boards seen by both sensors, at least {} needed",
-                q.min_lidar_boards
+                "extrinsic uncertain: σ {:.3}° / {:.1} mm (limits {}° / {} mm)",
+                u.rotation_deg,
+                u.translation_m * 1000.0,
+                q.max_sigma_rotation_deg,
+                q.max_sigma_translation_m * 1000.0
             )
-        })?;
-        check(r.quality.hole_rms_px <= q.max_hole_rms_px, || {
-            format!("hole RMS {:.3} px exceeds {} px", r.quality.hole_rms_px, q.max_hole_rms_px)
-        })?;
-        check(
-            u.rotation_deg <= q.max_sigma_rotation_deg
-                && u.translation_m <= q.max_sigma_translation_m,
-            || {
-                format!(
-                    "extrinsic uncertain: σ {:.3}° / {:.1} mm (limits {}° / {} mm)",
-                    u.rotation_deg,
-                    u.translation_m * 1000.0,
-                    q.max_sigma_rotation_deg,
-                    q.max_sigma_translation_m * 1000.0
-                )
-            },
-        )?;
-    }
-    if let (Some(in_room), Some(lidar)) = (&r.camera_in_room, &room.lidar) {
-        check_parking(q, lidar, in_room)?;
-    }
-    if let Some(current) = &options.current {
-        check_change(q, current, r)?;
-    }
-    Ok(())
+        },
+    )
 }
 
 /// The parking box of a surveyed room: the camera's pose in the room against the nominal
@@ -91,7 +116,7 @@ pub(super) fn gate(
 /// frame is the nominal LiDAR frame at the nominal spot). The angle is the whole rotation
 /// between the two (on a level floor, the yaw).
 pub(super) fn check_parking(
-    q: &crate::target::QualitySpec,
+    q: &QualitySpec,
     lidar: &crate::target::LidarSpec,
     camera_in_room: &crate::result::Extrinsic,
 ) -> Result<(), String> {
@@ -109,7 +134,7 @@ pub(super) fn check_parking(
 
 /// The change limits against the calibration in force.
 fn check_change(
-    q: &crate::target::QualitySpec,
+    q: &QualitySpec,
     current: &CalibrationResult,
     new: &CalibrationResult,
 ) -> Result<(), String> {
@@ -143,7 +168,7 @@ fn check_change(
     Ok(())
 }
 
-fn check(ok: bool, reason: impl FnOnce() -> String) -> Result<(), String> {
+pub(super) fn check(ok: bool, reason: impl FnOnce() -> String) -> Result<(), String> {
     if ok {
         Ok(())
     } else {

@@ -35,8 +35,8 @@ use nalgebra::{DMatrix, Matrix3};
 use super::identify::GATE_M;
 use super::surveyed::MOVED_BOARD_CHI2;
 use super::{
-    calibrate_with_clouds, median, CalibrateOptions, Calibration, CameraBoard, FrameDetections,
-    LidarBoard, MAX_OBSERVATIONS,
+    calibrate_with_clouds, gate, median, CalibrateOptions, Calibration, CameraBoard,
+    FrameDetections, LidarBoard, MAX_OBSERVATIONS,
 };
 use crate::geometry::{se3::so3_log, Camera, Se3, Vec2, Vec3};
 use crate::lidar::Point;
@@ -191,7 +191,11 @@ pub fn calibrate_rig(
     };
     let inputs = (cameras, lidars);
     match solve_jointly(room, survey, rig, &runs, &camera_runs, inputs, &start) {
-        Ok(joint) => apply_joint(&mut result, &joint, rig),
+        Ok(joint) => {
+            apply_joint(&mut result, &joint, rig);
+            let lidar_runs = Runs { runs: &runs, cameras: &camera_runs, lidars: &lidar_cameras };
+            judge_jointly(&mut result, &joint, room, rig, &lidar_runs);
+        }
         Err(reason) => {
             result.pair.status = Status::Rejected;
             let before = result.pair.reason.take();
@@ -203,7 +207,7 @@ pub fn calibrate_rig(
 
 /// The joint solution written into the result: every camera's intrinsics, σ and pose in
 /// the room, every extrinsic and its σ, the one-pair fields (first camera, first LiDAR).
-/// The sensors' verdicts stay their pair runs' gates.
+/// The sensors' verdicts are [`judge_jointly`]'s.
 fn apply_joint(result: &mut RigResult, joint: &Joint, rig: &Rig) {
     let (p, cov) = (&joint.params, &joint.covariance);
     let lidar_of = |name: &Option<String>| match name.as_deref().and_then(|n| rig.find(n)) {
@@ -218,21 +222,34 @@ fn apply_joint(result: &mut RigResult, joint: &Joint, rig: &Rig) {
         let room_to_camera = p.first_to_camera[c].compose(&p.room_to_first[0]);
         entry.camera_in_room = Some(Extrinsic::from_se3(&room_to_camera.inverse()));
     }
-    for e in result.extrinsics.iter_mut() {
-        let (pose, covariance) = match rig.find(&e.from) {
-            Some((SensorKind::Camera, c)) => {
-                let a = &p.first_to_camera[c];
-                (a.inverse(), cov.camera_to_first(c, a))
-            }
-            Some((SensorKind::Lidar, l)) => (p.lidar_to_first[l], cov.lidar_to_first(l)),
-            None => continue,
-        };
-        let (rotation, translation) = worst_axis_sigma(&covariance);
-        let x = Extrinsic::from_se3(&pose);
-        (e.rotation, e.translation) = (x.rotation, x.translation);
-        (e.sigma_rotation_deg, e.sigma_translation_m) = (rotation.to_degrees(), translation);
-    }
+    // Every sensor but the first camera, in the rig's order: the joint solve has each
+    // mounting, also where the composition had none (a LiDAR no camera shares a board with
+    // starts at its nominal mounting and is tied to the room by its planes).
     let first = rig.cameras[0].name.as_str();
+    let cameras = (1..rig.cameras.len()).map(|c| {
+        let a = &p.first_to_camera[c];
+        (rig.cameras[c].name.as_str(), a.inverse(), cov.camera_to_first(c, a))
+    });
+    let lidars = rig
+        .lidars
+        .iter()
+        .enumerate()
+        .map(|(l, lidar)| (lidar.name.as_str(), p.lidar_to_first[l], cov.lidar_to_first(l)));
+    result.extrinsics = cameras
+        .chain(lidars)
+        .map(|(from, pose, covariance)| {
+            let (rotation, translation) = worst_axis_sigma(&covariance);
+            let x = Extrinsic::from_se3(&pose);
+            RigExtrinsic {
+                from: from.to_string(),
+                to: first.to_string(),
+                rotation: x.rotation,
+                translation: x.translation,
+                sigma_rotation_deg: rotation.to_degrees(),
+                sigma_translation_m: translation,
+            }
+        })
+        .collect();
     let pair = &mut result.pair;
     if let Some(entry) = result.sensors.get(first) {
         pair.camera = entry.camera.clone().unwrap_or(pair.camera.clone());
@@ -246,6 +263,94 @@ fn apply_joint(result: &mut RigResult, joint: &Joint, rig: &Rig) {
     }
     pair.quality.corner_rms_px = joint.report.corner_rms_px[0];
     tracing::debug!(iterations = joint.iterations, "rig solved jointly");
+}
+
+/// The pair runs a rig's sensors were solved with: each camera's, each LiDAR's camera.
+struct Runs<'a> {
+    runs: &'a BTreeMap<(usize, Option<usize>), Calibration>,
+    cameras: &'a [(usize, Option<usize>)],
+    lidars: &'a [Option<usize>],
+}
+
+/// In a surveyed room the sensors' verdicts are the joint solve's, not their pair runs'
+/// (a pair run sees only the boards both of its sensors see; the joint solve ties every
+/// sensor to the room). A camera: the surveyed boards it sees (`min_boards`), its corners'
+/// RMS, its coverage, its intrinsics' σ and its parking box. A LiDAR: the surveyed targets
+/// it registers against, boards (holes or face) and planes alike (`min_lidar_boards`: the
+/// survey gives each its pose, so a LiDAR whose holes no camera sees is still tied to the
+/// room), its hole term's RMS, and the σ of its mounting relative to its camera. The rig is
+/// accepted only when every sensor is.
+fn judge_jointly(result: &mut RigResult, joint: &Joint, room: &Room, rig: &Rig, runs: &Runs<'_>) {
+    let q = &room.quality;
+    let mut failures = Vec::new();
+    for (c, camera) in rig.cameras.iter().enumerate() {
+        let Some(entry) = result.sensors.get_mut(camera.name.as_str()) else { continue };
+        let verdict = judge_camera(joint, room, rig, c, &runs.runs[&runs.cameras[c]], entry);
+        set_verdict(entry, verdict);
+        note_failure(&mut failures, "camera", camera.name.as_str(), entry);
+    }
+    for (l, lidar) in rig.lidars.iter().enumerate() {
+        let Some(entry) = result.sensors.get_mut(lidar.name.as_str()) else { continue };
+        let c = runs.lidars[l].unwrap_or(0);
+        let e = &joint.evidence;
+        let targets = e.lidar_hole_boards[l] + e.lidar_face_boards[l] + e.lidar_planes[l];
+        let verdict = gate::check(targets >= q.min_lidar_boards as usize, || {
+            format!(
+                "it registers against {targets} surveyed boards and planes, at least {} needed",
+                q.min_lidar_boards
+            )
+        })
+        .and_then(|()| match e.lidar_hole_boards[l] {
+            0 => Ok(()),
+            _ => gate::holes_fit(q, joint.report.hole_rms_px[l]),
+        })
+        .and_then(|()| gate::extrinsic_certain(q, &joint_uncertainty(joint, c, Some(l))));
+        entry.solved_with.get_or_insert_with(|| rig.cameras[c].name.to_string());
+        set_verdict(entry, verdict);
+        note_failure(&mut failures, "lidar", lidar.name.as_str(), entry);
+    }
+    let pair = &mut result.pair;
+    (pair.status, pair.reason) = match failures.is_empty() {
+        true => (Status::Accepted, None),
+        false => (Status::Rejected, Some(failures.join("; "))),
+    };
+}
+
+/// Camera `c`'s joint verdict (see [`judge_jointly`]); `run` is its pair run (its
+/// detections' coverage) and `entry` holds the joint values.
+fn judge_camera(
+    joint: &Joint,
+    room: &Room,
+    rig: &Rig,
+    c: usize,
+    run: &Calibration,
+    entry: &SensorResult,
+) -> Result<(), String> {
+    let q = &room.quality;
+    let min_boards = q.min_boards.unwrap_or(room.board.count) as usize;
+    let seen = joint.evidence.camera_boards[c];
+    gate::check(seen >= min_boards, || {
+        format!("it sees {seen} surveyed boards, the room needs {min_boards}")
+    })?;
+    gate::corners_fit(q, joint.report.corner_rms_px[c])?;
+    gate::covers(q, gate::coverage(&run.camera, &run.boards))?;
+    if let (Some(camera), Some(u)) = (&entry.camera, &entry.uncertainty) {
+        gate::intrinsics_certain(q, camera, u)?;
+    }
+    let reference = rig.pair_room(room, c, Some(0));
+    match (&entry.camera_in_room, &reference.lidar) {
+        (Some(in_room), Some(lidar)) if !rig.lidars.is_empty() => {
+            gate::check_parking(q, lidar, in_room)
+        }
+        _ => Ok(()),
+    }
+}
+
+fn set_verdict(entry: &mut SensorResult, verdict: Result<(), String>) {
+    (entry.status, entry.reason) = match verdict {
+        Ok(()) => (Status::Accepted, None),
+        Err(reason) => (Status::Rejected, Some(reason)),
+    };
 }
 
 /// Camera `c`'s σ from the joint covariance: intrinsics, and LiDAR `lidar` → camera `c`
@@ -534,6 +639,19 @@ struct Joint {
     covariance: RigCovariance<JOINT_SHARED>,
     report: RigReport<JOINT_CAMERAS, JOINT_LIDARS>,
     iterations: usize,
+    /// What the solve measured of each sensor (the joint gate's evidence).
+    evidence: Evidence,
+}
+
+/// What the joint solve measured of each sensor: per camera the surveyed boards it saw,
+/// per LiDAR the surveyed boards it placed by their holes (seen in a camera), the boards
+/// it has only face points of, and the surveyed planes it has points on.
+#[derive(Clone, Debug, Default)]
+struct Evidence {
+    camera_boards: Vec<usize>,
+    lidar_hole_boards: Vec<usize>,
+    lidar_face_boards: Vec<usize>,
+    lidar_planes: Vec<usize>,
 }
 
 /// The starting mountings from the composition (`None` where it failed: the nominal
@@ -644,6 +762,26 @@ impl Measured {
     }
 }
 
+impl Evidence {
+    fn of(m: &Measured, planes: &[Vec<(usize, PlanePoints)>]) -> Evidence {
+        let lidars = planes.len();
+        let count = |holes: bool| -> Vec<usize> {
+            (0..lidars)
+                .map(|l| {
+                    let of_l = m.lidars.iter().filter(|b| b.lidar == l);
+                    of_l.filter(|b| b.holes_lidar.is_empty() != holes).count()
+                })
+                .collect()
+        };
+        Evidence {
+            camera_boards: m.cameras.iter().map(Vec::len).collect(),
+            lidar_hole_boards: count(true),
+            lidar_face_boards: count(false),
+            lidar_planes: planes.iter().map(Vec::len).collect(),
+        }
+    }
+}
+
 /// The two passes of the joint solve (surveyed-plane points selected from the start, then
 /// from the first solution), and the board farthest outside its survey σ if any is beyond
 /// [`MOVED_BOARD_CHI2`] (survey index, χ²).
@@ -681,7 +819,8 @@ fn solve_passes(
     let moved = moved_board(&problem, &p, &blocks);
     let covariance = rig_covariance(&problem, &p).map_err(joint_reason)?;
     let iterations = first.iterations + report.iterations;
-    Ok((Joint { params: p, covariance, report, iterations }, moved))
+    let evidence = Evidence::of(m, &planes);
+    Ok((Joint { params: p, covariance, report, iterations, evidence }, moved))
 }
 
 /// The surveyed board the solution puts farthest outside its survey σ, if any is beyond
