@@ -26,7 +26,7 @@ import resource
 import tomllib
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-ROOMCAL = os.path.join(ROOT, "target", "release", "roomcal")
+ROOMCAL = os.environ.get("ROOMCAL_BIN", os.path.join(ROOT, "target", "release", "roomcal"))
 ROOM = os.path.join(ROOT, "config", "room.toml")
 
 

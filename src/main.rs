@@ -111,7 +111,8 @@ struct CalibrateArgs {
     #[arg(long)]
     lidar_calibration: Option<PathBuf>,
     /// The calibration in force (a result file or the store's current.json), for the
-    /// quality gate's change limits.
+    /// quality gate's change limits; with `--rig` a rig's result file (every camera's
+    /// intrinsics and every sensor's mounting are checked against it).
     #[arg(long)]
     current: Option<PathBuf>,
     /// The images are frames, and the clouds sweeps, of one standing vehicle: the frames
@@ -679,6 +680,7 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
         &CalibrateOptions {
             two_stage: args.two_stage,
             current,
+            current_rig: None,
             without_planes: args.without_planes,
             free_boards: args.free_boards,
         },
@@ -741,15 +743,19 @@ fn calibrate_rig(
             args.room.display()
         )));
     }
-    let unsupported = [("--report", args.report.is_some()), ("--current", args.current.is_some())];
-    if let Some((flag, _)) = unsupported.iter().find(|(_, given)| *given) {
-        return Err(bad_input(anyhow::anyhow!("{flag} is not available with --rig yet")));
+    if args.report.is_some() {
+        return Err(bad_input(anyhow::anyhow!("--report is not available with --rig yet")));
     }
+    let current_rig = match &args.current {
+        Some(path) => Some(roomcal::result::load_rig(path).map_err(bad_input)?),
+        None => None,
+    };
     let inputs = cli::rig::inputs(&rig, rig_path, &args.image, &args.cloud, true)?;
     let detections = cli::rig::detect_all(room, &rig, &inputs, args.lidar_calibration.as_deref())?;
     let options = roomcal::calibrate::CalibrateOptions {
         two_stage: args.two_stage,
         current: None,
+        current_rig,
         without_planes: args.without_planes,
         free_boards: args.free_boards,
     };

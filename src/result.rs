@@ -23,14 +23,29 @@ pub enum ResultFileError {
 /// Reads a result file (or the store's `current.json`) and validates the calibration in
 /// it ([`CalibrationResult::validate`]): the one loader for calibrations read back.
 pub fn load(path: &Path) -> Result<CalibrationResult, ResultFileError> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|source| ResultFileError::Read { path: path.to_owned(), source })?;
-    let result: CalibrationResult = serde_json::from_str(&text)
-        .map_err(|e| ResultFileError::Parse { path: path.to_owned(), message: e.to_string() })?;
+    let result: CalibrationResult = parse(path)?;
     result
         .validate()
         .map_err(|source| ResultFileError::Invalid { path: path.to_owned(), source })?;
     Ok(result)
+}
+
+/// Reads a rig's result file (or a rig store's `current.json`): [`load`]'s checks on its
+/// one-pair fields, and `sensors` and `extrinsics` required.
+pub fn load_rig(path: &Path) -> Result<RigResult, ResultFileError> {
+    let result: RigResult = parse(path)?;
+    result
+        .pair
+        .validate()
+        .map_err(|source| ResultFileError::Invalid { path: path.to_owned(), source })?;
+    Ok(result)
+}
+
+fn parse<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, ResultFileError> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|source| ResultFileError::Read { path: path.to_owned(), source })?;
+    serde_json::from_str(&text)
+        .map_err(|e| ResultFileError::Parse { path: path.to_owned(), message: e.to_string() })
 }
 
 /// Whether the quality gate accepted the calibration.

@@ -563,3 +563,42 @@ fn in_a_surveyed_room_each_sensor_is_judged_by_the_joint_solve() {
     assert!(reason.contains("camera `wide`"), "{reason}");
     assert_eq!(run.result.sensors["front"].status, Status::Accepted, "{reason}");
 }
+
+/// The change limits against the rig in force: the same rig again passes; with the rig in
+/// force holding the bumper mounted 15 cm elsewhere, or the wide camera's focal length 5 %
+/// longer, that sensor is named and the rig rejected, the others still accepted.
+#[test]
+fn a_rig_that_moved_from_the_rig_in_force_is_rejected_naming_the_sensor() {
+    let sim = with_wide_coverage(simulated(2026));
+    let mut room = sim.room.clone();
+    room.survey = Some(realistic_survey(&sim.room_truth, &mut Rng(2026)));
+    let (cameras, lidars) = detections(&sim, &mut Rng(7));
+    let inputs: Vec<LidarInput<'_>> =
+        lidars.iter().zip(&sim.clouds).map(|(b, c)| LidarInput { boards: b, cloud: c }).collect();
+    let against = |current: Option<roomcal::result::RigResult>| {
+        let options = CalibrateOptions { current_rig: current, ..CalibrateOptions::default() };
+        calibrate_rig(&room, &sim.rig, &cameras, &inputs, &options).result
+    };
+    let in_force = against(None);
+    assert_eq!(in_force.pair.status, Status::Accepted, "{:?}", in_force.pair.reason);
+    let again = against(Some(in_force.clone()));
+    assert_eq!(again.pair.status, Status::Accepted, "{:?}", again.pair.reason);
+
+    let mut moved = in_force.clone();
+    moved.extrinsics.iter_mut().find(|e| e.from == "bumper").unwrap().translation[2] += 0.15;
+    let run = against(Some(moved));
+    let reason = run.pair.reason.clone().unwrap_or_default();
+    println!("bumper moved in the rig in force: {reason}");
+    assert_eq!(run.pair.status, Status::Rejected);
+    assert!(reason.contains("lidar `bumper`: mounting moved"), "{reason}");
+    assert_eq!(run.sensors["bumper"].status, Status::Rejected);
+    assert_eq!(run.sensors["top"].status, Status::Accepted, "{reason}");
+
+    let mut longer = in_force.clone();
+    longer.sensors.get_mut("wide").unwrap().camera.as_mut().unwrap().fx *= 1.05;
+    let run = against(Some(longer));
+    let reason = run.pair.reason.clone().unwrap_or_default();
+    println!("wide camera's focal length in force 5 % longer: {reason}");
+    assert!(reason.contains("camera `wide`: focal length moved"), "{reason}");
+    assert_eq!(run.sensors["front"].status, Status::Accepted, "{reason}");
+}

@@ -102,6 +102,13 @@ fn bad_rig_inputs_exit_2_naming_them() {
         stderr.contains(&twice) && stderr.contains("lidar `top`") && stderr.contains("unique"),
         "{stderr}"
     );
+    // The rig in force (`--current`) must be a rig's result file.
+    let not_a_rig = dir.join("pair.json");
+    std::fs::write(&not_a_rig, "{\"status\": \"accepted\"}").unwrap();
+    let current = not_a_rig.to_string_lossy().into_owned();
+    let (code, _, stderr) = calibrate(&[&all[..], &["--current", &current]].concat(), &out);
+    assert_eq!(code, 2, "{stderr}");
+    assert!(stderr.contains(&current) && stderr.contains("not a calibration result"), "{stderr}");
     // A missing file is named.
     let (code, _, stderr) = calibrate(&all, &out);
     assert_eq!(code, 2);

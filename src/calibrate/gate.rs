@@ -3,7 +3,7 @@
 
 use super::{CalibrateOptions, Calibration, FrameDetections, UsedBoard};
 use crate::geometry::Camera;
-use crate::result::{CalibrationResult, CameraResult, Uncertainty};
+use crate::result::{CalibrationResult, CameraResult, Extrinsic, Uncertainty};
 use crate::target::{QualitySpec, Room};
 
 /// The quality gate: `Err(reason)` names the first threshold the run fails.
@@ -138,7 +138,19 @@ fn check_change(
     current: &CalibrationResult,
     new: &CalibrationResult,
 ) -> Result<(), String> {
-    let (a, b) = (&current.camera, &new.camera);
+    intrinsics_within_change(q, &current.camera, &new.camera)?;
+    if let (Some(x), Some(y)) = (&current.lidar_to_camera, &new.lidar_to_camera) {
+        extrinsic_within_change(q, "extrinsic", x, y)?;
+    }
+    Ok(())
+}
+
+/// The focal lengths and the principal point within the change limits from `a` (in force).
+pub(super) fn intrinsics_within_change(
+    q: &QualitySpec,
+    a: &CameraResult,
+    b: &CameraResult,
+) -> Result<(), String> {
     let focal = ((b.fx - a.fx) / a.fx).abs().max(((b.fy - a.fy) / a.fy).abs());
     check(focal <= q.max_change_focal_rel, || {
         format!(
@@ -153,19 +165,25 @@ fn check_change(
             "principal point moved {principal:.1} px from the current calibration (limit {} px)",
             q.max_change_principal_px
         )
-    })?;
-    if let (Some(x), Some(y)) = (&current.lidar_to_camera, &new.lidar_to_camera) {
-        let (angle, shift) = x.difference(y);
-        check(angle <= q.max_change_rotation_deg && shift <= q.max_change_translation_m, || {
-            format!(
-                "extrinsic moved {angle:.2}° / {:.0} mm from the current calibration (limits {}° / {} mm)",
-                shift * 1000.0,
-                q.max_change_rotation_deg,
-                q.max_change_translation_m * 1000.0
-            )
-        })?;
-    }
-    Ok(())
+    })
+}
+
+/// A mounting (`what`: "extrinsic", "mounting") within the change limits from `x` (in force).
+pub(super) fn extrinsic_within_change(
+    q: &QualitySpec,
+    what: &str,
+    x: &Extrinsic,
+    y: &Extrinsic,
+) -> Result<(), String> {
+    let (angle, shift) = x.difference(y);
+    check(angle <= q.max_change_rotation_deg && shift <= q.max_change_translation_m, || {
+        format!(
+            "{what} moved {angle:.2}° / {:.0} mm from the current calibration (limits {}° / {} mm)",
+            shift * 1000.0,
+            q.max_change_rotation_deg,
+            q.max_change_translation_m * 1000.0
+        )
+    })
 }
 
 pub(super) fn check(ok: bool, reason: impl FnOnce() -> String) -> Result<(), String> {

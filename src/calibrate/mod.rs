@@ -75,6 +75,9 @@ pub struct CalibrateOptions {
     pub two_stage: bool,
     /// The calibration in force, for the gate's change limits.
     pub current: Option<CalibrationResult>,
+    /// The rig in force, for a rig's change limits (each camera's intrinsics, each
+    /// sensor's mounting; a rig's pair runs take neither this nor `current`).
+    pub current_rig: Option<crate::result::RigResult>,
     /// Leaves the LiDAR's board-plane points out of the joint solve (the paper's cost
     /// alone; for comparisons).
     pub without_planes: bool,

@@ -51,7 +51,7 @@ use crate::solve::rig::{
 };
 use crate::solve::room::{plane_frame, BlockPrior};
 use crate::solve::{hole_sigma_px, BoardObservation, Loss, PlanePoints};
-use crate::target::{Room, SurveySpec};
+use crate::target::{QualitySpec, Room, SurveySpec};
 
 /// What one LiDAR saw: its boards and its sweep (accumulated for a standing vehicle).
 #[derive(Clone, Copy, Debug)]
@@ -84,6 +84,9 @@ pub fn calibrate_rig(
     options: &CalibrateOptions,
 ) -> RigCalibration {
     let surveyed = room.survey.is_some() && !options.free_boards;
+    let in_force = options.current_rig.as_ref();
+    // The pair runs are gated per sensor; the change limits are the rig's (below).
+    let options = &CalibrateOptions { current: None, current_rig: None, ..options.clone() };
     // Every camera with every LiDAR: independent runs, spread over the cores.
     let keys: Vec<(usize, Option<usize>)> = (0..rig.cameras.len())
         .flat_map(|c| (0..rig.lidars.len()).map(move |l| (c, Some(l))))
@@ -187,6 +190,9 @@ pub fn calibrate_rig(
         if surveyed {
             tracing::warn!("a rig beyond the joint solve's capacity keeps the composition");
         }
+        if let Some(current) = in_force {
+            judge_changes(&mut result, current, &room.quality, rig);
+        }
         return RigCalibration { result, first, runs, composition: None };
     };
     let inputs = (cameras, lidars);
@@ -202,7 +208,47 @@ pub fn calibrate_rig(
             result.pair.reason = Some(before.map_or(reason.clone(), |r| format!("{r}; {reason}")));
         }
     }
+    if let Some(current) = in_force {
+        judge_changes(&mut result, current, &room.quality, rig);
+    }
     RigCalibration { result, first, runs, composition: Some(composition) }
+}
+
+/// The change limits against the rig in force: every camera's intrinsics and every
+/// sensor's mounting (its extrinsic to the first camera) against the same sensor's there.
+/// A sensor the rig in force lacks has nothing to change from. A sensor beyond a limit is
+/// rejected, named, and the rig with it.
+fn judge_changes(result: &mut RigResult, current: &RigResult, q: &QualitySpec, rig: &Rig) {
+    let mounting = |r: &RigResult, name: &str| {
+        let e = r.extrinsics.iter().find(|e| e.from == name)?;
+        Some(Extrinsic { rotation: e.rotation, translation: e.translation })
+    };
+    let change = |name: &str| -> Result<(), String> {
+        let camera = |r: &RigResult| r.sensors.get(name).and_then(|s| s.camera.clone());
+        if let (Some(a), Some(b)) = (camera(current), camera(result)) {
+            gate::intrinsics_within_change(q, &a, &b)?;
+        }
+        match (mounting(current, name), mounting(result, name)) {
+            (Some(x), Some(y)) => gate::extrinsic_within_change(q, "mounting", &x, &y),
+            _ => Ok(()),
+        }
+    };
+    let cameras = rig.cameras.iter().map(|c| ("camera", c.name.as_str()));
+    let sensors = cameras.chain(rig.lidars.iter().map(|l| ("lidar", l.name.as_str())));
+    let changed: Vec<_> =
+        sensors.filter_map(|(kind, name)| change(name).err().map(|r| (kind, name, r))).collect();
+    let mut failures = Vec::new();
+    for (kind, name, reason) in changed {
+        let Some(entry) = result.sensors.get_mut(name) else { continue };
+        reject(entry, reason);
+        note_failure(&mut failures, kind, name, entry);
+    }
+    if !failures.is_empty() {
+        let pair = &mut result.pair;
+        pair.status = Status::Rejected;
+        let reason = failures.join("; ");
+        pair.reason = Some(pair.reason.take().map_or(reason.clone(), |r| format!("{r}; {reason}")));
+    }
 }
 
 /// The joint solution written into the result: every camera's intrinsics, σ and pose in

@@ -124,7 +124,7 @@ impl Calibrator for RoomCalibrator {
         &mut self,
         frames: &[GreyFrame],
         sweeps: &[Vec<Point>],
-        _current: Option<&RigResult>,
+        current: Option<&RigResult>,
     ) -> CalibrationOutcome {
         let (Some(rig), detectors) = (&self.rig, &mut self.detectors) else {
             return CalibrationOutcome::Failed("the daemon was not configured with a rig".into());
@@ -142,7 +142,9 @@ impl Calibrator for RoomCalibrator {
             sweeps.iter().map(|s| detectors.detect_cloud(s)).collect();
         let lidars: Vec<LidarInput<'_>> =
             boards.iter().zip(sweeps).map(|(boards, cloud)| LidarInput { boards, cloud }).collect();
-        let run = calibrate_rig(&self.room, rig, &cameras, &lidars, &CalibrateOptions::default());
+        let options =
+            CalibrateOptions { current_rig: current.cloned(), ..CalibrateOptions::default() };
+        let run = calibrate_rig(&self.room, rig, &cameras, &lidars, &options);
         CalibrationOutcome::DoneRig(Box::new(run.result))
     }
 }
