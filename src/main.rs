@@ -948,8 +948,29 @@ fn detect(args: DetectArgs) -> Result<(), Failure> {
     }
     if let Some(path) = args.cloud.first() {
         let cloud = load_cloud(&room, path, args.lidar_calibration.as_deref())?;
-        frame.lidar = detectors.detect_cloud(&cloud);
-        for refused in detectors.refused_in_cloud() {
+        let refused = match (&room.survey, args.image.is_empty()) {
+            // In a surveyed room the LiDAR's boards are found where the calibration finds
+            // them: where the room expects them, from the camera's room pose.
+            (Some(_), false) => {
+                let mut frames = [std::mem::take(&mut frame)];
+                let options = roomcal::calibrate::CalibrateOptions::default();
+                let clouds = [cloud.as_slice()];
+                let (_, refused) = roomcal::calibrate::calibrate_detecting(
+                    &room,
+                    &mut frames,
+                    &clouds,
+                    &mut detectors,
+                    &options,
+                );
+                [frame] = frames;
+                refused.into_iter().next().unwrap_or_default()
+            }
+            _ => {
+                frame.lidar = detectors.detect_cloud(&cloud);
+                detectors.refused_in_cloud().to_vec()
+            }
+        };
+        for refused in &refused {
             eprintln!("{}", refused_message(&path.display().to_string(), refused));
         }
     }

@@ -560,3 +560,23 @@ fn detecting_in_a_room_without_survey_is_the_global_search() {
     assert_eq!(refused_here, vec![refused]);
     assert_eq!(detected.result, global.result);
 }
+
+/// A surveyed run that stops before it can carry a board into the sweep (no camera board)
+/// still reports what the sweep holds: the global search's boards and refusals.
+#[test]
+fn a_surveyed_run_without_camera_boards_still_reports_the_sweeps_boards() {
+    let (mut room, truth, visit) = new_vehicle();
+    room.survey = Some(survey(&truth, None));
+    let (mut frame, cloud, mut detectors, global_frame) = global_search(&room, &visit, 5);
+    let refused = detectors.refused_in_cloud().to_vec();
+    frame.camera.clear();
+    let mut frames = [frame];
+    let clouds: [&[Point]; 1] = [&cloud];
+    let options = CalibrateOptions::default();
+    let (run, refused_here) =
+        calibrate_detecting(&room, &mut frames, &clouds, &mut detectors, &options);
+    assert_eq!(run.result.status, roomcal::result::Status::Rejected);
+    assert!(!global_frame.lidar.is_empty());
+    assert_eq!(frames[0].lidar, global_frame.lidar);
+    assert_eq!(refused_here, vec![refused]);
+}

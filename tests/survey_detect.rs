@@ -129,3 +129,46 @@ fn detect_without_a_survey_writes_no_identity() {
     assert!(!json.contains("surveyed_board") && !json.contains("half_turned"), "{json}");
     assert!(!text.contains("surveyed board"), "{text}");
 }
+
+/// In a surveyed room `detect` finds the LiDAR's boards where `calibrate` finds them (where
+/// the room expects them, from the camera's room pose): every board the calibration paired
+/// with the LiDAR is among detect's, hole for hole.
+#[test]
+fn detect_reports_the_lidar_boards_the_calibration_uses() {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("survey_detect_same");
+    std::fs::create_dir_all(&dir).unwrap();
+    let (detections, _) = detect(&fixture("room.toml"), &dir.join("detections.json"));
+    let result = dir.join("result.json");
+    let run = Command::new(BIN)
+        .args(["calibrate", "--quiet", "--room"])
+        .arg(fixture("room.toml"))
+        .arg("--image")
+        .arg(fixture("image.png"))
+        .arg("--cloud")
+        .arg(fixture("cloud.pcap"))
+        .arg("--lidar-calibration")
+        .arg(fixture("angles.csv"))
+        .arg("--out")
+        .arg(&result)
+        .output()
+        .unwrap();
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let result: serde_json::Value = read(&result);
+    let found: Vec<&Vec<[f64; 3]>> =
+        detections.boards.iter().map(|b| &b.holes_lidar).filter(|h| !h.is_empty()).collect();
+    let mut paired = 0;
+    for board in result["boards"].as_array().unwrap() {
+        let Some(holes) = board["holes_lidar"].as_array().filter(|h| !h.is_empty()) else {
+            continue;
+        };
+        paired += 1;
+        let holes: Vec<Vec<f64>> = holes
+            .iter()
+            .map(|h| h.as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect())
+            .collect();
+        let same =
+            |d: &&Vec<[f64; 3]>| holes.iter().all(|h| d.iter().any(|p| distance(p, h) < 1e-6));
+        assert!(found.iter().any(same), "calibration's LiDAR board {holes:?} not among detect's");
+    }
+    assert!(paired >= 2, "the calibration paired {paired} LiDAR boards");
+}

@@ -186,11 +186,19 @@ pub fn calibrate_detecting(
         detectors,
         clouds,
         found: vec![Vec::new(); frames.len()],
+        searched: vec![false; frames.len()],
         refused: vec![Vec::new(); clouds.len()],
     };
     let solved = match surveyed_room(room, options) {
         Some(survey) => {
             let solved = surveyed::solve_surveyed(room, survey, frames, clouds, Some(&mut finder));
+            // A run that stopped before looking (no identified camera board) still reports
+            // what the sweeps hold, as a run without survey would.
+            for f in 0..frames.len().min(clouds.len()) {
+                if !finder.searched[f] {
+                    finder.everywhere(f);
+                }
+            }
             for (frame, found) in frames.iter_mut().zip(finder.found) {
                 frame.lidar = found;
             }
@@ -224,12 +232,15 @@ struct SweepFinder<'a, 'c> {
     clouds: &'a [&'c [crate::lidar::Point]],
     /// Per frame, every board found in its sweep (all rounds).
     found: Vec<Vec<LidarBoard>>,
+    /// Per frame, whether its sweep was searched.
+    searched: Vec<bool>,
     refused: Vec<Vec<RefusedBoard>>,
 }
 
 impl FindLidarBoards for SweepFinder<'_, '_> {
     fn expected(&mut self, frame: usize, expected: &[Se3]) -> Vec<Option<LidarBoard>> {
         let Some(cloud) = self.clouds.get(frame) else { return vec![None; expected.len()] };
+        self.searched[frame] = true;
         let boards = self.detectors.detect_expected(cloud, expected);
         // A board predicted again (a second round) is refused once, as the last round saw it.
         let again = self.detectors.refused_in_cloud();
@@ -243,6 +254,7 @@ impl FindLidarBoards for SweepFinder<'_, '_> {
 
     fn everywhere(&mut self, frame: usize) -> Vec<LidarBoard> {
         let Some(cloud) = self.clouds.get(frame) else { return Vec::new() };
+        self.searched[frame] = true;
         let boards = self.detectors.detect_cloud(cloud);
         self.refused[frame] = self.detectors.refused_in_cloud().to_vec();
         self.found[frame] = boards.clone();
