@@ -1,0 +1,138 @@
+#!/usr/bin/env python3
+"""What part of a survey moves new vehicles (issue 13): the vehicles of a
+`scripts/surveyed_study.py` work folder calibrated (one frame) in its survey as surveyed,
+with its boards replaced by the simulator's truth, with its planes replaced, and with both
+(σ kept), and the error each leaves: the mean LiDAR→camera translation error over the
+vehicles in the LiDAR frame (the error they share, mm), its spread, and the RMS translation
+and rotation errors. Beside them every surveyed board's and plane's own error against the
+truth (plane offsets under the vehicle, at the file's origin).
+
+The truth (`room/room-truth.json`, the simulator's room frame) is put in the survey's frame
+(the nominal LiDAR at the visits' mean parking) by the rigid motion that best fits the board
+centres (Kabsch); boards are matched by nearest centre, a board whose surveyed frame is the
+truth's half-turned (the symmetric checkerboard) keeps that turn; planes by normal. Planes
+are `normal · x = offset` in both files.
+
+    cargo build --release && scripts/surveyed_study.py --seed 4 --work DIR
+    scripts/survey_attribution.py DIR [--vehicles 17 26]
+"""
+import argparse
+import json
+import os
+import sys
+import tomllib
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import surveyed_study as study  # noqa: E402  (one calibrate and one error definition, there)
+
+HALF_TURN = np.diag([-1.0, -1.0, 1.0])
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("work", help="a surveyed_study.py --work folder (surveyed.toml, room/)")
+    ap.add_argument("--vehicles", type=int, nargs=2, default=[17, 26], metavar=("FIRST", "LAST"))
+    args = ap.parse_args()
+    text = open(os.path.join(args.work, "surveyed.toml")).read()
+    survey = tomllib.loads(text)["survey"]
+    truth = json.load(open(os.path.join(args.work, "room", "room-truth.json")))
+    exact = ExactSurvey(survey, truth)
+    exact.print_errors()
+    head = text[: text.index("[survey]")]
+    print("| survey values | mean error x, y, z mm | spread mm | t RMS mm | rot RMS ° |")
+    print("|---|---|---|---|---|")
+    for name, boards, planes in (("as surveyed", False, False), ("boards exact", True, False),
+                                 ("planes exact", False, True), ("both exact", True, True)):
+        path = os.path.join(args.work, f"attribution-{int(boards)}{int(planes)}.toml")
+        with open(path, "w") as f:
+            f.write(head + exact.survey_toml(boards, planes))
+        shared, t, rot = calibrate_vehicles(args.work, path, range(args.vehicles[0], args.vehicles[1] + 1))
+        mean, spread = shared.mean(0), shared.std(0)
+        print(f"| {name} | {fmt(mean)} | {fmt(spread)} | {t:.2f} | {rot:.4f} |", flush=True)
+
+
+def fmt(v):
+    return ", ".join(f"{x:.2f}" for x in v)
+
+
+class ExactSurvey:
+    """The survey file's values, and the truth's in the survey's frame."""
+
+    def __init__(self, survey, truth):
+        self.survey = survey
+        self.boards = [(np.array(b["rotation"]), np.array(b["translation"])) for b in survey["boards"]]
+        truth_boards = [(np.array(b["rotation"]), np.array(b["translation"])) for b in truth["boards"]]
+        match = [int(np.argmin([np.linalg.norm(t - b[1]) for _, t in truth_boards])) for b in self.boards]
+        self.rotation, self.shift = kabsch([truth_boards[m][1] for m in match], [b[1] for b in self.boards])
+        self.truth_boards = []
+        for (rs, _), m in zip(self.boards, match):
+            r, t = truth_boards[m]
+            r = self.rotation @ r
+            if np.trace(r.T @ rs) < 0:
+                r = r @ HALF_TURN
+            self.truth_boards.append((r, self.rotation @ t + self.shift))
+        self.truth_planes = []
+        for p in survey["planes"]:
+            candidates = [(self.rotation @ np.array(q["normal"]), q) for q in truth["planes"]]
+            normal, q = max(candidates, key=lambda c: c[0] @ np.array(p["normal"]))
+            self.truth_planes.append((normal, q["offset"] + normal @ self.shift))
+
+    def print_errors(self):
+        angle = np.degrees(np.arccos(min(1.0, (np.trace(self.rotation) - 1) / 2)))
+        print(f"survey frame ← truth frame: {angle:.3f}°, {fmt(self.shift * 1000)} mm\n")
+        for i, (b, (r, t)) in enumerate(zip(self.survey["boards"], self.truth_boards)):
+            rs, ts = self.boards[i]
+            turn = np.degrees(np.arccos(min(1.0, (np.trace(r.T @ rs) - 1) / 2)))
+            print(f"board {i}: position off ({fmt((ts - t) * 1000)}) mm (σ {b['sigma_m'] * 1000:.2f}), "
+                  f"orientation {turn:.4f}° (σ {b['sigma_deg']:.4f})")
+        for p, (n, offset) in zip(self.survey["planes"], self.truth_planes):
+            tilt = np.degrees(np.arccos(min(1.0, n @ np.array(p["normal"]))))
+            print(f"{p['name']}: offset off {(p['offset'] - offset) * 1000:+.2f} mm at the origin "
+                  f"(σ {p['sigma_m'] * 1000:.2f}), normal {tilt:.4f}° (σ {p['sigma_deg']:.4f})")
+        print()
+
+    def survey_toml(self, exact_boards, exact_planes):
+        s = self.survey
+        out = ["[survey]", f"visits = {s['visits']}", f"frame = {json.dumps(s['frame'])}", ""]
+        for i, b in enumerate(s["boards"]):
+            r, t = self.truth_boards[i] if exact_boards else self.boards[i]
+            out += ["[[survey.boards]]", f"rotation = {json.dumps(r.tolist())}",
+                    f"translation = {json.dumps(t.tolist())}",
+                    f"sigma_m = {b['sigma_m']}", f"sigma_deg = {b['sigma_deg']}", ""]
+        for p, (n, offset) in zip(s["planes"], self.truth_planes):
+            normal, off = (n.tolist(), offset) if exact_planes else (p["normal"], p["offset"])
+            out += ["[[survey.planes]]", f"name = {json.dumps(p['name'])}",
+                    f"normal = {json.dumps(normal)}", f"offset = {off}",
+                    f"sigma_m = {p['sigma_m']}", f"sigma_deg = {p['sigma_deg']}", ""]
+        return "\n".join(out)
+
+
+def kabsch(p, q):
+    """The rigid motion (R, t) with q ≈ R p + t, least squares."""
+    p, q = np.array(p), np.array(q)
+    pc, qc = p.mean(0), q.mean(0)
+    u, _, vt = np.linalg.svd((p - pc).T @ (q - qc))
+    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(vt.T @ u.T))])
+    r = vt.T @ d @ u.T
+    return r, qc - r @ pc
+
+
+def calibrate_vehicles(work, room, visits):
+    """Each vehicle's LiDAR-frame translation error (mm), and the RMS t (mm) and rotation (°)."""
+    shared, errors = [], []
+    for v in visits:
+        folder = os.path.join(work, "room", f"visit-{v:02}")
+        truth = json.load(open(os.path.join(folder, "truth.json")))
+        result = study.calibrate(folder, room, 1, 1, False, work, 1000 + v)
+        errors.append(study.errors(result, truth))
+        want, got = truth["lidar_to_camera"], result["lidar_to_camera"]
+        delta = np.array(got["translation"]) - np.array(want["translation"])
+        shared.append(np.array(want["rotation"]).T @ delta * 1000)
+    rms = lambda k: float(np.sqrt(np.mean([e[k] ** 2 for e in errors])))
+    return np.array(shared), rms("t"), rms("rot")
+
+
+if __name__ == "__main__":
+    main()
