@@ -73,11 +73,16 @@ class ExactSurvey:
             if np.trace(r.T @ rs) < 0:
                 r = r @ HALF_TURN
             self.truth_boards.append((r, self.rotation @ t + self.shift))
+        # Each surveyed plane's truth plane: the one within 1° and 5 cm; a large plane that
+        # is none of the room's (a box's face) has no truth and keeps its surveyed values.
         self.truth_planes = []
         for p in survey["planes"]:
+            n = np.array(p["normal"])
             candidates = [(self.rotation @ np.array(q["normal"]), q) for q in truth["planes"]]
-            normal, q = max(candidates, key=lambda c: c[0] @ np.array(p["normal"]))
-            self.truth_planes.append((normal, q["offset"] + normal @ self.shift))
+            candidates = [(m, q["offset"] + m @ self.shift) for m, q in candidates]
+            near = [(m, o) for m, o in candidates
+                    if np.degrees(np.arccos(min(1.0, m @ n))) < 1.0 and abs(o - p["offset"]) < 0.05]
+            self.truth_planes.append(near[0] if near else None)
 
     def print_errors(self):
         angle = np.degrees(np.arccos(min(1.0, (np.trace(self.rotation) - 1) / 2)))
@@ -87,7 +92,11 @@ class ExactSurvey:
             turn = np.degrees(np.arccos(min(1.0, (np.trace(r.T @ rs) - 1) / 2)))
             print(f"board {i}: position off ({fmt((ts - t) * 1000)}) mm (σ {b['sigma_m'] * 1000:.2f}), "
                   f"orientation {turn:.4f}° (σ {b['sigma_deg']:.4f})")
-        for p, (n, offset) in zip(self.survey["planes"], self.truth_planes):
+        for p, exact in zip(self.survey["planes"], self.truth_planes):
+            if exact is None:
+                print(f"{p['name']}: none of the room's planes (a box or stand), kept as surveyed")
+                continue
+            n, offset = exact
             tilt = np.degrees(np.arccos(min(1.0, n @ np.array(p["normal"]))))
             print(f"{p['name']}: offset off {(p['offset'] - offset) * 1000:+.2f} mm at the origin "
                   f"(σ {p['sigma_m'] * 1000:.2f}), normal {tilt:.4f}° (σ {p['sigma_deg']:.4f})")
@@ -101,8 +110,10 @@ class ExactSurvey:
             out += ["[[survey.boards]]", f"rotation = {json.dumps(r.tolist())}",
                     f"translation = {json.dumps(t.tolist())}",
                     f"sigma_m = {b['sigma_m']}", f"sigma_deg = {b['sigma_deg']}", ""]
-        for p, (n, offset) in zip(s["planes"], self.truth_planes):
-            normal, off = (n.tolist(), offset) if exact_planes else (p["normal"], p["offset"])
+        for p, exact in zip(s["planes"], self.truth_planes):
+            normal, off = p["normal"], p["offset"]
+            if exact_planes and exact is not None:
+                normal, off = exact[0].tolist(), exact[1]
             out += ["[[survey.planes]]", f"name = {json.dumps(p['name'])}",
                     f"normal = {json.dumps(normal)}", f"offset = {off}",
                     f"sigma_m = {p['sigma_m']}", f"sigma_deg = {p['sigma_deg']}", ""]
