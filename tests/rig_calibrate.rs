@@ -231,6 +231,15 @@ fn a_rig_in_the_surveyed_room_and_with_free_boards_matches_the_truth() {
     check_against_truth("free", &sim, &run_free);
 }
 
+/// The rig of simulator seed `seed` and its room given the realistic survey the study
+/// draws for that seed.
+fn realistically_surveyed(seed: u64) -> (RigSimulation, Room) {
+    let sim = with_wide_coverage(simulated(seed));
+    let mut room = sim.room.clone();
+    room.survey = Some(realistic_survey(&sim.room_truth, &mut Rng(1000 + seed)));
+    (sim, room)
+}
+
 /// The survey 16 visits give, as the study assumes it: every board and plane off
 /// the truth by 0.5 mm and 0.01° (1σ per axis, drawn), those σ declared.
 fn realistic_survey(truth: &RoomTruth, rng: &mut Rng) -> SurveySpec {
@@ -523,9 +532,7 @@ fn a_board_moved_since_the_survey_is_left_out_of_the_joint_solve() {
 /// rejects the rig.
 #[test]
 fn in_a_surveyed_room_each_sensor_is_judged_by_the_joint_solve() {
-    let sim = with_wide_coverage(simulated(4));
-    let mut room = sim.room.clone();
-    room.survey = Some(realistic_survey(&sim.room_truth, &mut Rng(1004)));
+    let (sim, room) = realistically_surveyed(4);
     let (cameras, lidars) = detections(&sim, &mut Rng(4));
     let bumper = sim.rig.lidars.iter().position(|l| l.name.as_str() == "bumper").unwrap();
     assert!(lidars[bumper].is_empty(), "seed 4's bumper places no board");
@@ -569,9 +576,7 @@ fn in_a_surveyed_room_each_sensor_is_judged_by_the_joint_solve() {
 /// longer, that sensor is named and the rig rejected, the others still accepted.
 #[test]
 fn a_rig_that_moved_from_the_rig_in_force_is_rejected_naming_the_sensor() {
-    let sim = with_wide_coverage(simulated(2026));
-    let mut room = sim.room.clone();
-    room.survey = Some(realistic_survey(&sim.room_truth, &mut Rng(2026)));
+    let (sim, room) = realistically_surveyed(2026);
     let (cameras, lidars) = detections(&sim, &mut Rng(7));
     let inputs: Vec<LidarInput<'_>> =
         lidars.iter().zip(&sim.clouds).map(|(b, c)| LidarInput { boards: b, cloud: c }).collect();

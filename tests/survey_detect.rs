@@ -18,10 +18,10 @@ fn fixture(file: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/surveyed-pandar64").join(file)
 }
 
-fn detect(room: &Path, out: &Path) -> (Detections, String) {
-    let run = Command::new(BIN)
-        .arg("detect")
-        .arg("--room")
+/// `roomcal COMMAND --room ROOM` on the fixture's image and capture, writing `out`.
+fn on_fixture(command: &str, room: &Path, out: &Path) -> std::process::Output {
+    Command::new(BIN)
+        .args([command, "--room"])
         .arg(room)
         .arg("--image")
         .arg(fixture("image.png"))
@@ -32,7 +32,11 @@ fn detect(room: &Path, out: &Path) -> (Detections, String) {
         .arg("--out")
         .arg(out)
         .output()
-        .unwrap();
+        .unwrap()
+}
+
+fn detect(room: &Path, out: &Path) -> (Detections, String) {
+    let run = on_fixture("detect", room, out);
     let text = String::from_utf8_lossy(&run.stdout).to_string();
     assert!(run.status.success(), "detect: {text}{}", String::from_utf8_lossy(&run.stderr));
     (serde_json::from_str(&std::fs::read_to_string(out).unwrap()).unwrap(), text)
@@ -139,19 +143,7 @@ fn detect_reports_the_lidar_boards_the_calibration_uses() {
     std::fs::create_dir_all(&dir).unwrap();
     let (detections, _) = detect(&fixture("room.toml"), &dir.join("detections.json"));
     let result = dir.join("result.json");
-    let run = Command::new(BIN)
-        .args(["calibrate", "--quiet", "--room"])
-        .arg(fixture("room.toml"))
-        .arg("--image")
-        .arg(fixture("image.png"))
-        .arg("--cloud")
-        .arg(fixture("cloud.pcap"))
-        .arg("--lidar-calibration")
-        .arg(fixture("angles.csv"))
-        .arg("--out")
-        .arg(&result)
-        .output()
-        .unwrap();
+    let run = on_fixture("calibrate", &fixture("room.toml"), &result);
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
     let result: serde_json::Value = read(&result);
     let found: Vec<&Vec<[f64; 3]>> =
