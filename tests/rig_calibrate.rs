@@ -553,22 +553,26 @@ fn in_a_surveyed_room_each_sensor_is_judged_by_the_joint_solve() {
 
     let mut blind = clouds.clone();
     blind[bumper] = &[];
-    let run = calibrate(&cameras, &blind);
-    let reason = run.result.pair.reason.clone().unwrap_or_default();
-    println!("bumper blind: {reason}");
-    assert_eq!(run.result.pair.status, Status::Rejected);
-    assert!(reason.contains("lidar `bumper`"), "{reason}");
-    assert_eq!(run.result.sensors["top"].status, Status::Accepted, "{reason}");
+    let run = calibrate(&cameras, &blind).result;
+    let reason = rejected_naming(&run, "bumper blind", "lidar `bumper`");
+    assert_eq!(run.sensors["top"].status, Status::Accepted, "{reason}");
 
     let wide = sim.rig.cameras.iter().position(|c| c.name.as_str() == "wide").unwrap();
     let mut few = cameras.clone();
     few[wide].truncate(2);
-    let run = calibrate(&few, &clouds);
-    let reason = run.result.pair.reason.clone().unwrap_or_default();
-    println!("wide camera with 2 boards: {reason}");
-    assert_eq!(run.result.pair.status, Status::Rejected);
-    assert!(reason.contains("camera `wide`"), "{reason}");
-    assert_eq!(run.result.sensors["front"].status, Status::Accepted, "{reason}");
+    let run = calibrate(&few, &clouds).result;
+    let reason = rejected_naming(&run, "wide camera with 2 boards", "camera `wide`");
+    assert_eq!(run.sensors["front"].status, Status::Accepted, "{reason}");
+}
+
+/// Asserts the rig was rejected with a reason containing `needle`, prints it (`what`) and
+/// returns it.
+fn rejected_naming(run: &roomcal::result::RigResult, what: &str, needle: &str) -> String {
+    let reason = run.pair.reason.clone().unwrap_or_default();
+    println!("{what}: {reason}");
+    assert_eq!(run.pair.status, Status::Rejected, "{what}");
+    assert!(reason.contains(needle), "{what}: {reason}");
+    reason
 }
 
 /// The change limits against the rig in force: the same rig again passes; with the rig in
@@ -592,18 +596,15 @@ fn a_rig_that_moved_from_the_rig_in_force_is_rejected_naming_the_sensor() {
     let mut moved = in_force.clone();
     moved.extrinsics.iter_mut().find(|e| e.from == "bumper").unwrap().translation[2] += 0.15;
     let run = against(Some(moved));
-    let reason = run.pair.reason.clone().unwrap_or_default();
-    println!("bumper moved in the rig in force: {reason}");
-    assert_eq!(run.pair.status, Status::Rejected);
-    assert!(reason.contains("lidar `bumper`: mounting moved"), "{reason}");
+    let what = "bumper moved in the rig in force";
+    let reason = rejected_naming(&run, what, "lidar `bumper`: mounting moved");
     assert_eq!(run.sensors["bumper"].status, Status::Rejected);
     assert_eq!(run.sensors["top"].status, Status::Accepted, "{reason}");
 
     let mut longer = in_force.clone();
     longer.sensors.get_mut("wide").unwrap().camera.as_mut().unwrap().fx *= 1.05;
     let run = against(Some(longer));
-    let reason = run.pair.reason.clone().unwrap_or_default();
-    println!("wide camera's focal length in force 5 % longer: {reason}");
-    assert!(reason.contains("camera `wide`: focal length moved"), "{reason}");
+    let what = "wide camera's focal length in force 5 % longer";
+    let reason = rejected_naming(&run, what, "camera `wide`: focal length moved");
     assert_eq!(run.sensors["front"].status, Status::Accepted, "{reason}");
 }
