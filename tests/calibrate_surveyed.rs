@@ -404,12 +404,26 @@ fn the_gate_rejects_a_parking_outside_the_box() {
 /// and the run solved again from the others.
 #[test]
 fn a_wrongly_placed_lidar_board_is_named_and_left_out() {
-    let (room, _, visit) = new_vehicle();
+    wrongly_placed_board_left_out(true);
+}
+
+/// The same in the surveyed room: the board is named by its surveyed board, its LiDAR
+/// placement left out (its corners still hold it) and the room solved again.
+#[test]
+fn in_a_surveyed_room_a_wrongly_placed_lidar_board_is_named_and_left_out() {
+    wrongly_placed_board_left_out(false);
+}
+
+fn wrongly_placed_board_left_out(free: bool) {
+    let (mut room, truth, visit) = new_vehicle();
+    if !free {
+        room.survey = Some(survey(&truth, None));
+    }
     let mut rng = Rng(21);
     let mut frame = detections(&visit, &room, &mut rng);
     let cloud = visit.scene.cloud.clone().unwrap();
     assert!(frame.lidar.len() >= 4, "{} LiDAR boards", frame.lidar.len());
-    let clean = run(&room, &frame, &cloud, true);
+    let clean = run(&room, &frame, &cloud, free);
     assert!(clean.notes.is_empty(), "a clean run names no board: {:?}", clean.notes);
     let bad = &mut frame.lidar[1];
     let centre = bad.holes.iter().sum::<Vec3>() / bad.holes.len() as f64;
@@ -418,16 +432,20 @@ fn a_wrongly_placed_lidar_board_is_named_and_left_out() {
     for h in bad.holes.iter_mut() {
         *h = centre + turn * (*h - centre);
     }
-    let run = run(&room, &frame, &cloud, true);
+    let run = run(&room, &frame, &cloud, free);
     println!("status {:?} reason {:?} notes {:?}", run.result.status, run.result.reason, run.notes);
     assert_eq!(run.notes.len(), 1, "{:?}", run.notes);
-    // LiDAR board 1 is the second placeable board; camera boards follow the truth's order.
+    // LiDAR board 1 is the second placeable board; camera boards follow the truth's order,
+    // and so do the surveyed boards (the survey is the room's truth).
     let placeable: Vec<usize> = (0..visit.scene.truth.boards.len())
         .filter(|&b| {
             visit.scene.truth.boards[b].hole_scan_lines.iter().filter(|&&n| n >= 2).count() >= 2
         })
         .collect();
-    let expected = format!("frame 0 board {}:", placeable[1]);
+    let expected = match free {
+        true => format!("frame 0 board {}:", placeable[1]),
+        false => format!("frame 0 surveyed board {}:", placeable[1]),
+    };
     assert!(
         run.notes[0].contains(&expected) && run.notes[0].contains("left out"),
         "{:?}",
@@ -435,8 +453,9 @@ fn a_wrongly_placed_lidar_board_is_named_and_left_out() {
     );
     assert_eq!(run.result.status, Status::Accepted, "{:?}", run.result.reason);
     let e = errors(&run, &visit);
-    line("free, wrong board left out", &e, &run);
-    within_3_sigma(&e, &run, "wrong board left out");
+    let what = if free { "free, wrong board left out" } else { "surveyed, wrong board left out" };
+    line(what, &e, &run);
+    within_3_sigma(&e, &run, what);
 }
 
 /// The visit's camera boards (noise from `seed`, no LiDAR boards), its sweep, the room's

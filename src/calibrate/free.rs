@@ -51,7 +51,7 @@ pub(super) fn solve_free(
 }
 
 /// The used board whose hole RMS stands out, with it and the others' median (px).
-fn hole_outlier(room: &Room, run: &Calibration) -> Option<(usize, f64, f64)> {
+pub(super) fn hole_outlier(room: &Room, run: &Calibration) -> Option<(usize, f64, f64)> {
     let rms: Vec<(usize, f64)> = run
         .boards
         .iter()

@@ -10,7 +10,7 @@
 //! named, left out, and the room solved again; two such boards reject the run.
 
 use super::association::{associate, lidar_nominal, paired_extrinsic};
-use super::free::{accepted, camera_start, intrinsics_start, CameraStart};
+use super::free::{accepted, camera_start, hole_outlier, intrinsics_start, CameraStart};
 use super::identify::{identify, oriented, Identity};
 use super::{
     median, solver_reason, Calibration, CameraBoard, FindLidarBoards, FrameDetections, LidarBoard,
@@ -85,7 +85,7 @@ pub(super) fn solve_surveyed(
         }
         _ => frames,
     };
-    let pairs = match lidar {
+    let mut pairs = match lidar {
         Some(l) => {
             associate(&lidar_nominal(l), lidar_frames, &camera_boards, &board_poses, &holes_board)
         }
@@ -96,7 +96,11 @@ pub(super) fn solve_surveyed(
     });
 
     let mut left_out: Vec<usize> = Vec::new();
+    // A LiDAR placement whose holes fit far worse than the other boards' (issue 14 item 4,
+    // as in the free-board run) is named, left out, and the room solved again, once.
+    let mut misplaced: Option<String> = None;
     loop {
+        let mut unpair = None;
         let keep: Vec<usize> =
             (0..identified.len()).filter(|&i| !left_out.contains(&identified[i].2)).collect();
         let ext = extrinsic.unwrap_or_else(Se3::identity);
@@ -166,8 +170,23 @@ pub(super) fn solve_surveyed(
                 iterations,
                 &left_out,
             );
+            if let (None, Some((j, worst, median))) = (&misplaced, hole_outlier(room, &run)) {
+                let (frame, _, board, _) = &identified[keep[j]];
+                let name = format!(
+                    "frame {frame} surveyed board {board}: its LiDAR hole RMS {worst:.2} px is {:.0}× the other boards' median ({median:.2} px); its LiDAR placement was left out",
+                    worst / median.max(1e-9)
+                );
+                tracing::warn!("{name}");
+                misplaced = Some(name);
+                unpair = Some(keep[j]);
+                break;
+            }
+            run.notes.extend(misplaced.take());
             run.notes.extend(unmatched);
             return Ok(run);
+        }
+        if let Some(i) = unpair {
+            pairs[i] = None;
         }
     }
 }
