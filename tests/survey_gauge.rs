@@ -151,12 +151,12 @@ fn exact_holes(sim: &Visits, frames: &[FrameDetections], sigma: f64) -> Vec<Fram
     let mut frames = frames.to_vec();
     for (v, frame) in frames.iter_mut().enumerate() {
         let truth = &sim.visits[v].scene.truth;
+        let holes: Vec<Vec3> = truth
+            .boards
+            .iter()
+            .flat_map(|b| b.holes_lidar.iter().map(|h| Vec3::from(*h)))
+            .collect();
         for board in frame.lidar.iter_mut() {
-            let holes: Vec<Vec3> = truth
-                .boards
-                .iter()
-                .flat_map(|b| b.holes_lidar.iter().map(|h| Vec3::from(*h)))
-                .collect();
             for h in board.holes.iter_mut() {
                 let nearest =
                     holes.iter().min_by(|a, b| (*a - *h).norm().total_cmp(&(*b - *h).norm()));

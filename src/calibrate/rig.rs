@@ -186,32 +186,27 @@ pub fn calibrate_rig(
     let composition = RigResult { pair, sensors, extrinsics };
     let mut result = composition.clone();
     let fits = rig.cameras.len() <= JOINT_CAMERAS && rig.lidars.len() <= JOINT_LIDARS;
-    let Some(survey) = room.survey.as_ref().filter(|_| surveyed && fits) else {
-        if surveyed {
-            tracing::warn!("a rig beyond the joint solve's capacity keeps the composition");
-        }
-        if let Some(current) = in_force {
-            judge_changes(&mut result, current, &room.quality, rig);
-        }
-        return RigCalibration { result, first, runs, composition: None };
-    };
-    let inputs = (cameras, lidars);
-    match solve_jointly(room, survey, rig, &runs, &camera_runs, inputs, &start) {
-        Ok(joint) => {
-            apply_joint(&mut result, &joint, rig);
-            let lidar_runs = Runs { runs: &runs, cameras: &camera_runs, lidars: &lidar_cameras };
-            judge_jointly(&mut result, &joint, room, rig, &lidar_runs);
-        }
-        Err(reason) => {
-            result.pair.status = Status::Rejected;
-            let before = result.pair.reason.take();
-            result.pair.reason = Some(before.map_or(reason.clone(), |r| format!("{r}; {reason}")));
+    let joint_survey = room.survey.as_ref().filter(|_| surveyed && fits);
+    if surveyed && joint_survey.is_none() {
+        tracing::warn!("a rig beyond the joint solve's capacity keeps the composition");
+    }
+    if let Some(survey) = joint_survey {
+        let inputs = (cameras, lidars);
+        match solve_jointly(room, survey, rig, &runs, &camera_runs, inputs, &start) {
+            Ok(joint) => {
+                apply_joint(&mut result, &joint, rig);
+                let lidar_runs =
+                    Runs { runs: &runs, cameras: &camera_runs, lidars: &lidar_cameras };
+                judge_jointly(&mut result, &joint, room, rig, &lidar_runs);
+            }
+            Err(reason) => reject_rig(&mut result.pair, reason),
         }
     }
     if let Some(current) = in_force {
         judge_changes(&mut result, current, &room.quality, rig);
     }
-    RigCalibration { result, first, runs, composition: Some(composition) }
+    let composition = joint_survey.map(|_| composition);
+    RigCalibration { result, first, runs, composition }
 }
 
 /// The change limits against the rig in force: every camera's intrinsics and every
@@ -244,10 +239,7 @@ fn judge_changes(result: &mut RigResult, current: &RigResult, q: &QualitySpec, r
         note_failure(&mut failures, kind, name, entry);
     }
     if !failures.is_empty() {
-        let pair = &mut result.pair;
-        pair.status = Status::Rejected;
-        let reason = failures.join("; ");
-        pair.reason = Some(pair.reason.take().map_or(reason.clone(), |r| format!("{r}; {reason}")));
+        reject_rig(&mut result.pair, failures.join("; "));
     }
 }
 
@@ -475,6 +467,15 @@ fn sensor_entry(run: &Calibration, solved_with: Option<String>) -> SensorResult 
 fn reject(entry: &mut SensorResult, reason: String) {
     entry.status = Status::Rejected;
     entry.reason = Some(match entry.reason.take() {
+        Some(r) => format!("{r}; {reason}"),
+        None => reason,
+    });
+}
+
+/// Rejects the whole rig, `reason` added to any it already has.
+fn reject_rig(pair: &mut crate::result::CalibrationResult, reason: String) {
+    pair.status = Status::Rejected;
+    pair.reason = Some(match pair.reason.take() {
         Some(r) => format!("{r}; {reason}"),
         None => reason,
     });
