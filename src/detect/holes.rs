@@ -305,6 +305,10 @@ pub struct HoleDetector {
     order: Vec<u32>,
     roots: Vec<u32>,
     seg: Vec<Vec3>,
+    /// Returns near the plane examined, on it or off it ([`HoleDetector::find_see_through`]).
+    aside: Vec<Vec3>,
+    /// Half-width (m) of the band about the board's plane that `seg` was last cut to.
+    band: f64,
     flat: Vec<[f64; 2]>,
     sample: Vec<[f64; 2]>,
     gaps: Vec<[f64; 2]>,
@@ -375,6 +379,8 @@ impl HoleDetector {
             order: Vec::new(),
             roots: Vec::new(),
             seg: Vec::new(),
+            aside: Vec::new(),
+            band: 0.0,
             flat: Vec::new(),
             sample: Vec::new(),
             gaps: Vec::new(),
@@ -556,6 +562,7 @@ impl HoleDetector {
             fitted = self.lines_agreeing((c, n), keep, 1.4826 * mad);
         }
         self.seg.retain(|p| n.dot(&(p - c)).abs() < keep);
+        self.band = keep;
         if n.dot(&c) < 0.0 {
             n = -n;
         }
@@ -571,30 +578,10 @@ impl HoleDetector {
         if points < self.config.min_points {
             return;
         }
-        // Board frame candidates: y as close to LiDAR down as the plane allows.
-        let down = Vec3::new(0.0, 0.0, -1.0);
-        let mut ey = down - n * n.dot(&down);
-        if ey.norm() < 0.2 {
-            ey = Vec3::new(-1.0, 0.0, 0.0) - n * (-n.x);
-        }
-        let ey = ey.normalize();
-        let ex = ey.cross(&n);
-        // Ray projection onto the plane n·p = d.
-        let d = n.dot(&c);
-        self.flat.clear();
-        self.lines.clear();
-        for p in &self.seg {
-            let s = n.dot(p);
-            if s.abs() < 1e-6 {
-                continue;
-            }
-            let q = p * (d / s) - c;
-            self.flat.push([q.dot(&ex), q.dot(&ey)]);
-            let elevation = p.z.atan2(p.x.hypot(p.y));
-            self.lines.push((elevation, self.flat.len() as u32 - 1));
-        }
+        let frame = self.flatten((c, n));
+        let (_, ex, ey, _) = frame;
         let chords = self.find_gaps();
-        self.find_see_through((c, ex, ey, n));
+        self.find_see_through(frame);
         if !self.extent_fits(&spec) {
             return;
         }
@@ -672,7 +659,7 @@ impl HoleDetector {
             self.refused.push(r);
             return;
         }
-        let (outside, ends) = self.line_ends_outside(&fit);
+        let (outside, ends) = self.line_ends_outside(&fit, (c, ex, ey, n));
         if outside > 1 + ends / 10 {
             let mut r = refuse(Refusal::OutlineDisagrees { outside, ends });
             r.best_guess = Some(self.pose(&fit, (c, ex, ey, n)));
@@ -725,6 +712,32 @@ impl HoleDetector {
         out.push(self.board(&fit, (c, ex, ey, n), plane_sigma, rms, lines));
     }
 
+    /// The board frame of the plane (`c`, `n`) — `y` as close to the LiDAR's down as the
+    /// plane allows — with `seg` projected along its beams into `flat` and each point's
+    /// elevation in `lines`.
+    fn flatten(&mut self, (c, n): (Vec3, Vec3)) -> (Vec3, Vec3, Vec3, Vec3) {
+        let down = Vec3::new(0.0, 0.0, -1.0);
+        let mut ey = down - n * n.dot(&down);
+        if ey.norm() < 0.2 {
+            ey = Vec3::new(-1.0, 0.0, 0.0) - n * (-n.x);
+        }
+        let ey = ey.normalize();
+        let ex = ey.cross(&n);
+        // Ray projection onto the plane n·p = d.
+        let d = n.dot(&c);
+        self.flat.clear();
+        self.lines.clear();
+        for p in &self.seg {
+            // `flat[i]` is `seg[i]`'s: a beam along the plane (never on a board) unprojected.
+            let s = n.dot(p);
+            let q = if s.abs() < 1e-6 { p - c } else { p * (d / s) - c };
+            self.flat.push([q.dot(&ex), q.dot(&ey)]);
+            let elevation = p.z.atan2(p.x.hypot(p.y));
+            self.lines.push((elevation, self.flat.len() as u32 - 1));
+        }
+        (c, ex, ey, n)
+    }
+
     /// Cheap checks of a coarse pose (within 2 cm) before it is refined: points deep
     /// inside the holes (no hole pattern there), or fewer than two holes crossed by any
     /// scan line (no refinement can make two of them well seen).
@@ -747,10 +760,16 @@ impl HoleDetector {
 
     /// Scan-line ends (each line's first and last return along board x) between
     /// [`OUTLINE_TOLERANCE`] and [`OUTLINE_CLUTTER`] outside the fitted outline, and the
-    /// ends counted: a line ends
-    /// where it leaves the board, so a board turned or shifted in its plane leaves ends
-    /// outside its outline (ends inside it may be an occluder's).
-    fn line_ends_outside(&mut self, fit: &Fit) -> (usize, usize) {
+    /// ends counted: a line ends where it leaves the board, so a board turned or shifted in
+    /// its plane leaves ends outside its outline (ends inside it may be an occluder's).
+    /// A line past the board's side whose points there lie off the plane on average
+    /// ([`HoleDetector::turns_off`]) and that runs on beyond them without a jump in range
+    /// ([`HoleDetector::runs_on`]) did not end at an edge: it ran onto a surface crossing
+    /// the board's plane there at an angle (a box beside the board), and says nothing of
+    /// the outline. A line that goes on in the plane (a wall) or ends at a corner of it
+    /// still counts (issue 14's held-out rooms: a wall's patch placed as a board when every
+    /// line running on was excused).
+    fn line_ends_outside(&mut self, fit: &Fit, frame: (Vec3, Vec3, Vec3, Vec3)) -> (usize, usize) {
         let (hw, hh) = (self.spec.width / 2.0, self.spec.height / 2.0);
         // Ends far outside are coplanar clutter the line ran on into (a neighbouring
         // board's edge, a wall), not the pose's error: those do not count.
@@ -769,15 +788,76 @@ impl HoleDetector {
             if line.len() < 3 {
                 continue;
             }
-            let board = |&(_, i): &(f64, u32)| to_board(fit.pose, &self.flat[i as usize]);
-            let first = line.iter().map(board).min_by(|a, b| a.0.total_cmp(&b.0));
-            let last = line.iter().map(board).max_by(|a, b| a.0.total_cmp(&b.0));
-            for p in [first, last].into_iter().flatten() {
-                ends += 1;
-                bad += usize::from(outside(p));
+            let board = |&(_, i): &(f64, u32)| (to_board(fit.pose, &self.flat[i as usize]), i);
+            let first = line.iter().map(board).min_by(|a, b| a.0 .0.total_cmp(&b.0 .0));
+            let last = line.iter().map(board).max_by(|a, b| a.0 .0.total_cmp(&b.0 .0));
+            for ((p, i), towards) in
+                [first.map(|f| (f, -1.0)), last.map(|l| (l, 1.0))].into_iter().flatten()
+            {
+                if !outside(p) {
+                    ends += 1;
+                } else if !(p.1.abs() - hh <= OUTLINE_TOLERANCE
+                    && self.turns_off(
+                        line,
+                        towards * (hw + OUTLINE_TOLERANCE),
+                        fit,
+                        (frame.0, frame.3),
+                    )
+                    && self.runs_on(i as usize, towards, fit, frame))
+                {
+                    ends += 1;
+                    bad += 1;
+                }
             }
         }
         (bad, ends)
+    }
+
+    /// Whether the points of scan `line` beyond board x `edge` (past it, away from the
+    /// board's centre) lie off the plane (`c`, `n`) on average, by more than 2.5 of their
+    /// mean's σ (the plane's band being 3σ): a surface crossing the band at an angle, not
+    /// the board or a surface in its plane.
+    fn turns_off(&self, line: &[(f64, u32)], edge: f64, fit: &Fit, (c, n): (Vec3, Vec3)) -> bool {
+        let (mut sum, mut count) = (0.0, 0.0);
+        for &(_, i) in line {
+            let x = to_board(fit.pose, &self.flat[i as usize]).0;
+            if x * edge.signum() > edge.abs() {
+                sum += n.dot(&(self.seg[i as usize] - c));
+                count += 1.0;
+            }
+        }
+        let sigma = self.band / 3.0;
+        count >= 2.0 && (sum / count).abs() > 2.5 * sigma / f64::sqrt(count)
+    }
+
+    /// Whether the scan line through `seg[i]` goes on beyond it along the board's x
+    /// (`towards` +1 or −1, at `fit`, plane frame `frame`) off the board's plane: its next
+    /// return in `aside` lies within [`RUN_ON_M`] of it and outside the band `seg` was cut
+    /// to. The line then turned onto another surface without a jump in range; a line that
+    /// goes on in the plane (a wall beyond a window of it) did not.
+    fn runs_on(
+        &self,
+        i: usize,
+        towards: f64,
+        fit: &Fit,
+        (c, ex, ey, n): (Vec3, Vec3, Vec3, Vec3),
+    ) -> bool {
+        let p = self.seg[i];
+        let elevation = |q: &Vec3| q.z.atan2(q.x.hypot(q.y));
+        let (e, d) = (elevation(&p), n.dot(&c));
+        let board_x = |q: &Vec3| {
+            let f = q * (d / n.dot(q)) - c;
+            to_board(fit.pose, &[f.dot(&ex), f.dot(&ey)]).0
+        };
+        let x = board_x(&p);
+        let gap = 0.06f64.to_radians();
+        let next = self
+            .aside
+            .iter()
+            .filter(|q| (elevation(q) - e).abs() < gap && towards * (board_x(q) - x) > 0.002)
+            .map(|q| ((q - p).norm(), q))
+            .min_by(|a, b| a.0.total_cmp(&b.0));
+        next.is_some_and(|(distance, q)| distance < RUN_ON_M && n.dot(&(q - c)).abs() >= self.band)
     }
 
     /// See-through points clearly on solid board at the fitted pose (2 cm inside the
@@ -1231,15 +1311,22 @@ impl HoleDetector {
     /// spot is a hole or beside the board, never solid board. This is the evidence a line
     /// leaves where it runs into a hole and the board beyond is hidden or too narrow to
     /// return (a corner hole a few centimetres from the edge), and where lines pass just
-    /// beside the outline.
+    /// beside the outline. The returns within [`ASIDE_M`] of the plane, on it or not, go
+    /// into `aside`: where a scan line runs on past the board's points
+    /// ([`HoleDetector::line_ends_outside`]).
     #[inline(never)]
     fn find_see_through(&mut self, (c, ex, ey, n): (Vec3, Vec3, Vec3, Vec3)) {
         self.through.clear();
         self.through_lines.clear();
+        self.aside.clear();
         let d = n.dot(&c);
         let reach2 = (self.board_diagonal() / 2.0).powi(2);
+        let aside2 = (self.board_diagonal() / 2.0 + OUTLINE_CLUTTER).powi(2);
         for p in &self.pts {
             let s = n.dot(p);
+            if (s - d).abs() < ASIDE_M && d > 0.0 && (p * (d / s) - c).norm_squared() < aside2 {
+                self.aside.push(*p);
+            }
             if s <= d || d <= 0.0 {
                 continue;
             }
@@ -1874,6 +1961,13 @@ const BEHIND_M: f64 = 0.15;
 /// How far outside the fitted outline a scan line may end (m): the pose's own error and a
 /// beam's footprint over the edge.
 const OUTLINE_TOLERANCE: f64 = 0.03;
+/// Largest distance (m) of the next return along a scan line for the line to run on rather
+/// than end ([`HoleDetector::runs_on`]): a few of a line's spacings (2–3 cm at 7 m, more on a
+/// surface seen at a slant) plus range noise; a board's edge against what stands behind it
+/// is a jump of more than [`BEHIND_M`].
+const RUN_ON_M: f64 = 0.1;
+/// How near the examined plane (m) a return must lie to be kept in `aside`.
+const ASIDE_M: f64 = 0.3;
 /// Scan-line ends farther outside the outline than this are clutter beside the board (m).
 const OUTLINE_CLUTTER: f64 = 0.12;
 /// Least score lead of the best pose over a distinct rival (see `HoleDetector::margin`).
