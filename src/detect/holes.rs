@@ -659,7 +659,7 @@ impl HoleDetector {
             self.refused.push(r);
             return;
         }
-        let (outside, ends) = self.line_ends_outside(&fit, (c, ex, ey, n));
+        let (outside, ends) = self.line_ends_outside(&fit, frame);
         if outside > 1 + ends / 10 {
             let mut r = refuse(Refusal::OutlineDisagrees { outside, ends });
             r.best_guess = Some(self.pose(&fit, (c, ex, ey, n)));
@@ -732,8 +732,7 @@ impl HoleDetector {
             let s = n.dot(p);
             let q = if s.abs() < 1e-6 { p - c } else { p * (d / s) - c };
             self.flat.push([q.dot(&ex), q.dot(&ey)]);
-            let elevation = p.z.atan2(p.x.hypot(p.y));
-            self.lines.push((elevation, self.flat.len() as u32 - 1));
+            self.lines.push((elevation(p), self.flat.len() as u32 - 1));
         }
         (c, ex, ey, n)
     }
@@ -762,11 +761,11 @@ impl HoleDetector {
     /// [`OUTLINE_TOLERANCE`] and [`OUTLINE_CLUTTER`] outside the fitted outline, and the
     /// ends counted: a line ends where it leaves the board, so a board turned or shifted in
     /// its plane leaves ends outside its outline (ends inside it may be an occluder's).
-    /// A line past the board's side whose points there lie off the plane on average
-    /// ([`HoleDetector::turns_off`]) and that runs on beyond them without a jump in range
-    /// ([`HoleDetector::runs_on`]) did not end at an edge: it ran onto a surface crossing
-    /// the board's plane there at an angle (a box beside the board), and says nothing of
-    /// the outline. A line that goes on in the plane (a wall) or ends at a corner of it
+    /// A line past the board's side whose points there lie off the plane on average and
+    /// that runs on beyond them without a jump in range
+    /// ([`HoleDetector::ran_onto_another_surface`]) did not end at an edge: it ran onto a
+    /// surface crossing the board's plane there at an angle (a box beside the board), and
+    /// says nothing of the outline. A line that goes on in the plane (a wall) or ends at a corner of it
     /// still counts (issue 14's held-out rooms: a wall's patch placed as a board when every
     /// line running on was excused).
     fn line_ends_outside(&mut self, fit: &Fit, frame: (Vec3, Vec3, Vec3, Vec3)) -> (usize, usize) {
@@ -796,14 +795,7 @@ impl HoleDetector {
             {
                 if !outside(p) {
                     ends += 1;
-                } else if !(p.1.abs() - hh <= OUTLINE_TOLERANCE
-                    && self.turns_off(
-                        line,
-                        towards * (hw + OUTLINE_TOLERANCE),
-                        fit,
-                        (frame.0, frame.3),
-                    )
-                    && self.runs_on(i as usize, towards, fit, frame))
+                } else if !self.ran_onto_another_surface(line, (p, i as usize), towards, fit, frame)
                 {
                     ends += 1;
                     bad += 1;
@@ -813,21 +805,35 @@ impl HoleDetector {
         (bad, ends)
     }
 
-    /// Whether the points of scan `line` beyond board x `edge` (past it, away from the
-    /// board's centre) lie off the plane (`c`, `n`) on average, by more than 2.5 of their
-    /// mean's σ (the plane's band being 3σ): a surface crossing the band at an angle, not
-    /// the board or a surface in its plane.
-    fn turns_off(&self, line: &[(f64, u32)], edge: f64, fit: &Fit, (c, n): (Vec3, Vec3)) -> bool {
+    /// Whether scan `line`, whose end `(p, i)` (board coordinates, index in `seg`) lies past
+    /// the board's side (`towards` +1 or −1 along board x, at `fit`, plane frame `frame`),
+    /// ran on there onto a surface crossing the board's plane: its points beyond the side
+    /// lie off the plane on average, by more than 2.5 of their mean's σ (the plane's band
+    /// being 3σ), and it goes on beyond them off the plane ([`HoleDetector::runs_on`]).
+    fn ran_onto_another_surface(
+        &self,
+        line: &[(f64, u32)],
+        ((_, y), i): ((f64, f64), usize),
+        towards: f64,
+        fit: &Fit,
+        frame: (Vec3, Vec3, Vec3, Vec3),
+    ) -> bool {
+        let (hw, hh) = (self.spec.width / 2.0, self.spec.height / 2.0);
+        if y.abs() - hh > OUTLINE_TOLERANCE {
+            return false; // above or below the board: the whole line is outside
+        }
+        let (c, _, _, n) = frame;
         let (mut sum, mut count) = (0.0, 0.0);
-        for &(_, i) in line {
-            let x = to_board(fit.pose, &self.flat[i as usize]).0;
-            if x * edge.signum() > edge.abs() {
-                sum += n.dot(&(self.seg[i as usize] - c));
+        for &(_, k) in line {
+            let x = to_board(fit.pose, &self.flat[k as usize]).0;
+            if towards * x > hw + OUTLINE_TOLERANCE {
+                sum += n.dot(&(self.seg[k as usize] - c));
                 count += 1.0;
             }
         }
         let sigma = self.band / 3.0;
-        count >= 2.0 && (sum / count).abs() > 2.5 * sigma / f64::sqrt(count)
+        let turns_off = count >= 2.0 && (sum / count).abs() > 2.5 * sigma / f64::sqrt(count);
+        turns_off && self.runs_on(i, towards, fit, frame)
     }
 
     /// Whether the scan line through `seg[i]` goes on beyond it along the board's x
@@ -843,18 +849,18 @@ impl HoleDetector {
         (c, ex, ey, n): (Vec3, Vec3, Vec3, Vec3),
     ) -> bool {
         let p = self.seg[i];
-        let elevation = |q: &Vec3| q.z.atan2(q.x.hypot(q.y));
         let (e, d) = (elevation(&p), n.dot(&c));
         let board_x = |q: &Vec3| {
             let f = q * (d / n.dot(q)) - c;
             to_board(fit.pose, &[f.dot(&ex), f.dot(&ey)]).0
         };
         let x = board_x(&p);
-        let gap = 0.06f64.to_radians();
         let next = self
             .aside
             .iter()
-            .filter(|q| (elevation(q) - e).abs() < gap && towards * (board_x(q) - x) > 0.002)
+            .filter(|q| {
+                (elevation(q) - e).abs() < LINE_GAP_RAD && towards * (board_x(q) - x) > 0.002
+            })
             .map(|q| ((q - p).norm(), q))
             .min_by(|a, b| a.0.total_cmp(&b.0));
         next.is_some_and(|(distance, q)| distance < RUN_ON_M && n.dot(&(q - c)).abs() >= self.band)
@@ -904,7 +910,7 @@ impl HoleDetector {
         let towards = first.y.atan2(first.x);
         self.lines.clear();
         for (i, p) in self.seg.iter().enumerate() {
-            self.lines.push((p.z.atan2(p.x.hypot(p.y)), i as u32));
+            self.lines.push((elevation(p), i as u32));
         }
         self.lines.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         self.keep.clear();
@@ -974,7 +980,7 @@ impl HoleDetector {
         self.lines.clear();
         for (i, p) in self.seg.iter().enumerate() {
             if n.dot(&(p - c)).abs() < band {
-                self.lines.push((p.z.atan2(p.x.hypot(p.y)), i as u32));
+                self.lines.push((elevation(p), i as u32));
             }
         }
         self.lines.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
@@ -1018,7 +1024,7 @@ impl HoleDetector {
         self.rings.clear();
         self.rings.resize(RING_BINS, 0);
         for p in &self.pts {
-            let e = p.z.atan2(p.x.hypot(p.y)).to_degrees();
+            let e = elevation(p).to_degrees();
             let bin = ((e + 90.0) / RING_BIN_DEG) as usize;
             self.rings[bin.min(RING_BINS - 1)] += 1;
         }
@@ -1033,7 +1039,7 @@ impl HoleDetector {
         let (mut lo, mut hi) = (f64::MAX, f64::MIN);
         for (x, y) in [(0.0, -hh), (0.0, hh)] {
             let p = pose.act(&Vec3::new(x, y, 0.0));
-            let e = p.z.atan2(p.x.hypot(p.y)).to_degrees();
+            let e = elevation(&p).to_degrees();
             (lo, hi) = (lo.min(e), hi.max(e));
         }
         let bin = |e: f64| (((e + 90.0) / RING_BIN_DEG) as usize).min(RING_BINS - 1);
@@ -1335,7 +1341,7 @@ impl HoleDetector {
             if q.norm_squared() > reach2 || (1.0 - t) * p.norm() < BEHIND_M {
                 continue;
             }
-            self.through_lines.push((p.z.atan2(p.x.hypot(p.y)), self.through.len() as u32));
+            self.through_lines.push((elevation(p), self.through.len() as u32));
             self.through.push([q.dot(&ex), q.dot(&ey)]);
         }
         self.through_lines.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
@@ -1533,7 +1539,7 @@ impl HoleDetector {
     fn scan_lines_per_hole(&mut self, fit: &Fit, slack: f64) -> heapless::Vec<u16, MAX_HOLES> {
         self.crossings.clear();
         self.lines.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-        let gap = 0.06f64.to_radians();
+        let gap = LINE_GAP_RAD;
         let r = self.spec.hole_radius;
         let band = HOLE_BAND;
         let mut start = 0;
@@ -1581,7 +1587,7 @@ impl HoleDetector {
     fn see_through_crossings(&mut self, fit: &Fit, slack: f64) {
         let r = self.spec.hole_radius + (slack - SLACK).max(0.0);
         let rim = self.spec.hole_radius + HOLE_BAND;
-        let gap = 0.06f64.to_radians();
+        let gap = LINE_GAP_RAD;
         let mut start = 0;
         while start < self.through_lines.len() {
             let end = line_end(&self.through_lines, start);
@@ -1614,7 +1620,7 @@ impl HoleDetector {
             let _ = counts.push(0);
         }
         self.crossings.sort_unstable_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
-        let gap = 0.06f64.to_radians();
+        let gap = LINE_GAP_RAD;
         let mut last: Option<(usize, f64)> = None;
         for &(k, e) in &self.crossings {
             let same = last.is_some_and(|(lk, le)| lk == k && e - le < gap);
@@ -1961,6 +1967,8 @@ const BEHIND_M: f64 = 0.15;
 /// How far outside the fitted outline a scan line may end (m): the pose's own error and a
 /// beam's footprint over the edge.
 const OUTLINE_TOLERANCE: f64 = 0.03;
+/// Largest elevation step (rad) between returns of one scan line ([`line_end`]).
+const LINE_GAP_RAD: f64 = 0.06 * (PI / 180.0);
 /// Largest distance (m) of the next return along a scan line for the line to run on rather
 /// than end ([`HoleDetector::runs_on`]): a few of a line's spacings (2–3 cm at 7 m, more on a
 /// surface seen at a slant) plus range noise; a board's edge against what stands behind it
@@ -2016,15 +2024,19 @@ fn keep_every<T: Copy>(v: &mut Vec<T>, stride: usize) {
     });
 }
 
-/// End of the scan line (run of elevations closer than 0.06° to the previous) that starts
-/// at `start` in `lines` sorted by elevation.
+/// End of the scan line (run of elevations closer than [`LINE_GAP_RAD`] to the previous)
+/// that starts at `start` in `lines` sorted by elevation.
 fn line_end(lines: &[(f64, u32)], start: usize) -> usize {
-    let gap = 0.06f64.to_radians();
     let mut end = start + 1;
-    while end < lines.len() && lines[end].0 - lines[end - 1].0 < gap {
+    while end < lines.len() && lines[end].0 - lines[end - 1].0 < LINE_GAP_RAD {
         end += 1;
     }
     end
+}
+
+/// Elevation angle of `p` seen from the sensor (rad): what tells its scan line.
+fn elevation(p: &Vec3) -> f64 {
+    p.z.atan2(p.x.hypot(p.y))
 }
 
 /// Board-frame coordinates of plane-frame point `p` for pose (x, y, yaw).
