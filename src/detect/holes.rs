@@ -317,6 +317,10 @@ pub struct HoleDetector {
     through_sample: Vec<[f64; 2]>,
     turned_through: Vec<[f64; 2]>,
     through_lines: Vec<(f64, u32)>,
+    /// Returns in front of the plane examined (an occluder's), moved along their beams
+    /// onto it (plane frame, with their elevations in `front_lines`, sorted).
+    front: Vec<[f64; 2]>,
+    front_lines: Vec<(f64, u32)>,
     crossings: Vec<(usize, f64)>,
     turned: Vec<[f64; 2]>,
     lattice: Vec<i32>,
@@ -328,6 +332,8 @@ pub struct HoleDetector {
     spacings: Vec<f64>,
     residuals: Vec<f64>,
     run: Vec<(f64, u32)>,
+    /// One scan line's returns in board coordinates ([`HoleDetector::edge_covariance`]).
+    line_points: Vec<[f64; 2]>,
     turned_gaps: Vec<[f64; 2]>,
     lines: Vec<(f64, u32)>,
     refused: Vec<RefusedBoard>,
@@ -389,6 +395,8 @@ impl HoleDetector {
             through_sample: Vec::new(),
             turned_through: Vec::new(),
             through_lines: Vec::new(),
+            front: Vec::new(),
+            front_lines: Vec::new(),
             crossings: Vec::new(),
             turned: Vec::new(),
             lattice: Vec::new(),
@@ -399,6 +407,7 @@ impl HoleDetector {
             spacings: Vec::new(),
             residuals: Vec::new(),
             run: Vec::new(),
+            line_points: Vec::new(),
             turned_gaps: Vec::new(),
             lines: Vec::new(),
             refused: Vec::new(),
@@ -580,8 +589,8 @@ impl HoleDetector {
         }
         let frame = self.flatten((c, n));
         let (_, ex, ey, _) = frame;
-        let chords = self.find_gaps();
         self.find_see_through(frame);
+        let chords = self.find_gaps();
         if !self.extent_fits(&spec) {
             return;
         }
@@ -699,7 +708,12 @@ impl HoleDetector {
             self.refused.push(refuse(Refusal::LinesMissing { seen: seen_lines, expected }));
             return;
         }
-        let sigma_xy = fit.cov[0].max(fit.cov[4]).sqrt();
+        // The plateau's spread, or what the edge crossings allow where that is more.
+        let Some(edges) = self.edge_covariance(&fit) else {
+            self.refused.push(refuse(Refusal::Unconstrained { sigma_m: f64::INFINITY }));
+            return;
+        };
+        let sigma_xy = fit.cov[0].max(fit.cov[4]).max(edges[0]).max(edges[4]).sqrt();
         if sigma_xy > self.config.max_sigma_m || fit.at_window_edge {
             let sigma_m = if fit.at_window_edge { f64::INFINITY } else { sigma_xy };
             self.refused.push(refuse(Refusal::Unconstrained { sigma_m }));
@@ -709,7 +723,7 @@ impl HoleDetector {
         let (su, sv) =
             self.flat.iter().fold((0.0, 0.0), |(a, b), p| (a + p[0] * p[0], b + p[1] * p[1]));
         let plane_sigma = [rms / (points as f64).sqrt(), rms / su.sqrt(), rms / sv.sqrt()];
-        out.push(self.board(&fit, (c, ex, ey, n), plane_sigma, rms, lines));
+        out.push(self.board(&fit, &edges, (c, ex, ey, n), plane_sigma, rms, lines));
     }
 
     /// The board frame of the plane (`c`, `n`) — `y` as close to the LiDAR's down as the
@@ -1099,9 +1113,22 @@ impl HoleDetector {
                     continue;
                 }
                 let k = (d / spacing) as usize - 1;
+                let e = w[0].0;
+                let from = self.front_lines.partition_point(|l| l.0 < e - LINE_GAP_RAD);
+                let to = self.front_lines.partition_point(|l| l.0 < e + LINE_GAP_RAD);
+                let occluders = &self.front_lines[from..to];
                 for j in 1..=k {
                     let f = j as f64 / (k + 1) as f64;
-                    self.gaps.push([a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1])]);
+                    let g = [a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1])];
+                    // A beam there returned from in front of the plane: the board may be
+                    // solid behind the occluder, so the gap says nothing of a hole.
+                    let hidden = occluders.iter().any(|&(_, i)| {
+                        let o = self.front[i as usize];
+                        (o[0] - g[0]).hypot(o[1] - g[1]) < spacing
+                    });
+                    if !hidden {
+                        self.gaps.push(g);
+                    }
                 }
             }
         }
@@ -1324,6 +1351,8 @@ impl HoleDetector {
     fn find_see_through(&mut self, (c, ex, ey, n): (Vec3, Vec3, Vec3, Vec3)) {
         self.through.clear();
         self.through_lines.clear();
+        self.front.clear();
+        self.front_lines.clear();
         self.aside.clear();
         let d = n.dot(&c);
         let reach2 = (self.board_diagonal() / 2.0).powi(2);
@@ -1333,18 +1362,24 @@ impl HoleDetector {
             if (s - d).abs() < ASIDE_M && d > 0.0 && (p * (d / s) - c).norm_squared() < aside2 {
                 self.aside.push(*p);
             }
-            if s <= d || d <= 0.0 {
+            if s <= 0.0 || d <= 0.0 {
                 continue;
             }
             let t = d / s;
             let q = p * t - c;
-            if q.norm_squared() > reach2 || (1.0 - t) * p.norm() < BEHIND_M {
+            if q.norm_squared() > reach2 || (1.0 - t).abs() * p.norm() < BEHIND_M {
                 continue;
             }
-            self.through_lines.push((elevation(p), self.through.len() as u32));
-            self.through.push([q.dot(&ex), q.dot(&ey)]);
+            if t < 1.0 {
+                self.through_lines.push((elevation(p), self.through.len() as u32));
+                self.through.push([q.dot(&ex), q.dot(&ey)]);
+            } else {
+                self.front_lines.push((elevation(p), self.front.len() as u32));
+                self.front.push([q.dot(&ex), q.dot(&ey)]);
+            }
         }
         self.through_lines.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        self.front_lines.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
     }
 
     /// The mask score of every return and gap point at `pose`: what the candidates'
@@ -1520,6 +1555,99 @@ impl HoleDetector {
         Fit { pose, cov, at_window_edge: edge }
     }
 
+    /// Covariance of the in-plane pose (x, y, yaw; row-major 3×3) that the scan lines'
+    /// edge crossings allow, whatever the search: where a line leaves or re-enters the
+    /// board (its ends, the sides of its gaps) it crossed an edge of the model (outline or
+    /// hole) somewhere within one of its own spacings, a position known to that spacing
+    /// over √12 along the line. Each crossing that lies near an edge at `fit` pins the pose
+    /// along that edge's normal, and its distance from the board's centre pins the yaw;
+    /// crossings far from every edge (an occluder's) pin nothing. `None` when the
+    /// crossings leave a direction free. The mask's plateau can be far narrower than this
+    /// when only one row of holes is crossed (issue 14's VLP-32C room 383: a board placed
+    /// turned 3°, its plateau's yaw σ 0.37°).
+    fn edge_covariance(&mut self, fit: &Fit) -> Option<[f64; 9]> {
+        let (hw, hh, r) = (self.spec.width / 2.0, self.spec.height / 2.0, self.spec.hole_radius);
+        let (sy, cy) = fit.pose[2].sin_cos();
+        let mut info = Mat3::zeros();
+        self.lines.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        let mut start = 0;
+        while start < self.lines.len() {
+            let end = line_end(&self.lines, start);
+            let line = &self.lines[start..end];
+            start = end;
+            if line.len() < 3 {
+                continue;
+            }
+            self.line_points.clear();
+            let flat = &self.flat;
+            self.run.clear();
+            self.run.extend(line.iter().map(|&(_, i)| (flat[i as usize][0], i)));
+            self.run.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+            self.line_points.extend(self.run.iter().map(|&(_, i)| {
+                let (x, y) = to_board(fit.pose, &flat[i as usize]);
+                [x, y]
+            }));
+            let pts = &self.line_points;
+            self.spacings.clear();
+            self.spacings
+                .extend(pts.windows(2).map(|w| (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1])));
+            let mid = self.spacings.len() / 2;
+            let spacing = *self.spacings.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1;
+            if spacing.is_nan() || spacing <= 1e-4 {
+                continue;
+            }
+            // Where the line crosses the model's edges: its two ends, outwards, and either
+            // side of every gap wider than its sampling, inwards.
+            let along = |a: &[f64; 2], b: &[f64; 2]| {
+                let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+                let l = dx.hypot(dy).max(1e-9);
+                [dx / l, dy / l]
+            };
+            let last = pts.len() - 1;
+            let mut crossings: heapless::Vec<([f64; 2], [f64; 2]), 64> = heapless::Vec::new();
+            let s0 = along(&pts[1], &pts[0]);
+            let _ = crossings.push((pts[0], s0));
+            let s1 = along(&pts[last - 1], &pts[last]);
+            let _ = crossings.push((pts[last], s1));
+            for w in pts.windows(2) {
+                let d = (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]);
+                if d > 1.5 * spacing {
+                    let s = along(&w[0], &w[1]);
+                    let _ = crossings.push((w[0], s));
+                    let _ = crossings.push((w[1], [-s[0], -s[1]]));
+                }
+            }
+            let sigma2 = (spacing * spacing / 12.0).max(0.002f64.powi(2));
+            for &(p, s) in &crossings {
+                // The crossing lies half a spacing beyond the return, on average.
+                let q = [p[0] + s[0] * spacing / 2.0, p[1] + s[1] * spacing / 2.0];
+                let Some((distance, m)) = nearest_edge(q, s, (hw, hh, r), &self.spec.holes) else {
+                    continue;
+                };
+                if distance > spacing.max(0.02) {
+                    continue;
+                }
+                let cos = (m[0] * s[0] + m[1] * s[1]).abs();
+                // d(distance)/d(x, y, yaw): the edge's normal in the plane frame, and the
+                // turn of the point about the board's centre.
+                let g = Vec3::new(
+                    -(cy * m[0] - sy * m[1]),
+                    -(sy * m[0] + cy * m[1]),
+                    -(m[0] * -q[1] + m[1] * q[0]),
+                );
+                info += g * g.transpose() / (sigma2 * cos * cos);
+            }
+        }
+        let cov = info.try_inverse()?;
+        let mut out = [0.0; 9];
+        for i in 0..3 {
+            for j in 0..3 {
+                out[i * 3 + j] = cov[(i, j)];
+            }
+        }
+        out.iter().all(|v| v.is_finite()).then_some(out)
+    }
+
     /// Points clearly inside a hole at the fitted pose.
     #[inline(never)]
     fn points_in_holes(&self, fit: &Fit, margin: f64) -> usize {
@@ -1658,9 +1786,13 @@ impl HoleDetector {
         Se3 { rotation: Mat3::from_columns(&[bx, by, n]), translation: c + ex * tx + ey * ty }
     }
 
+    /// The placed board at `fit`; each hole's σ in the plane is the larger of what the
+    /// plateau's spread and the edge crossings' covariance `edges` give it (two estimates
+    /// of one spread: the more cautious is kept, not their sum).
     fn board(
         &self,
         fit: &Fit,
+        edges: &[f64; 9],
         (c, ex, ey, n): (Vec3, Vec3, Vec3, Vec3),
         plane_sigma: [f64; 3],
         rms: f64,
@@ -1677,14 +1809,18 @@ impl HoleDetector {
             // Hole offset in the plane frame; its Jacobian wrt (tx, ty, yaw).
             let (px, py) = (co * h[0] - s * h[1], s * h[0] + co * h[1]);
             let j = [[1.0, 0.0, -py], [0.0, 1.0, px]];
-            let mut var = 0.0;
-            for row in &j {
-                for a in 0..3 {
-                    for b in 0..3 {
-                        var += row[a] * cv[a * 3 + b] * row[b];
+            let in_plane = |cv: &[f64; 9]| {
+                let mut var = 0.0;
+                for row in &j {
+                    for a in 0..3 {
+                        for b in 0..3 {
+                            var += row[a] * cv[a * 3 + b] * row[b];
+                        }
                     }
                 }
-            }
+                var
+            };
+            let mut var = in_plane(cv).max(in_plane(edges));
             // The plane's offset, and its tilts times the hole's lever arm. The points
             // were moved along their beams onto the plane, so a plane error δ along the
             // normal moves the hole by δ / cos(incidence) along its beam.
@@ -1702,7 +1838,7 @@ impl HoleDetector {
             normal: n,
             inliers: self.seg.len(),
             plane_rms_m: rms,
-            pose_sigma: [cv[0].sqrt(), cv[4].sqrt(), cv[8].sqrt()],
+            pose_sigma: [0, 4, 8].map(|k| cv[k].max(edges[k]).sqrt()),
         }
     }
 }
@@ -2046,6 +2182,39 @@ fn to_board(pose: [f64; 3], p: &[f64; 2]) -> (f64, f64) {
     (c * dx + s * dy, -s * dx + c * dy)
 }
 
+/// Distance from board point `q` to the nearest edge of the model (outline of half-size
+/// (`hw`, `hh`), holes of radius `r` at `holes`) that a line along `s` crosses at 30° or
+/// more (a line running along an edge does not tell where it is), and that edge's unit
+/// normal there.
+fn nearest_edge(
+    q: [f64; 2],
+    s: [f64; 2],
+    (hw, hh, r): (f64, f64, f64),
+    holes: &[[f64; 2]],
+) -> Option<(f64, [f64; 2])> {
+    let mut best: Option<(f64, [f64; 2])> = None;
+    let mut consider = |d: f64, m: [f64; 2]| {
+        let crossed = (m[0] * s[0] + m[1] * s[1]).abs() >= 0.5;
+        if crossed && best.is_none_or(|b| d < b.0) {
+            best = Some((d, m));
+        }
+    };
+    if q[1].abs() <= hh {
+        consider((q[0].abs() - hw).abs(), [q[0].signum(), 0.0]);
+    }
+    if q[0].abs() <= hw {
+        consider((q[1].abs() - hh).abs(), [0.0, q[1].signum()]);
+    }
+    for h in holes {
+        let (dx, dy) = (q[0] - h[0], q[1] - h[1]);
+        let l = dx.hypot(dy);
+        if l > 1e-9 {
+            consider((l - r).abs(), [dx / l, dy / l]);
+        }
+    }
+    best
+}
+
 /// Distance from the origin to the segment a–b.
 fn segment_distance(a: (f64, f64), b: (f64, f64)) -> f64 {
     let (dx, dy) = (b.0 - a.0, b.1 - a.1);
@@ -2343,6 +2512,56 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Scan lines across `spec` at board heights `rows` (plane frame = board frame),
+    /// returns every `spacing` from a phase of their own, none in the holes: `flat` and
+    /// `lines` as [`HoleDetector::flatten`] leaves them.
+    fn scanned(spec: &BoardSpec, rows: &[f64], spacing: f64) -> HoleDetector {
+        let mut detector = HoleDetector::new(spec, HoleConfig::default());
+        let (hw, r) = (spec.width / 2.0, spec.hole_radius);
+        for (k, &y) in rows.iter().enumerate() {
+            let phase = (k as f64 * 0.618).fract() * spacing;
+            let mut x = -hw + phase;
+            while x < hw {
+                if spec.holes.iter().all(|h| (x - h[0]).hypot(y - h[1]) > r) {
+                    detector.lines.push((k as f64 * 0.01, detector.flat.len() as u32));
+                    detector.flat.push([x, y]);
+                }
+                x += spacing;
+            }
+        }
+        detector
+    }
+
+    /// The edge crossings pin the board's turn through the holes and sides they reach:
+    /// lines 4 cm apart over both rows of holes leave the yaw to about a tenth of a degree
+    /// (the sides' ends, 7 mm each, on levers up to 0.46 m); lines over the lower row
+    /// only, a few times less certain; and the position along x to about a spacing over
+    /// √12 shared among the crossings.
+    #[test]
+    fn edge_crossings_pin_the_turn_by_the_rows_they_cross() {
+        let spec = board();
+        let fit = Fit { pose: [0.0; 3], cov: [0.0; 9], at_window_edge: false };
+        let spacing = 0.025;
+        let both: Vec<f64> = (0..24).map(|k| -0.46 + 0.04 * k as f64).collect();
+        let lower: Vec<f64> = both.iter().copied().filter(|&y| y > 0.2).collect();
+        let cov_both = scanned(&spec, &both, spacing).edge_covariance(&fit).expect("pinned");
+        let cov_lower = scanned(&spec, &lower, spacing).edge_covariance(&fit).expect("pinned");
+        let yaw_deg = |c: &[f64; 9]| c[8].sqrt().to_degrees();
+        assert!(yaw_deg(&cov_both) < 0.2, "both rows: yaw σ {:.3}°", yaw_deg(&cov_both));
+        assert!(
+            yaw_deg(&cov_lower) > 2.0 * yaw_deg(&cov_both),
+            "lower row {:.3}° against both rows {:.3}°",
+            yaw_deg(&cov_lower),
+            yaw_deg(&cov_both)
+        );
+        // 24 lines, each crossing both sides and two hole edges on most: x to about
+        // 7 mm / √(4·24).
+        let sigma_x = cov_both[0].sqrt();
+        assert!(sigma_x > 0.0005 && sigma_x < 0.0015, "σ x {:.2} mm", sigma_x * 1e3);
+        // A single line running along the board's top pins nothing about y or the turn.
+        assert!(scanned(&spec, &[-0.49], spacing).edge_covariance(&fit).is_none());
     }
 
     /// A board pitched 30° at 7 m, crossed by three scan lines 0.15 m apart, its ranges
