@@ -300,28 +300,14 @@ fn issue_room_places_every_placeable_board_right() {
 /// board (room 76), the floor's crossing of a pitched board's plane and its stand below it
 /// (rooms 68, 94, 105, 159). Their points spanned more than the board, and until a
 /// board-sized window holding nearly all of them was enough they were dropped before the
-/// mask search ("no plane found"). Each must be placed, and right. Room 160's lines run on
-/// past its side onto a box face crossing its plane at an angle, 5–9 cm outside its
-/// outline (refused as `OutlineDisagrees` before the ends of lines that turn off the plane
-/// were excused).
+/// mask search ("no plane found"). Each must be placed, and right (within 3σ). Room 160's
+/// lines run on past its side onto a box face crossing its plane at an angle, 5–9 cm
+/// outside its outline (refused as `OutlineDisagrees` before the ends of lines that turn
+/// off the plane were excused).
 #[test]
 fn boards_among_coplanar_clutter_are_placed() {
     for (seed, board) in [(76, 1), (68, 2), (94, 1), (105, 5), (159, 5), (160, 1)] {
-        let room = random_room(seed, LidarModel::Pandar40p, NOISE_M).expect("the model");
-        let mut detector = HoleDetector::new(&room.board, study_config());
-        let mut found = Vec::new();
-        detector.detect(&room.cloud, &mut found);
-        let placed =
-            found.iter().filter_map(|b| match_truth(b, &room.boards)).find(|m| m.0 == board);
-        let Some((_, errors)) = placed else {
-            panic!("room {seed}: board {board} not placed; refusals {:?}", detector.refused());
-        };
-        let worst = errors.iter().fold(0.0f64, |a, &e| a.max(e));
-        assert!(
-            worst < FALSE_HOLE_M,
-            "room {seed}: board {board} placed {:.0} mm off",
-            worst * 1e3
-        );
+        assert_placed_right(seed, LidarModel::Pandar40p, board);
     }
 }
 
@@ -352,23 +338,43 @@ fn walls_and_tilted_mixtures_are_not_placed() {
 /// lines [0, 0, 5, 2]). The occluded stretch of each line beside the hole read as part of
 /// the hole's gap, and the mask turned the board 3° to fit it: holes 35–50 mm out at a
 /// reported σ of 3–6 mm. Beams that return from in front of the plane no longer make gap
-/// points; the board must be placed right, every hole within 3σ of the truth.
+/// points.
 #[test]
 fn an_occluded_stretch_beside_a_hole_is_no_part_of_it() {
-    let room = random_room(383, LidarModel::Vlp32c, NOISE_M).expect("the model");
+    assert_placed_right(383, LidarModel::Vlp32c, 5);
+}
+
+/// A board 2.6 m away, rolled 16°, whose band about its plane also held 719 returns of a
+/// surface crossing that plane at 14° above the board's top (Pandar64 room 505 of the
+/// third draw, board 1): the plane fitted on all of them was 2.4° off and the far holes
+/// 27–33 mm out along it at a σ of 1–2 mm. The plane is now fitted again on the returns
+/// within the placed outline, and the board placed again on it.
+#[test]
+fn clutter_in_the_band_beyond_the_outline_does_not_tilt_the_plane() {
+    assert_placed_right(505, LidarModel::Pandar64, 1);
+}
+
+/// Board `board` of room `seed` seen by `model` must be placed with every hole within
+/// [`FALSE_HOLE_M`] and within 3 of its reported σ of the truth.
+fn assert_placed_right(seed: u64, model: LidarModel, board: usize) {
+    let room = random_room(seed, model, NOISE_M).expect("the model");
     let mut detector = HoleDetector::new(&room.board, study_config());
     let mut found = Vec::new();
     detector.detect(&room.cloud, &mut found);
     let placed = found
         .iter()
         .filter_map(|b| match_truth(b, &room.boards).map(|(i, e)| (b, i, e)))
-        .find(|m| m.1 == 5);
-    let Some((board, _, errors)) = placed else {
-        panic!("board 5 not placed; refusals {:?}", detector.refused());
+        .find(|m| m.1 == board);
+    let Some((placed, _, errors)) = placed else {
+        panic!("room {seed}: board {board} not placed; refusals {:?}", detector.refused());
     };
-    for (k, (e, s)) in errors.iter().zip(&board.hole_sigma_m).enumerate() {
-        assert!(*e < FALSE_HOLE_M, "hole {k} placed {:.0} mm off", e * 1e3);
-        assert!(*e < 3.0 * s, "hole {k}: {:.1} mm off at σ {:.1} mm", e * 1e3, s * 1e3);
+    for (k, (e, s)) in errors.iter().zip(&placed.hole_sigma_m).enumerate() {
+        let (e_mm, s_mm) = (e * 1e3, s * 1e3);
+        assert!(*e < FALSE_HOLE_M, "room {seed}: board {board} hole {k} placed {e_mm:.0} mm off");
+        assert!(
+            *e < 3.0 * s,
+            "room {seed}: board {board} hole {k} {e_mm:.1} mm off, σ {s_mm:.1} mm"
+        );
     }
 }
 

@@ -23,7 +23,9 @@
 //!    points carry no range noise in the plane (the key to millimetre hole centres).
 //!    Where a line leaves the plane for about a hole's width and comes back, **gap
 //!    points** are laid at the line's own spacing: evidence of a hole even when the
-//!    lines are sparse. Fewer than four such gaps: refused before any search.
+//!    lines are sparse; none where the line's beams returned from in front of the plane
+//!    (an occluder: the board may be solid behind it, and a stretch hidden beside a hole
+//!    would widen the hole's gap). Fewer than four such gaps: refused before any search.
 //! 5. **Mask search** (the paper's idea): the board model (outline minus holes) is slid
 //!    over the projected points in (x, y, yaw); the score counts returns on solid board
 //!    and gap points in holes, and penalises returns in holes, gap points on solid board
@@ -58,12 +60,22 @@
 //!    holes crossed by two lines, a wide plateau, points where the holes should be (a
 //!    crate face), or most of the sensor's lines across its height missing (a structure
 //!    smaller than a board) is refused with a [`Refusal`] instead of guessed. Every
-//!    hole — well seen or not — is placed through the rigid board model.
-//! 7. **Uncertainty**: each hole's σ combines the plateau's pose covariance with the
-//!    plane's offset and tilt errors, the latter divided by the cosine of the beam's
-//!    incidence (the points were moved along their beams). On the simulator the RMS of
-//!    error / σ is 1.11 (Pandar64-like) and 0.98 (VLP-32C-like) over 12 scenes each
-//!    (`tests/holes_sim.rs`, `sigma_calibration_over_many_scenes`).
+//!    hole — well seen or not — is placed through the rigid board model. Once placed,
+//!    the plane is fitted again on the returns within the outline; when that turns it by
+//!    more than 0.3° (clutter beyond the outline within the band had tilted it) the
+//!    board is placed again on that plane.
+//! 7. **Uncertainty**: each hole's σ in the plane is the larger of what the plateau's
+//!    pose covariance and the edge crossings' give it (each end of a scan line and each
+//!    side of a gap crossed an edge of the model within one of the line's spacings: a
+//!    position known to spacing/√12 along the line; the plateau alone can be far too
+//!    narrow when one row of holes is crossed), plus the plane's offset and tilt errors,
+//!    the latter divided by the cosine of the beam's incidence (the points were moved
+//!    along their beams). On the simulator the RMS of error / σ is 0.63 (Pandar64-like)
+//!    and 0.52 (VLP-32C-like) over 12 scenes each (`tests/holes_sim.rs`,
+//!    `sigma_calibration_over_many_scenes`), 0.70–0.79 over issue 14's 600 random rooms
+//!    per model: cautious, since many crossings together pin an edge closer than their
+//!    quantisation taken as Gaussian, where the plateau alone (1.04) left 4–18 holes per
+//!    200 rooms beyond 3σ against 0–10 now.
 //!
 //! **Where a board is expected** ([`HoleDetector::detect_expected`], `holes/expected.rs`):
 //! given each board's predicted pose (a surveyed room's, through the camera's room pose and
@@ -334,6 +346,8 @@ pub struct HoleDetector {
     run: Vec<(f64, u32)>,
     /// One scan line's returns in board coordinates ([`HoleDetector::edge_covariance`]).
     line_points: Vec<[f64; 2]>,
+    /// The returns on a placed board ([`HoleDetector::plane_within_outline`]).
+    on_board: Vec<Vec3>,
     turned_gaps: Vec<[f64; 2]>,
     lines: Vec<(f64, u32)>,
     refused: Vec<RefusedBoard>,
@@ -408,6 +422,7 @@ impl HoleDetector {
             residuals: Vec::new(),
             run: Vec::new(),
             line_points: Vec::new(),
+            on_board: Vec::new(),
             turned_gaps: Vec::new(),
             lines: Vec::new(),
             refused: Vec::new(),
@@ -580,8 +595,23 @@ impl HoleDetector {
 
     /// Places the board on one group's points (in `seg`, within the band of the refitted
     /// plane `c`, `n` of RMS `rms`) when it is board-sized.
+    fn examine(&mut self, plane: (Vec3, Vec3, f64), out: &mut Vec<LidarBoard>) {
+        self.examine_on(plane, out, true);
+    }
+
+    /// [`HoleDetector::examine`]; once the board is placed, its plane is fitted again on
+    /// the points within its outline alone, and when that turns it by more than
+    /// [`REGATHER_ANGLE_RAD`] the board is placed again on that plane (`may_refit` false
+    /// then): clutter beside the board that lies within the band (a box face crossing
+    /// the board's plane above its top, issue 14's Pandar64 room 505) tilts a plane fitted
+    /// on every point, and a tilt moves the far holes along the normal.
     #[inline(never)]
-    fn examine(&mut self, (c, n, rms): (Vec3, Vec3, f64), out: &mut Vec<LidarBoard>) {
+    fn examine_on(
+        &mut self,
+        (c, n, rms): (Vec3, Vec3, f64),
+        out: &mut Vec<LidarBoard>,
+        may_refit: bool,
+    ) {
         let spec = self.spec.clone();
         let points = self.seg.len();
         if points < self.config.min_points {
@@ -719,11 +749,42 @@ impl HoleDetector {
             self.refused.push(refuse(Refusal::Unconstrained { sigma_m }));
             return;
         }
+        if may_refit {
+            if let Some(plane) = self.plane_within_outline(&fit, (c, n)) {
+                if plane.1.angle(&n) > REGATHER_ANGLE_RAD {
+                    return self.examine_on(plane, out, false);
+                }
+            }
+        }
         // Plane uncertainty: offset along the normal and tilt about either in-plane axis.
         let (su, sv) =
             self.flat.iter().fold((0.0, 0.0), |(a, b), p| (a + p[0] * p[0], b + p[1] * p[1]));
         let plane_sigma = [rms / (points as f64).sqrt(), rms / su.sqrt(), rms / sv.sqrt()];
         out.push(self.board(&fit, &edges, (c, ex, ey, n), plane_sigma, rms, lines));
+    }
+
+    /// The plane (centroid, normal away from the sensor, RMS) of the returns in `seg` that
+    /// lie on the board placed at `fit` (within its outline, outside its holes) on the
+    /// plane (`c`, `n`) that `flat` was projected onto; `None` with too few of them.
+    fn plane_within_outline(
+        &mut self,
+        fit: &Fit,
+        (c, n): (Vec3, Vec3),
+    ) -> Option<(Vec3, Vec3, f64)> {
+        let (hw, hh, r) = (self.spec.width / 2.0, self.spec.height / 2.0, self.spec.hole_radius);
+        self.on_board.clear();
+        for (p, f) in self.seg.iter().zip(&self.flat) {
+            let (x, y) = to_board(fit.pose, f);
+            let solid = self.spec.holes.iter().all(|h| (x - h[0]).hypot(y - h[1]) > r);
+            if x.abs() <= hw && y.abs() <= hh && solid {
+                self.on_board.push(*p);
+            }
+        }
+        if self.on_board.len() < self.config.min_points {
+            return None;
+        }
+        let (c, n, rms) = fit_plane(&self.on_board, c, n)?;
+        Some((c, if n.dot(&c) < 0.0 { -n } else { n }, rms))
     }
 
     /// The board frame of the plane (`c`, `n`) — `y` as close to the LiDAR's down as the
