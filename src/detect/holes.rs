@@ -13,7 +13,7 @@
 //!    leaves one board in several pieces. Each group's points are gathered from its plane
 //!    within its voxel box widened by 30 cm (lines whose own voxels were not planar).
 //! 3. **Scan lines**: of each line only its longest run without a gap wider than a hole
-//!    is kept, and lines shorter than a quarter of the board drop out (poles, stands,
+//!    is kept, and lines shorter than a fifth of the board drop out (poles, stands,
 //!    clutter touching the plane; a line through a rolled board's corner hole, or across a
 //!    partly hidden board, is shorter than the width but kept). The plane is refitted on what
 //!    remains, and the points are gathered again about the refit while it still moves: the
@@ -2142,8 +2142,14 @@ const MEDIUM_POINTS: usize = 600;
 
 /// Shortest scan-line run kept on a board, as a fraction of its width: a line through a
 /// corner hole of a rolled board leaves through the bottom edge soon after, and one across
-/// a partly hidden board ends at the occluder; poles and stands are far narrower.
-const MIN_RUN: f64 = 0.25;
+/// a partly hidden board ends at the occluder; poles and stands are far narrower. At a
+/// quarter, the 21–25 cm that an occluder left of a 1 m board's lines beside a hole dropped
+/// them and with them the hole (issue 14, Pandar40P room 231). A fifth found 1–8 more
+/// boards per model over issue 14's rooms 1–600 and placed none wrong; 15 % found a few
+/// more still, but placed two structures 7.5 m away in the real OpenCalib frame as boards
+/// (`tests/holes_real.rs`): their shorter runs filled the lines that
+/// [`Refusal::LinesMissing`] counts (28 of 47 lines at a fifth, 15 at a quarter, 36 needed).
+const MIN_RUN: f64 = 0.2;
 /// A board's points are gathered again about their refitted plane while it moves more than
 /// [`REGATHER_ANGLE_RAD`] from the plane they were gathered about, at most this often.
 const REGATHER_ROUNDS: usize = 3;
