@@ -854,14 +854,7 @@ impl HoleDetector {
         };
         self.lines.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         let (mut bad, mut ends) = (0, 0);
-        let mut start = 0;
-        while start < self.lines.len() {
-            let end = line_end(&self.lines, start);
-            let line = &self.lines[start..end];
-            start = end;
-            if line.len() < 3 {
-                continue;
-            }
+        for line in scan_lines(&self.lines).filter(|line| line.len() >= 3) {
             let board = |&(_, i): &(f64, u32)| (to_board(fit.pose, &self.flat[i as usize]), i);
             let first = line.iter().map(board).min_by(|a, b| a.0 .0.total_cmp(&b.0 .0));
             let last = line.iter().map(board).max_by(|a, b| a.0 .0.total_cmp(&b.0 .0));
@@ -1061,11 +1054,8 @@ impl HoleDetector {
         self.lines.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         self.keep.clear();
         self.keep.resize(self.seg.len(), false);
-        let (mut start, mut agreeing) = (0, 0);
-        while start < self.lines.len() {
-            let end = line_end(&self.lines, start);
-            let line = &self.lines[start..end];
-            start = end;
+        let mut agreeing = 0;
+        for line in scan_lines(&self.lines) {
             let sum: f64 = line.iter().map(|&(_, i)| n.dot(&(self.seg[i as usize] - c))).sum();
             let count = line.len() as f64;
             if (sum / count).abs() <= LINE_Z * sigma / count.sqrt() {
@@ -1128,13 +1118,7 @@ impl HoleDetector {
             }
             inside = occupied;
         }
-        let mut seen = 0;
-        let mut start = 0;
-        while start < self.lines.len() {
-            let end = line_end(&self.lines, start);
-            seen += usize::from(end - start >= 3);
-            start = end;
-        }
+        let seen = scan_lines(&self.lines).filter(|line| line.len() >= 3).count();
         (seen, expected)
     }
 
@@ -1405,8 +1389,10 @@ impl HoleDetector {
     /// spot is a hole or beside the board, never solid board. This is the evidence a line
     /// leaves where it runs into a hole and the board beyond is hidden or too narrow to
     /// return (a corner hole a few centimetres from the edge), and where lines pass just
-    /// beside the outline. The returns within [`ASIDE_M`] of the plane, on it or not, go
-    /// into `aside`: where a scan line runs on past the board's points
+    /// beside the outline. Returns as far in front of the plane (an occluder's) go the
+    /// same way into `front` and `front_lines`: where a gap is hidden, not a hole
+    /// ([`HoleDetector::find_gaps`]). The returns within [`ASIDE_M`] of the plane, on it or
+    /// not, go into `aside`: where a scan line runs on past the board's points
     /// ([`HoleDetector::line_ends_outside`]).
     #[inline(never)]
     fn find_see_through(&mut self, (c, ex, ey, n): (Vec3, Vec3, Vec3, Vec3)) {
@@ -1631,14 +1617,7 @@ impl HoleDetector {
         let (sy, cy) = fit.pose[2].sin_cos();
         let mut info = Mat3::zeros();
         self.lines.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-        let mut start = 0;
-        while start < self.lines.len() {
-            let end = line_end(&self.lines, start);
-            let line = &self.lines[start..end];
-            start = end;
-            if line.len() < 3 {
-                continue;
-            }
+        for line in scan_lines(&self.lines).filter(|line| line.len() >= 3) {
             self.line_points.clear();
             let flat = &self.flat;
             self.run.clear();
@@ -1728,15 +1707,11 @@ impl HoleDetector {
     fn scan_lines_per_hole(&mut self, fit: &Fit, slack: f64) -> heapless::Vec<u16, MAX_HOLES> {
         self.crossings.clear();
         self.lines.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-        let gap = LINE_GAP_RAD;
         let r = self.spec.hole_radius;
         let band = HOLE_BAND;
         let mut start = 0;
         while start < self.lines.len() {
-            let mut end = start + 1;
-            while end < self.lines.len() && self.lines[end].0 - self.lines[end - 1].0 < gap {
-                end += 1;
-            }
+            let end = line_end(&self.lines, start);
             let spacing = self.median_spacing(fit, start, end);
             for (k, h) in self.spec.holes.iter().enumerate() {
                 // Nearest points on either side of the hole along board x.
@@ -1776,13 +1751,13 @@ impl HoleDetector {
     fn see_through_crossings(&mut self, fit: &Fit, slack: f64) {
         let r = self.spec.hole_radius + (slack - SLACK).max(0.0);
         let rim = self.spec.hole_radius + HOLE_BAND;
-        let gap = LINE_GAP_RAD;
         let mut start = 0;
         while start < self.through_lines.len() {
             let end = line_end(&self.through_lines, start);
             let e = self.through_lines[start].0;
-            let from = self.lines.partition_point(|l| l.0 < e - gap);
-            let to = self.lines.partition_point(|l| l.0 < self.through_lines[end - 1].0 + gap);
+            let from = self.lines.partition_point(|l| l.0 < e - LINE_GAP_RAD);
+            let last = self.through_lines[end - 1].0;
+            let to = self.lines.partition_point(|l| l.0 < last + LINE_GAP_RAD);
             for (k, h) in self.spec.holes.iter().enumerate() {
                 let near = |p: &[f64; 2], reach: f64| {
                     let (x, y) = to_board(fit.pose, p);
@@ -1809,10 +1784,9 @@ impl HoleDetector {
             let _ = counts.push(0);
         }
         self.crossings.sort_unstable_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)));
-        let gap = LINE_GAP_RAD;
         let mut last: Option<(usize, f64)> = None;
         for &(k, e) in &self.crossings {
-            let same = last.is_some_and(|(lk, le)| lk == k && e - le < gap);
+            let same = last.is_some_and(|(lk, le)| lk == k && e - le < LINE_GAP_RAD);
             if !same {
                 counts[k] += 1;
             }
@@ -2235,6 +2209,20 @@ fn line_end(lines: &[(f64, u32)], start: usize) -> usize {
         end += 1;
     }
     end
+}
+
+/// The scan lines of `lines` (sorted by elevation), each as its slice: runs of elevations
+/// closer than [`LINE_GAP_RAD`] to the previous ([`line_end`]).
+fn scan_lines(lines: &[(f64, u32)]) -> impl Iterator<Item = &[(f64, u32)]> {
+    let mut start = 0;
+    core::iter::from_fn(move || {
+        (start < lines.len()).then(|| {
+            let end = line_end(lines, start);
+            let line = &lines[start..end];
+            start = end;
+            line
+        })
+    })
 }
 
 /// Elevation angle of `p` seen from the sensor (rad): what tells its scan line.
