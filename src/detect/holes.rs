@@ -832,7 +832,8 @@ impl HoleDetector {
         Ok(())
     }
 
-    /// Scan-line ends (each line's first and last return along board x) between
+    /// Scan-line ends (each line's first and last return along board x on the board: past
+    /// returns a gap across the side cuts off, [`board_ends`]) between
     /// [`OUTLINE_TOLERANCE`] and [`OUTLINE_CLUTTER`] outside the fitted outline, and the
     /// ends counted: a line ends where it leaves the board, so a board turned or shifted in
     /// its plane leaves ends outside its outline (ends inside it may be an occluder's).
@@ -854,13 +855,16 @@ impl HoleDetector {
         };
         self.lines.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         let (mut bad, mut ends) = (0, 0);
+        let mut run = core::mem::take(&mut self.run);
         for line in scan_lines(&self.lines).filter(|line| line.len() >= 3) {
-            let board = |&(_, i): &(f64, u32)| (to_board(fit.pose, &self.flat[i as usize]), i);
-            let first = line.iter().map(board).min_by(|a, b| a.0 .0.total_cmp(&b.0 .0));
-            let last = line.iter().map(board).max_by(|a, b| a.0 .0.total_cmp(&b.0 .0));
-            for ((p, i), towards) in
-                [first.map(|f| (f, -1.0)), last.map(|l| (l, 1.0))].into_iter().flatten()
-            {
+            run.clear();
+            run.extend(
+                line.iter().map(|&(_, i)| (to_board(fit.pose, &self.flat[i as usize]).0, i)),
+            );
+            run.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+            let (first, last) = board_ends(&run, hw, &mut self.spacings);
+            for (i, towards) in [(run[first].1, -1.0), (run[last].1, 1.0)] {
+                let p = to_board(fit.pose, &self.flat[i as usize]);
                 if !outside(p) {
                     ends += 1;
                 } else if !self.ran_onto_another_surface(line, (p, i as usize), towards, fit, frame)
@@ -870,6 +874,7 @@ impl HoleDetector {
                 }
             }
         }
+        self.run = run;
         (bad, ends)
     }
 
@@ -2155,6 +2160,11 @@ const RUN_ON_M: f64 = 0.1;
 const ASIDE_M: f64 = 0.3;
 /// Scan-line ends farther outside the outline than this are clutter beside the board (m).
 const OUTLINE_CLUTTER: f64 = 0.12;
+
+/// The least gap along a scan line that cuts returns past a board's side off from the
+/// board ([`board_ends`]): wider than a line's spacing on any board the room file allows
+/// at 8 m, narrower than a stand's distance from the edge that matters.
+const DETACHED_GAP_M: f64 = 0.04;
 /// Least score lead of the best pose over a distinct rival (see `HoleDetector::margin`).
 const AMBIGUITY_MARGIN: i64 = 8;
 /// Most distinct coarse optima refined and compared.
@@ -2209,6 +2219,37 @@ fn line_end(lines: &[(f64, u32)], start: usize) -> usize {
         end += 1;
     }
     end
+}
+
+/// Indices in `run` (one scan line's returns as (board x, index), sorted by x) of the
+/// line's two ends on the board of half-width `hw`. Returns past a side that a gap of
+/// three spacings (and at least [`DETACHED_GAP_M`]) cuts off from the rest, the gap's
+/// inner side within the outline, are something standing beside the board (a stand's
+/// pole a few centimetres off its edge, issue 14's Pandar64 room 247): the line left the
+/// board at the gap. `spacings` is scratch.
+fn board_ends(run: &[(f64, u32)], hw: f64, spacings: &mut Vec<f64>) -> (usize, usize) {
+    spacings.clear();
+    spacings.extend(run.windows(2).map(|w| w[1].0 - w[0].0));
+    let gap = if spacings.is_empty() {
+        DETACHED_GAP_M
+    } else {
+        let mid = spacings.len() / 2;
+        (3.0 * *spacings.select_nth_unstable_by(mid, f64::total_cmp).1).max(DETACHED_GAP_M)
+    };
+    let side = hw + OUTLINE_TOLERANCE;
+    let (low, high) = (
+        run.iter().take_while(|p| p.0 < -side).count(),
+        run.iter().rev().take_while(|p| p.0 > side).count(),
+    );
+    let last = run.len() - 1;
+    let cut_off = |outer: usize, inner: usize| (run[inner].0 - run[outer].0).abs() > gap;
+    let first = if low > 0 && low <= last && cut_off(low - 1, low) { low } else { 0 };
+    let end = if high > 0 && high <= last && cut_off(last + 1 - high, last - high) {
+        last - high
+    } else {
+        last
+    };
+    (first, end)
 }
 
 /// The scan lines of `lines` (sorted by elevation), each as its slice: runs of elevations
@@ -2587,6 +2628,28 @@ mod tests {
             }
         }
         detector
+    }
+
+    /// A line's returns past a side, cut off from the board by a gap of more than three
+    /// spacings (a stand beside it), are not its end; past a side with no such gap, or a
+    /// gap inside the outline (a hole), they are.
+    #[test]
+    fn returns_cut_off_past_a_side_are_no_end_of_the_line() {
+        let line = |xs: &[f64]| -> Vec<(f64, u32)> {
+            xs.iter().enumerate().map(|(k, &x)| (x, k as u32)).collect()
+        };
+        let mut scratch = Vec::new();
+        let board: Vec<f64> = (0..=40).map(|k| -0.5 + 0.025 * k as f64).collect();
+        let stand_both = [&[-0.62, -0.61][..], &board, &[0.58]].concat();
+        assert_eq!(board_ends(&line(&stand_both), 0.5, &mut scratch), (2, 42));
+        let running_on = [&board[..], &[0.525, 0.55, 0.575]].concat();
+        assert_eq!(board_ends(&line(&running_on), 0.5, &mut scratch), (0, 43));
+        let hole: Vec<f64> = board.iter().copied().filter(|x| (x - 0.3).abs() > 0.1).collect();
+        let hole_then_stand = [&hole[..], &[0.6]].concat();
+        let n = hole_then_stand.len();
+        assert_eq!(board_ends(&line(&hole_then_stand), 0.5, &mut scratch), (0, n - 2));
+        let all_past = line(&[0.6, 0.61, 0.7]);
+        assert_eq!(board_ends(&all_past, 0.5, &mut scratch), (0, 2));
     }
 
     /// The edge crossings pin the board's turn through the holes and sides they reach:
