@@ -238,8 +238,12 @@ proptest::proptest! {
         let to: Vec<Vec3> = from.iter().map(|p| truth.rotation * p + truth.translation).collect();
         match kabsch(&from, &to) {
             Ok(got) => {
-                proptest::prop_assert!((got.rotation - truth.rotation).norm() < 1e-8);
-                proptest::prop_assert!((got.translation - truth.translation).norm() < 1e-8);
+                // The turn about the points' best line is pinned by their spread across it:
+                // nearly collinear draws that kabsch accepts (6.8 mm across, a proptest
+                // case) are exact to 1e-7, not 1e-8 (rounding grows as 1 / spread).
+                let tol = 1e-8f64.max(2e-9 / second_spread(&from));
+                proptest::prop_assert!((got.rotation - truth.rotation).norm() < tol);
+                proptest::prop_assert!((got.translation - truth.translation).norm() < 10.0 * tol);
             }
             // Only nearly collinear random draws may be refused.
             Err(e) => proptest::prop_assert!(matches!(e, SolveError::Degenerate(_)) && n == 3),
@@ -264,4 +268,16 @@ proptest::proptest! {
             proptest::prop_assert!((m.xy() / m.z - u).norm() < 1e-6);
         }
     }
+}
+
+/// The points' spread (RMS distance, m) across the line that fits them best: how well
+/// three or more points pin a rotation about that line.
+fn second_spread(points: &[Vec3]) -> f64 {
+    let centre = points.iter().fold(Vec3::zeros(), |a, p| a + p) / points.len() as f64;
+    let scatter = points.iter().fold(nalgebra::Matrix3::<f64>::zeros(), |m, p| {
+        m + (p - centre) * (p - centre).transpose()
+    });
+    let mut ev: Vec<f64> = scatter.symmetric_eigenvalues().iter().copied().collect();
+    ev.sort_by(f64::total_cmp);
+    (ev[1].max(0.0) / points.len() as f64).sqrt()
 }

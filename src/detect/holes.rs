@@ -13,9 +13,11 @@
 //!    leaves one board in several pieces. Each group's points are gathered from its plane
 //!    within its voxel box widened by 30 cm (lines whose own voxels were not planar).
 //! 3. **Scan lines**: of each line only its longest run without a gap wider than a hole
-//!    is kept, and lines shorter than a fifth of the board drop out (poles, stands,
-//!    clutter touching the plane; a line through a rolled board's corner hole, or across a
-//!    partly hidden board, is shorter than the width but kept). The plane is refitted on what
+//!    is kept (a gap that returns in front of the plane hide joins the run: a board behind
+//!    another is left in pieces between the occluder's edges), and lines shorter than a
+//!    fifth of the board drop out (poles, stands, clutter touching the plane; a line through
+//!    a rolled board's corner hole, or across a partly hidden board, is shorter than the
+//!    width but kept). The plane is refitted on what
 //!    remains, and the points are gathered again about the refit while it still moves: the
 //!    group's own plane, from voxels that may cover part of the board, can be degrees off.
 //! 4. **Ray projection**: each inlier is moved along its own beam onto the fitted plane.
@@ -50,10 +52,11 @@
 //!    points cannot tell from the best), its spread the pose covariance. A plateau wider
 //!    than the window walks on at a coarser step.
 //! 6. **Checks**: where the scan lines end must agree with the fitted outline (ends a few
-//!    centimetres outside it mean a turned or shifted fit: [`Refusal::OutlineDisagrees`]);
+//!    centimetres outside it mean a turned or shifted fit: [`Refusal::OutlineDisagrees`];
+//!    returns past a side cut off from the board by a gap are a stand beside it, no end);
 //!    beams must not pass through where the fitted board is solid
 //!    ([`Refusal::SeenThrough`]); a hole counts a line as crossing it when the line leaves
-//!    and re-enters the board across it, or returns from behind the plane inside it next
+//!    and re-enters the board across it with nothing in front hiding the gap, or returns from behind the plane inside it next
 //!    to a return of its own on the hole's rim; the two best-seen holes need
 //!    [`HoleConfig::min_hole_lines`] lines each ([`Refusal::FewLines`]);
 //!    scan lines crossing each hole are counted; a board with fewer than two
@@ -307,6 +310,13 @@ pub struct HoleDetector {
     coarse_mask: Mask,
     yaws: Vec<f64>,
     pts: Vec<Vec3>,
+    /// Every return as (azimuth, range, elevation), by elevation bin ([`RING_BIN_DEG`],
+    /// bin `k` at `beams[bin_start[k]..bin_start[k + 1]]`), each bin by azimuth: what a
+    /// stretch of a scan line returned ([`HoleDetector::hidden_stretch`]).
+    beams: Vec<(f32, f32, f32)>,
+    bin_start: Vec<u32>,
+    /// The next free slot of each bin while `beams` is filled.
+    bin_fill: Vec<u32>,
     keys: Vec<(u64, u32)>,
     voxels: Vec<Voxel>,
     map: HashMap<u64, u32, BuildHasherDefault<KeyHasher>>,
@@ -389,6 +399,9 @@ impl HoleDetector {
             yaws,
             config,
             pts: Vec::new(),
+            beams: Vec::new(),
+            bin_start: Vec::new(),
+            bin_fill: Vec::new(),
             keys: Vec::new(),
             voxels: Vec::new(),
             map: HashMap::default(),
@@ -487,6 +500,7 @@ impl HoleDetector {
             self.pts.push(v);
         }
         self.learn_rings();
+        self.index_beams();
     }
 
     /// Plane of every voxel's 3×3×3 neighbourhood.
@@ -563,7 +577,7 @@ impl HoleDetector {
     /// the plane's centroid, normal (towards the sensor's far side, `n·c > 0`) and RMS.
     fn fit_board_plane(&mut self, (c, n): (Vec3, Vec3)) -> Option<(Vec3, Vec3, f64)> {
         let (mut c, mut n, mut rms) = (c, n, 0.0);
-        self.keep_board_runs();
+        self.keep_board_runs((c, n));
         // The band kept about the plane is three robust σ of the residuals (their median
         // absolute value): clutter touching the board a few centimetres off its plane (a box
         // at its foot) inflates the RMS and would stay within 3 RMS, tilting the plane.
@@ -973,12 +987,16 @@ impl HoleDetector {
     }
 
     /// Keeps of each scan line in `seg` only its longest run without a gap wider than a
-    /// hole, and drops lines whose run is shorter than [`MIN_RUN`] of the board's width: a
-    /// pole or stand below the board, a corner grazed, coplanar clutter beside it. Every
-    /// line across a board spans its width in one run, broken only by the holes, unless it
-    /// leaves through the top or bottom edge or something hides the rest.
+    /// hole, or a gap the line's returns in front of the plane (`c`, `n`) hide
+    /// ([`HoleDetector::hidden_stretch`]), and drops lines whose run is shorter than
+    /// [`MIN_RUN`] of the board's width: a pole or stand below the board, a corner grazed,
+    /// coplanar clutter beside it. Every line across a board spans its width in one run,
+    /// broken only by the holes and what stands in front of it, unless it leaves through
+    /// the top or bottom edge. (A board behind another, Pandar40P room 303: the pieces
+    /// either side of its holes left between the occluder's edges, 17–20 cm of a 1.2 m
+    /// board, were each too short, and the lines crossing two holes were dropped.)
     #[inline(never)]
-    fn keep_board_runs(&mut self) {
+    fn keep_board_runs(&mut self, plane: (Vec3, Vec3)) {
         let Some(first) = self.seg.first() else { return };
         let towards = first.y.atan2(first.x);
         self.lines.clear();
@@ -1011,13 +1029,17 @@ impl HoleDetector {
             }
             start = end;
             self.run.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+            let step = self.azimuth_step();
             let (mut best, mut from) = ((0, 0, 0.0), 0);
             for k in 1..=self.run.len() {
-                let split = k == self.run.len()
-                    || (self.seg[self.run[k].1 as usize] - self.seg[self.run[k - 1].1 as usize])
-                        .norm()
-                        > max_gap;
-                if split {
+                let split = k < self.run.len() && {
+                    let (a, b) = (self.run[k - 1].1 as usize, self.run[k].1 as usize);
+                    let (a, b) = (&self.seg[a], &self.seg[b]);
+                    let gap = (b - a).norm();
+                    gap > max_gap
+                        && (gap > self.spec.width || !self.hidden_stretch(a, b, plane, step))
+                };
+                if k == self.run.len() || split {
                     let len = (self.seg[self.run[k - 1].1 as usize]
                         - self.seg[self.run[from].1 as usize])
                         .norm();
@@ -1039,6 +1061,50 @@ impl HoleDetector {
             k += 1;
             keep[k - 1]
         });
+    }
+
+    /// The median azimuth step (rad) between the returns of the scan line in `run`.
+    fn azimuth_step(&mut self) -> f64 {
+        self.spacings.clear();
+        self.spacings.extend(self.run.windows(2).map(|w| w[1].0 - w[0].0));
+        if self.spacings.is_empty() {
+            return 0.0;
+        }
+        let mid = self.spacings.len() / 2;
+        *self.spacings.select_nth_unstable_by(mid, f64::total_cmp).1
+    }
+
+    /// Whether the stretch of a scan line between its returns `a` and `b` on the plane
+    /// (`c`, `n`), its beams `step` (rad of azimuth) apart, was hidden by something in
+    /// front: all of it but a hole's chord (what may have been seen through) returned
+    /// from more than [`BEHIND_M`] in front of the plane.
+    fn hidden_stretch(&self, a: &Vec3, b: &Vec3, (c, n): (Vec3, Vec3), step: f64) -> bool {
+        let (e, d) = (elevation(a), n.dot(&c));
+        let (az_a, az_b) = (a.y.atan2(a.x), b.y.atan2(b.x));
+        if (az_a - az_b).abs() > PI || d <= 0.0 || step <= 0.0 {
+            return false; // across the sensor's back, or a plane through the sensor
+        }
+        let (lo, hi) = (az_a.min(az_b) as f32, az_a.max(az_b) as f32);
+        let mut front = 0usize;
+        for bin in ring_bin(e - LINE_GAP_RAD)..=ring_bin(e + LINE_GAP_RAD) {
+            let beams = &self.beams[self.bin_start[bin] as usize..self.bin_start[bin + 1] as usize];
+            let from = beams.partition_point(|q| q.0 <= lo);
+            for &(az, range, el) in beams[from..].iter().take_while(|q| q.0 < hi) {
+                let (el, az) = (f64::from(el), f64::from(az));
+                if (el - e).abs() >= LINE_GAP_RAD {
+                    continue;
+                }
+                let u = Vec3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
+                let to_plane = d / n.dot(&u);
+                if to_plane > 0.0 && f64::from(range) < to_plane - BEHIND_M {
+                    front += 1;
+                }
+            }
+        }
+        // The stretch and a hole's chord (with a spacing either side) in azimuth.
+        let stretch = f64::from(hi - lo);
+        let chord = (2.0 * self.spec.hole_radius) / a.norm().min(b.norm()) + 2.0 * step;
+        front > 0 && front as f64 * step >= stretch - chord
     }
 
     /// Moves the points within `band` of the plane (`c`, `n`) on scan lines whose mean
@@ -1094,9 +1160,35 @@ impl HoleDetector {
         self.rings.clear();
         self.rings.resize(RING_BINS, 0);
         for p in &self.pts {
-            let e = elevation(p).to_degrees();
-            let bin = ((e + 90.0) / RING_BIN_DEG) as usize;
-            self.rings[bin.min(RING_BINS - 1)] += 1;
+            self.rings[ring_bin(elevation(p))] += 1;
+        }
+    }
+
+    /// Fills `beams` from `pts`: a counting sort by elevation bin (`rings` holds the
+    /// counts), then each bin by azimuth (an unstable sort: it allocates nothing). A
+    /// counting sort first, as the sweep's bins are few and large, instead of one sort of
+    /// every return on (bin, azimuth).
+    #[inline(never)]
+    fn index_beams(&mut self) {
+        self.bin_start.clear();
+        self.bin_start.push(0);
+        for &count in &self.rings {
+            let last = *self.bin_start.last().unwrap_or(&0);
+            self.bin_start.push(last + count);
+        }
+        self.beams.clear();
+        self.beams.resize(self.pts.len(), (0.0, 0.0, 0.0));
+        self.bin_fill.clear();
+        self.bin_fill.extend_from_slice(&self.bin_start);
+        for p in &self.pts {
+            let e = elevation(p);
+            let slot = &mut self.bin_fill[ring_bin(e)];
+            self.beams[*slot as usize] = (p.y.atan2(p.x) as f32, p.norm() as f32, e as f32);
+            *slot += 1;
+        }
+        for k in 0..RING_BINS {
+            let (from, to) = (self.bin_start[k] as usize, self.bin_start[k + 1] as usize);
+            self.beams[from..to].sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         }
     }
 
@@ -1736,9 +1828,14 @@ impl HoleDetector {
                 }
                 if let (Some(a), Some(b)) = (left, right) {
                     // A gap wider than the line's sampling whose chord meets the hole
-                    // (allowing for the pose's own error on a grazing line).
+                    // (allowing for the pose's own error on a grazing line), and that
+                    // nothing in front hid.
                     let wide = (b.0 - a.0).hypot(b.1 - a.1) > 1.5 * spacing;
-                    if wide && segment_distance(a, b) < r + slack {
+                    let e = self.lines[start].0;
+                    if wide
+                        && segment_distance(a, b) < r + slack
+                        && !self.hidden_between(fit, e, h, (a.0, b.0))
+                    {
                         self.crossings.push((k, self.lines[start].0));
                     }
                 }
@@ -1747,6 +1844,20 @@ impl HoleDetector {
         }
         self.see_through_crossings(fit, slack);
         self.count_crossings()
+    }
+
+    /// Whether a return in front of the plane on the scan line at elevation `e` lies
+    /// within the hole at `h` between board x `h.x + from` and `h.x + to` at `fit`: the
+    /// line's gap there was hidden by an occluder, and says nothing of a hole (Pandar64
+    /// room 536: a box face's line, whose stretch behind a stand was kept, read as crossing
+    /// a hole that the mask put on it).
+    fn hidden_between(&self, fit: &Fit, e: f64, h: &[f64; 2], (from, to): (f64, f64)) -> bool {
+        let first = self.front_lines.partition_point(|l| l.0 < e - LINE_GAP_RAD);
+        self.front_lines[first..].iter().take_while(|l| l.0 < e + LINE_GAP_RAD).any(|&(_, i)| {
+            let (x, y) = to_board(fit.pose, &self.front[i as usize]);
+            let (dx, dy) = (x - h[0], y - h[1]);
+            dx > from && dx < to && dx.hypot(dy) < self.spec.hole_radius + HOLE_BAND
+        })
     }
 
     /// Adds to `crossings` the lines with a see-through point inside a hole at `fit`
@@ -2264,6 +2375,11 @@ fn scan_lines(lines: &[(f64, u32)]) -> impl Iterator<Item = &[(f64, u32)]> {
             line
         })
     })
+}
+
+/// The elevation bin ([`RING_BIN_DEG`]) of elevation `e` (rad).
+fn ring_bin(e: f64) -> usize {
+    (((e.to_degrees() + 90.0) / RING_BIN_DEG) as usize).min(RING_BINS - 1)
 }
 
 /// Elevation angle of `p` seen from the sensor (rad): what tells its scan line.
