@@ -274,9 +274,8 @@ proptest::proptest! {
 /// three or more points pin a rotation about that line.
 fn second_spread(points: &[Vec3]) -> f64 {
     let centre = points.iter().fold(Vec3::zeros(), |a, p| a + p) / points.len() as f64;
-    let scatter = points.iter().fold(nalgebra::Matrix3::<f64>::zeros(), |m, p| {
-        m + (p - centre) * (p - centre).transpose()
-    });
+    let scatter =
+        points.iter().fold(Mat3::zeros(), |m, p| m + (p - centre) * (p - centre).transpose());
     let mut ev: Vec<f64> = scatter.symmetric_eigenvalues().iter().copied().collect();
     ev.sort_by(f64::total_cmp);
     (ev[1].max(0.0) / points.len() as f64).sqrt()

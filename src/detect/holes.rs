@@ -56,8 +56,9 @@
 //!    returns past a side cut off from the board by a gap are a stand beside it, no end);
 //!    beams must not pass through where the fitted board is solid
 //!    ([`Refusal::SeenThrough`]); a hole counts a line as crossing it when the line leaves
-//!    and re-enters the board across it with nothing in front hiding the gap, or returns from behind the plane inside it next
-//!    to a return of its own on the hole's rim; the two best-seen holes need
+//!    and re-enters the board across it with nothing in front hiding the gap, or returns
+//!    from behind the plane inside it next to a return of its own on the hole's rim; the
+//!    two best-seen holes need
 //!    [`HoleConfig::min_hole_lines`] lines each ([`Refusal::FewLines`]);
 //!    scan lines crossing each hole are counted; a board with fewer than two
 //!    holes crossed by two lines, a wide plateau, points where the holes should be (a
@@ -1029,15 +1030,20 @@ impl HoleDetector {
             }
             start = end;
             self.run.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-            let step = self.azimuth_step();
+            // The line's azimuth step, found only when a gap needs it.
+            let mut step = None;
             let (mut best, mut from) = ((0, 0, 0.0), 0);
             for k in 1..=self.run.len() {
                 let split = k < self.run.len() && {
-                    let (a, b) = (self.run[k - 1].1 as usize, self.run[k].1 as usize);
-                    let (a, b) = (&self.seg[a], &self.seg[b]);
+                    let (a, b) =
+                        (self.seg[self.run[k - 1].1 as usize], self.seg[self.run[k].1 as usize]);
                     let gap = (b - a).norm();
                     gap > max_gap
-                        && (gap > self.spec.width || !self.hidden_stretch(a, b, plane, step))
+                        && (gap > self.spec.width || {
+                            let step = *step
+                                .get_or_insert_with(|| median_step(&self.run, &mut self.spacings));
+                            !self.hidden_stretch(&a, &b, plane, step)
+                        })
                 };
                 if k == self.run.len() || split {
                     let len = (self.seg[self.run[k - 1].1 as usize]
@@ -1061,17 +1067,6 @@ impl HoleDetector {
             k += 1;
             keep[k - 1]
         });
-    }
-
-    /// The median azimuth step (rad) between the returns of the scan line in `run`.
-    fn azimuth_step(&mut self) -> f64 {
-        self.spacings.clear();
-        self.spacings.extend(self.run.windows(2).map(|w| w[1].0 - w[0].0));
-        if self.spacings.is_empty() {
-            return 0.0;
-        }
-        let mid = self.spacings.len() / 2;
-        *self.spacings.select_nth_unstable_by(mid, f64::total_cmp).1
     }
 
     /// Whether the stretch of a scan line between its returns `a` and `b` on the plane
@@ -1201,14 +1196,13 @@ impl HoleDetector {
         let (mut lo, mut hi) = (f64::MAX, f64::MIN);
         for (x, y) in [(0.0, -hh), (0.0, hh)] {
             let p = pose.act(&Vec3::new(x, y, 0.0));
-            let e = elevation(&p).to_degrees();
+            let e = elevation(&p);
             (lo, hi) = (lo.min(e), hi.max(e));
         }
-        let bin = |e: f64| (((e + 90.0) / RING_BIN_DEG) as usize).min(RING_BINS - 1);
         // A line is a run of occupied bins with a few returns (not a stray point).
         let mut expected = 0;
         let mut inside = false;
-        for b in bin(lo)..=bin(hi) {
+        for b in ring_bin(lo)..=ring_bin(hi) {
             let occupied = self.rings[b] >= 3;
             if occupied && !inside {
                 expected += 1;
@@ -1836,7 +1830,7 @@ impl HoleDetector {
                         && segment_distance(a, b) < r + slack
                         && !self.hidden_between(fit, e, h, (a.0, b.0))
                     {
-                        self.crossings.push((k, self.lines[start].0));
+                        self.crossings.push((k, e));
                     }
                 }
             }
@@ -1919,13 +1913,7 @@ impl HoleDetector {
             self.run.push((to_board(fit.pose, &self.flat[i as usize]).0, i));
         }
         self.run.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-        self.spacings.clear();
-        self.spacings.extend(self.run.windows(2).map(|w| w[1].0 - w[0].0));
-        if self.spacings.is_empty() {
-            return 0.0;
-        }
-        let mid = self.spacings.len() / 2;
-        *self.spacings.select_nth_unstable_by(mid, f64::total_cmp).1
+        median_step(&self.run, &mut self.spacings)
     }
 
     /// Board → LiDAR for an in-plane pose in the plane frame (c; ex, ey, n).
@@ -2339,20 +2327,16 @@ fn line_end(lines: &[(f64, u32)], start: usize) -> usize {
 /// pole a few centimetres off its edge, issue 14's Pandar64 room 247): the line left the
 /// board at the gap. `spacings` is scratch.
 fn board_ends(run: &[(f64, u32)], hw: f64, spacings: &mut Vec<f64>) -> (usize, usize) {
-    spacings.clear();
-    spacings.extend(run.windows(2).map(|w| w[1].0 - w[0].0));
-    let gap = if spacings.is_empty() {
-        DETACHED_GAP_M
-    } else {
-        let mid = spacings.len() / 2;
-        (3.0 * *spacings.select_nth_unstable_by(mid, f64::total_cmp).1).max(DETACHED_GAP_M)
-    };
     let side = hw + OUTLINE_TOLERANCE;
     let (low, high) = (
         run.iter().take_while(|p| p.0 < -side).count(),
         run.iter().rev().take_while(|p| p.0 > side).count(),
     );
     let last = run.len() - 1;
+    if low == 0 && high == 0 {
+        return (0, last);
+    }
+    let gap = (3.0 * median_step(run, spacings)).max(DETACHED_GAP_M);
     let cut_off = |outer: usize, inner: usize| (run[inner].0 - run[outer].0).abs() > gap;
     let first = if low > 0 && low <= last && cut_off(low - 1, low) { low } else { 0 };
     let end = if high > 0 && high <= last && cut_off(last + 1 - high, last - high) {
@@ -2361,6 +2345,19 @@ fn board_ends(run: &[(f64, u32)], hw: f64, spacings: &mut Vec<f64>) -> (usize, u
         last
     };
     (first, end)
+}
+
+/// The median step between consecutive values of `run` (sorted by its first field), 0
+/// for fewer than two: a scan line's spacing, which its holes' gaps do not stretch as
+/// they would a mean. `steps` is scratch.
+fn median_step(run: &[(f64, u32)], steps: &mut Vec<f64>) -> f64 {
+    steps.clear();
+    steps.extend(run.windows(2).map(|w| w[1].0 - w[0].0));
+    if steps.is_empty() {
+        return 0.0;
+    }
+    let mid = steps.len() / 2;
+    *steps.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 /// The scan lines of `lines` (sorted by elevation), each as its slice: runs of elevations
