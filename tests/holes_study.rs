@@ -159,6 +159,13 @@ fn score(room: &RandomRoom, name: &str, f: &mut Figures) {
             );
             continue;
         }
+        if placed[i] {
+            // One board placed twice is two LiDAR boards for one camera board: as wrong
+            // as a false placement for the calibration that matches them.
+            f.false_placements += 1;
+            println!("  {name} room {} board {i}: placed TWICE", room.seed);
+            continue;
+        }
         placed[i] = true;
         if room.boards[i].placeable() {
             f.found_placeable += 1;
@@ -277,7 +284,7 @@ fn reduced_study_meets_the_targets() {
 }
 
 #[test]
-#[ignore = "the full study, 200 rooms per model: met on rooms 1-200 and 401-600; on 201-400 Pandar40P finds 97.9 %"]
+#[ignore = "the full study, 200 rooms per model and draw (HOLES_STUDY_FIRST=1, 201, 401): met on all three"]
 fn full_study_meets_the_targets() {
     assert_targets(&study(200));
 }
@@ -335,6 +342,31 @@ fn walls_and_tilted_mixtures_are_not_placed() {
         let mut f = Figures::default();
         score(&room, "held-out", &mut f);
         assert_eq!(f.false_placements, 0, "room {seed} ({model:?})");
+    }
+}
+
+/// Two boards whose edges meet in the sweep (Pandar40P room 241 of the held-out draw:
+/// board 4 3.5 m away behind board 1, turned 28° from it): the voxels where they meet mix
+/// both, and region growing, comparing each voxel with its neighbour only, turned by small
+/// steps from one board onto the other and grew both into one region too large to be a
+/// board ("no plane found"). A voxel must now also agree with its region's mean normal.
+#[test]
+fn boards_whose_edges_meet_are_grown_apart() {
+    assert_placed_right(241, LidarModel::Pandar40p, 4);
+}
+
+/// A stand or box below a board that grows into a region of its own (Pandar40P room 208,
+/// Pandar64 room 347, once regions follow their mean normal): its gathered plane turns onto
+/// the board's, and the board was placed a second time 2–3° off, holes 10–23 mm out. Each
+/// board is placed once, from the plane with the most returns.
+#[test]
+fn a_board_is_placed_once() {
+    for (seed, model) in [(208, LidarModel::Pandar40p), (347, LidarModel::Pandar64)] {
+        let room = random_room(seed, model, NOISE_M).expect("the model");
+        let mut f = Figures::default();
+        score(&room, "placed once", &mut f);
+        assert_eq!(f.false_placements, 0, "room {seed} ({model:?})");
+        assert_eq!(f.found_placeable, f.placeable, "room {seed} ({model:?})");
     }
 }
 

@@ -7,7 +7,8 @@
 //!    moments of its 3×3×3 neighbourhood (closed-form 3×3 eigen solve). The sweep's scan
 //!    lines are learnt on the way (a census of elevation angles: no ring numbers needed).
 //! 2. **Plane segments** (`holes/segment.rs`): planar voxels grown into regions
-//!    (normals within 15°, coplanar centroids); regions larger than a board (floor, walls,
+//!    (normals within 15° of the neighbour's and of the region's mean, coplanar centroids:
+//!    two boards meeting in the sweep stay apart); regions larger than a board (floor, walls,
 //!    ceiling) drop out. Fragments of one plane that together stay thin and no larger
 //!    than a board are merged: a sparse ring pattern (a VLP-32C outside its dense band)
 //!    leaves one board in several pieces. Each group's points are gathered from its plane
@@ -67,7 +68,9 @@
 //!    hole — well seen or not — is placed through the rigid board model. Once placed,
 //!    the plane is fitted again on the returns within the outline; when that turns it by
 //!    more than 0.3° (clutter beyond the outline within the band had tilted it) the
-//!    board is placed again on that plane.
+//!    board is placed again on that plane. Two groups that settle on one board (a stand
+//!    below it whose gathered plane turns onto the board's) place it once, from the plane
+//!    with more returns.
 //! 7. **Uncertainty**: each hole's σ in the plane is the larger of what the plateau's
 //!    pose covariance and the edge crossings' give it (each end of a scan line and each
 //!    side of a gap crossed an edge of the model within one of the line's spacings: a
@@ -775,7 +778,24 @@ impl HoleDetector {
         let (su, sv) =
             self.flat.iter().fold((0.0, 0.0), |(a, b), p| (a + p[0] * p[0], b + p[1] * p[1]));
         let plane_sigma = [rms / (points as f64).sqrt(), rms / su.sqrt(), rms / sv.sqrt()];
-        out.push(self.board(&fit, &edges, (c, ex, ey, n), plane_sigma, rms, lines));
+        let board = self.board(&fit, &edges, (c, ex, ey, n), plane_sigma, rms, lines);
+        self.keep_distinct(board, out);
+    }
+
+    /// Adds `board` to `out` unless a board placed before stands where it does; of two
+    /// such the one fitted on more returns stays. Two groups can settle on one board: a
+    /// stand or a box below it grows into a region of its own whose gathered plane turns
+    /// onto the board's, placing it again a few degrees off on fewer of its returns
+    /// (issue 14's Pandar40P room 208, Pandar64 room 347).
+    fn keep_distinct(&self, board: LidarBoard, out: &mut Vec<LidarBoard>) {
+        let apart = 0.5 * self.spec.width.min(self.spec.height);
+        let same =
+            out.iter().position(|b| (b.pose.translation - board.pose.translation).norm() < apart);
+        match same {
+            Some(k) if out[k].inliers >= board.inliers => {}
+            Some(k) => out[k] = board,
+            None => out.push(board),
+        }
     }
 
     /// The plane (centroid, normal away from the sensor, RMS) of the returns in `seg` that

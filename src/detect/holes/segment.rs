@@ -54,22 +54,32 @@ impl HoleDetector {
             self.label[seed] = id;
             let mut too_big = false;
             let c0 = self.voxels[seed].centroid;
+            // The sum of the region's voxel normals (each turned to the seed's side): a
+            // neighbour must agree with the region's mean normal as well as with the voxel
+            // it touches, or a chain of small turns across the voxels where two boards meet
+            // (their neighbourhoods mixing both) grows two boards 28° apart into one region
+            // too large to be a board (issue 14's Pandar40P room 241).
+            let mut normal_sum = self.voxels[seed].normal;
             while let Some(i) = self.queue.pop() {
                 let vi = self.voxels[i as usize];
                 self.region_voxels.push(i);
                 too_big |= (vi.centroid - c0).norm() > reach;
+                let mean_normal = normal_sum.normalize();
                 for nk in neighbour_keys(vi.key) {
                     let Some(&j) = self.map.get(&nk) else { continue };
                     let vj = &self.voxels[j as usize];
                     if !vj.planar || self.label[j as usize] != u32::MAX {
                         continue;
                     }
-                    let coplanar = vi.normal.dot(&vj.normal).abs() > cos_max
+                    let along_region = vj.normal.dot(&mean_normal);
+                    let coplanar = along_region.abs() > cos_max
+                        && vi.normal.dot(&vj.normal).abs() > cos_max
                         && vi.normal.dot(&(vj.centroid - vi.centroid)).abs() < tol
                         && vj.normal.dot(&(vi.centroid - vj.centroid)).abs() < tol;
                     if coplanar {
                         self.label[j as usize] = id;
                         self.queue.push(j);
+                        normal_sum += vj.normal * along_region.signum();
                     }
                 }
             }
