@@ -330,6 +330,13 @@ struct SimulateArgs {
     /// written to DIR/rig/ (survey the visits, then calibrate the rig in the surveyed room).
     #[arg(long, value_name = "RIG", conflicts_with_all = ["capture", "rig_seed", "frames"])]
     rig: Option<PathBuf>,
+    /// With --visits and --rig: this many rigs, each its own vehicle (intrinsics, mountings,
+    /// parking) parked in the visited room, written to DIR/rig-01/, rig-02/, … (new
+    /// vehicles for a study of one survey); without it the one rig goes to DIR/rig/ (the
+    /// same as rig-01/).
+    #[arg(long, requires_all = ["visits", "rig"],
+          value_parser = clap::value_parser!(u16).range(1..=99))]
+    rigs: Option<u16>,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -447,24 +454,37 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
     }
     if let Some(rig_path) = &args.rig {
         let rig = roomcal::rig::load(rig_path).map_err(bad_input)?;
-        let simulated = sim::rig::simulate_rig_in(&room, &rig, &options, layout.as_ref())
-            .with_context(|| {
-                format!("simulating {} in {}", rig_path.display(), args.room.display())
-            })
-            .map_err(bad_input)?;
-        let out = match layout {
-            Some(_) => args.out.join("rig"),
-            None => args.out.clone(),
-        };
-        let written = sim::rig::write_rig(&simulated, &out).map_err(bad_input)?;
-        say!(
-            "simulated a rig of {} cameras and {} LiDARs in a room of {} boards -> {} ({} files)",
-            rig.cameras.len(),
-            rig.lidars.len(),
-            simulated.room_truth.boards.len(),
-            out.display(),
-            written.len()
-        );
+        let context = || format!("simulating {} in {}", rig_path.display(), args.room.display());
+        let vehicles = match (args.rigs, layout.as_ref()) {
+            (Some(count), Some(layout)) => (1..=count)
+                .map(|k| {
+                    let simulated =
+                        sim::rig::simulate_rig_vehicle(&room, &rig, &options, layout, k);
+                    Ok((args.out.join(format!("rig-{k:02}")), simulated.with_context(context)?))
+                })
+                .collect::<anyhow::Result<Vec<_>>>(),
+            (_, layout) => sim::rig::simulate_rig_in(&room, &rig, &options, layout)
+                .with_context(context)
+                .map(|simulated| {
+                    let out = match layout {
+                        Some(_) => args.out.join("rig"),
+                        None => args.out.clone(),
+                    };
+                    vec![(out, simulated)]
+                }),
+        }
+        .map_err(bad_input)?;
+        for (out, simulated) in &vehicles {
+            let written = sim::rig::write_rig(simulated, out).map_err(bad_input)?;
+            say!(
+                "simulated a rig of {} cameras and {} LiDARs in a room of {} boards -> {} ({} files)",
+                rig.cameras.len(),
+                rig.lidars.len(),
+                simulated.room_truth.boards.len(),
+                out.display(),
+                written.len()
+            );
+        }
     }
     if args.visits.is_some() || args.rig.is_some() {
         return Ok(());

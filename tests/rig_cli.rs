@@ -283,3 +283,41 @@ fn a_rig_is_calibrated_in_the_room_its_visits_surveyed() {
             .unwrap();
     assert_extrinsics_within_their_sigma(&result, &truth);
 }
+
+/// `simulate --visits N --rig RIG --rigs K`: K rigs, each its own vehicle, in the one room
+/// the visits see (DIR/rig-01/ … rig-K/); rig-01 is the rig that `--rigs` left out writes to
+/// DIR/rig/. `--rigs` without `--visits` and `--rig` is exit 2.
+#[test]
+fn several_rigs_are_new_vehicles_in_the_visited_room() {
+    let (room, rig) = (config("room.toml"), config("rig.toml"));
+    let simulate = |dir: &Path, more: &[&str]| {
+        let d = dir.to_string_lossy().into_owned();
+        let args = ["simulate", "--room", &room, "--rig", &rig, "--visits", "2", "--out", &d];
+        let (code, _, stderr) =
+            roomcal(&[&args[..], &["--seed", "7", "--supersample", "1"], more].concat());
+        assert_eq!(code, 0, "{stderr}");
+    };
+    let (one, two) = (temp_dir("one-rig"), temp_dir("two-rigs"));
+    simulate(&one, &[]);
+    simulate(&two, &["--rigs", "2"]);
+    let read = |path: PathBuf| -> serde_json::Value {
+        let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{path:?}: {e}"));
+        serde_json::from_str(&text).unwrap()
+    };
+    let (first, second) =
+        (read(two.join("rig-01/rig-truth.json")), read(two.join("rig-02/rig-truth.json")));
+    assert_eq!(first, read(one.join("rig/rig-truth.json")), "rig-01 is the single rig");
+    for file in ["front.png", "top.pcd"] {
+        let bytes = |d: PathBuf| std::fs::read(d.join(file)).unwrap();
+        assert_eq!(bytes(two.join("rig-01")), bytes(one.join("rig")), "{file}");
+    }
+    let room_truth = |d: &str| read(two.join(d).join("room-truth.json"));
+    assert_eq!(room_truth("rig-01"), room_truth("rig-02"), "one room");
+    assert_ne!(first["vehicle_to_room"], second["vehicle_to_room"], "own parking");
+    assert_ne!(first["sensors"]["wide"], second["sensors"]["wide"], "own sensors");
+
+    let d = temp_dir("rigs-alone").to_string_lossy().into_owned();
+    let (code, _, stderr) = roomcal(&["simulate", "--room", &room, "--rigs", "2", "--out", &d]);
+    assert_eq!(code, 2, "{stderr}");
+    assert!(stderr.contains("--visits") && stderr.contains("--rig"), "{stderr}");
+}

@@ -33,8 +33,8 @@ use super::{
     SimError, SimOptions,
 };
 
-/// The fork of the seed's stream a rig parked in a visited room draws from (the visits
-/// draw from 100 + k).
+/// The fork of the seed's stream the first rig parked in a visited room draws from; the
+/// k-th draws from this + k − 1 (the visits draw from 100 + k, k < 100).
 const RIG_IN_VISITED_ROOM: u64 = 900;
 
 /// A simulated rig: the room, every camera's frame and every LiDAR's sweep, the truth.
@@ -99,10 +99,34 @@ pub fn simulate_rig_in(
     options: &SimOptions,
     layout: Option<&RoomLayout>,
 ) -> Result<RigSimulation, SimError> {
-    let mut rng = match layout {
+    let rng = match layout {
         None => Rng::new(options.seed),
         Some(_) => Rng::new(options.seed).fork(RIG_IN_VISITED_ROOM),
     };
+    simulate_from(room, rig, options, layout, rng)
+}
+
+/// The `vehicle`-th rig (from 1) parked in the visited room `layout`: each its own vehicle
+/// (intrinsics, mountings, parking) in the same room, for a study over new vehicles in one
+/// survey. Vehicle 1 is [`simulate_rig_in`]'s rig.
+pub fn simulate_rig_vehicle(
+    room: &Room,
+    rig: &Rig,
+    options: &SimOptions,
+    layout: &RoomLayout,
+    vehicle: u16,
+) -> Result<RigSimulation, SimError> {
+    let fork = RIG_IN_VISITED_ROOM + u64::from(vehicle.max(1)) - 1;
+    simulate_from(room, rig, options, Some(layout), Rng::new(options.seed).fork(fork))
+}
+
+fn simulate_from(
+    room: &Room,
+    rig: &Rig,
+    options: &SimOptions,
+    layout: Option<&RoomLayout>,
+    mut rng: Rng,
+) -> Result<RigSimulation, SimError> {
     let first_lidar = (!rig.lidars.is_empty()).then_some(0);
     let mut room = rig.pair_room(room, 0, first_lidar);
     room.board.count = options.boards.unwrap_or(room.board.count as usize) as u32;
