@@ -763,9 +763,6 @@ fn calibrate_rig(
             args.room.display()
         )));
     }
-    if args.report.is_some() {
-        return Err(bad_input(anyhow::anyhow!("--report is not available with --rig yet")));
-    }
     let current_rig = match &args.current {
         Some(path) => Some(roomcal::result::load_rig(path).map_err(bad_input)?),
         None => None,
@@ -782,6 +779,7 @@ fn calibrate_rig(
     let outputs = cli::rig::RigOutputs {
         out: &args.out,
         export: args.export.as_deref(),
+        report: args.report.as_deref().map(|r| (r, &inputs)),
         json: args.json,
         quiet: args.quiet,
     };

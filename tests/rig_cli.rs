@@ -251,6 +251,7 @@ fn a_rig_is_calibrated_in_the_room_its_visits_surveyed() {
 
     let mut inputs = rig_inputs(&dir.join("rig"));
     inputs.extend(["--export".into(), dir.join("exports").display().to_string(), "--json".into()]);
+    inputs.extend(["--report".into(), dir.join("report.png").display().to_string()]);
     let inputs: Vec<&str> = inputs.iter().map(String::as_str).collect();
     let out = dir.join("result.json");
     let (code, stdout, stderr) = calibrate_in(&surveyed, &inputs, &out);
@@ -265,6 +266,14 @@ fn a_rig_is_calibrated_in_the_room_its_visits_surveyed() {
         let text = std::fs::read_to_string(dir.join(format!("exports/{name}.camera_info.yaml")))
             .unwrap_or_else(|e| panic!("{name}.camera_info.yaml: {e}"));
         assert!(text.contains(&format!("camera_name: {name}\n")), "{text}");
+    }
+    // --report: one picture per camera, at the camera's size, every LiDAR drawn on it.
+    for (name, size) in [("front", (1920, 1200)), ("wide", (1920, 1200))] {
+        let path = dir.join(format!("report-{name}.png"));
+        let picture = image::open(&path).unwrap_or_else(|e| panic!("{path:?}: {e}")).to_rgb8();
+        assert_eq!(picture.dimensions(), size, "{name}");
+        let coloured = picture.pixels().filter(|p| p[0].abs_diff(p[1]) > 40).count();
+        assert!(coloured > 10_000, "{name}: {coloured} coloured pixels: no LiDAR points drawn");
     }
     let kit = std::fs::read_to_string(dir.join("exports/sensor_kit_calibration.yaml")).unwrap();
     for entry in ["  top:", "  bumper:", "  front/camera_link:", "  wide/camera_link:"] {

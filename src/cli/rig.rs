@@ -10,14 +10,17 @@ use anyhow::anyhow;
 
 use roomcal::calibrate::rig::{calibrate_rig, LidarInput};
 use roomcal::calibrate::{CalibrateOptions, CameraBoard, Detectors, LidarBoard};
+use roomcal::detect::GreyImage;
+use roomcal::geometry::{Se3, Vec3};
 use roomcal::lidar::Point;
-use roomcal::result::{BoardDetection, Detections, Status};
+use roomcal::result::{BoardDetection, Detections, RigExtrinsic, RigResult, Status};
 use roomcal::rig::{Rig, SensorKind};
 use roomcal::target::Room;
 
 use crate::{bad_input, load_image_sized, standing_frame, Failure};
 
 /// Every sensor's inputs, in the rig's order.
+#[derive(Debug)]
 pub struct RigInputs {
     pub images: Vec<Vec<PathBuf>>,
     pub clouds: Vec<Vec<PathBuf>>,
@@ -144,6 +147,13 @@ fn detect_camera(
     c: usize,
     paths: &[PathBuf],
 ) -> Result<Vec<CameraBoard>, Failure> {
+    let Some(frame) = camera_frame(rig, c, paths)? else { return Ok(Vec::new()) };
+    let mut detectors = Detectors::new(&rig.pair_room(room, c, None)).map_err(bad_input)?;
+    detectors.detect_image(&frame).map_err(bad_input)
+}
+
+/// Camera `c`'s frames averaged into one (a standing vehicle's), `None` without frames.
+fn camera_frame(rig: &Rig, c: usize, paths: &[PathBuf]) -> Result<Option<GreyImage>, Failure> {
     let spec = &rig.cameras[c].spec;
     let whose = format!("camera `{}` of the rig", rig.cameras[c].name);
     let images = paths
@@ -151,9 +161,66 @@ fn detect_camera(
         .map(|p| load_image_sized(p, (spec.width, spec.height), &whose))
         .collect::<Result<Vec<_>, _>>()?;
     let (frames, _) = standing_frame(images, Vec::new());
-    let Some(frame) = frames.first() else { return Ok(Vec::new()) };
-    let mut detectors = Detectors::new(&rig.pair_room(room, c, None)).map_err(bad_input)?;
-    detectors.detect_image(frame).map_err(bad_input)
+    Ok(frames.into_iter().next())
+}
+
+/// The rig's report pictures, one per camera (`REPORT` with the camera's name before its
+/// extension: `report.png` → `report-front.png`): the camera's frame with every LiDAR's
+/// sweep drawn through the solved rig (that camera's intrinsics, LiDAR → camera composed
+/// from the two extrinsics to the first camera), coloured by range. A camera without a
+/// solved camera model is left out. Returns the files written.
+pub fn write_reports(
+    report: &Path,
+    rig: &Rig,
+    inputs: &RigInputs,
+    detections: &RigDetections,
+    result: &RigResult,
+) -> Result<Vec<PathBuf>, Failure> {
+    let to_first = |name: &str| {
+        let e = result.extrinsics.iter().find(|e| e.from == name);
+        e.map_or_else(Se3::identity, RigExtrinsic::to_se3)
+    };
+    let mut written = Vec::new();
+    for (c, camera) in rig.cameras.iter().enumerate() {
+        let solved = result.sensors.get(camera.name.as_str()).and_then(|s| s.camera.as_ref());
+        let (Some(solved), Some(frame)) = (solved, camera_frame(rig, c, &inputs.images[c])?) else {
+            continue;
+        };
+        let camera_from_first = to_first(&camera.name).inverse();
+        let clouds: Vec<Vec<Point>> = rig
+            .lidars
+            .iter()
+            .zip(&detections.lidars)
+            .map(|(lidar, (_, cloud))| {
+                let motion = camera_from_first.compose(&to_first(&lidar.name));
+                cloud.iter().map(|p| moved(p, &motion)).collect()
+            })
+            .collect();
+        let clouds: Vec<&[Point]> = clouds.iter().map(Vec::as_slice).collect();
+        let path = report_path(report, &camera.name);
+        let identity = Se3::identity();
+        roomcal::report::overlay(&frame.data, &solved.to_camera(), Some(&identity), &clouds, &[])
+            .save(&path)
+            .map_err(|e| bad_input(anyhow!("writing the report {}: {e}", path.display())))?;
+        written.push(path);
+    }
+    Ok(written)
+}
+
+/// `report.png` → `report-NAME.png`.
+fn report_path(report: &Path, name: &str) -> PathBuf {
+    let stem = report.file_stem().map_or_else(|| "report".into(), |s| s.to_string_lossy());
+    let file = match report.extension() {
+        Some(ext) => format!("{stem}-{name}.{}", ext.to_string_lossy()),
+        None => format!("{stem}-{name}"),
+    };
+    report.with_file_name(file)
+}
+
+/// A return moved by `motion` (its other fields kept).
+fn moved(p: &Point, motion: &Se3) -> Point {
+    let q = motion.act(&Vec3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z)));
+    Point { x: q.x as f32, y: q.y as f32, z: q.z as f32, ..*p }
 }
 
 /// LiDAR `l`'s boards in its sweeps (accumulated), and the sweeps.
@@ -182,6 +249,8 @@ fn detect_lidar(
 pub struct RigOutputs<'a> {
     pub out: &'a Path,
     pub export: Option<&'a Path>,
+    /// The report pictures ([`write_reports`]) and the inputs they are drawn on.
+    pub report: Option<(&'a Path, &'a RigInputs)>,
     pub json: bool,
     pub quiet: bool,
 }
@@ -207,6 +276,9 @@ pub fn calibrate(
     if let Some(dir) = outputs.export.filter(|_| accepted) {
         exported = roomcal::export::write_dir(dir, &roomcal::export::rig_files(result))
             .map_err(bad_input)?;
+    }
+    if let Some((report, inputs)) = outputs.report {
+        exported.extend(write_reports(report, rig, inputs, detections, result)?);
     }
     if outputs.json {
         say_raw!("{json}");
