@@ -1128,11 +1128,11 @@ fn daemon(args: DaemonArgs) -> Result<(), Failure> {
     let config = roomcal::daemon::config::load(&args.config).map_err(bad_input)?;
     let room = roomcal::room::load(&config.room).map_err(bad_input)?;
     let mut calibrator = RoomCalibrator::new(room).map_err(bad_input)?;
-    match &config.rig {
-        Some(rig) => calibrator = calibrator.with_rig(rig.rig.clone()).map_err(bad_input)?,
-        // A rig's report would be one picture per camera: not drawn yet.
-        None => calibrator = calibrator.with_report(config.store.join("last-run.png")),
+    if let Some(rig) = &config.rig {
+        calibrator = calibrator.with_rig(rig.rig.clone()).map_err(bad_input)?;
     }
+    // A rig's report is one picture per camera, `last-run-NAME.png`.
+    calibrator = calibrator.with_report(config.store.join("last-run.png"));
     let runtime = tokio::runtime::Runtime::new()
         .context("starting the async runtime")
         .map_err(|error| Failure::new(1, error))?;

@@ -387,4 +387,14 @@ impl RigResult {
         }));
         out
     }
+
+    /// Sensor `from` → sensor `to` through the first camera, `None` when either has no
+    /// extrinsic (the first camera needs none).
+    pub fn between(&self, from: &str, to: &str) -> Option<crate::geometry::Se3> {
+        let to_first = |name: &str| match self.first_camera() {
+            Some(first) if first == name => Some(crate::geometry::Se3::identity()),
+            _ => self.extrinsics.iter().find(|e| e.from == name).map(RigExtrinsic::to_se3),
+        };
+        Some(to_first(to)?.inverse().compose(&to_first(from)?))
+    }
 }

@@ -438,3 +438,26 @@ fn the_store_keeps_a_rig_with_its_views_and_rolls_it_back_whole() {
     assert_eq!(current.generation, generation, "an invalid rig record went in force");
     assert_eq!(current.rig_result(), Some(first));
 }
+
+/// `RigResult::between`: sensor → sensor through the first camera, as the rig's report draws
+/// a LiDAR in a camera: `between(a, b)` maps a's points to b's frame, so composing it with
+/// b → first gives a → first; the first camera is the identity; an unknown name is `None`.
+#[test]
+fn between_two_sensors_goes_through_the_first_camera() {
+    let rig = rig_result();
+    let first = rig.first_camera().unwrap().to_string();
+    let to_first =
+        |name: &str| rig.extrinsics.iter().find(|e| e.from == name).map(|e| e.to_se3()).unwrap();
+    let p = roomcal::geometry::Vec3::new(1.5, -0.4, 7.0);
+    for e in &rig.extrinsics {
+        for f in &rig.extrinsics {
+            let a_to_b = rig.between(&e.from, &f.from).unwrap();
+            let via = to_first(&f.from).act(&a_to_b.act(&p));
+            assert!((via - to_first(&e.from).act(&p)).norm() < 1e-12, "{} → {}", e.from, f.from);
+        }
+        let to_camera = rig.between(&e.from, &first).unwrap();
+        assert!((to_camera.act(&p) - to_first(&e.from).act(&p)).norm() < 1e-12);
+    }
+    assert!(rig.between(&first, &first).unwrap().act(&p) == p);
+    assert!(rig.between("nobody", &first).is_none());
+}

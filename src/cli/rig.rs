@@ -11,9 +11,9 @@ use anyhow::anyhow;
 use roomcal::calibrate::rig::{calibrate_rig, LidarInput};
 use roomcal::calibrate::{CalibrateOptions, CameraBoard, Detectors, LidarBoard};
 use roomcal::detect::GreyImage;
-use roomcal::geometry::{Se3, Vec3};
+use roomcal::geometry::Se3;
 use roomcal::lidar::Point;
-use roomcal::result::{BoardDetection, Detections, RigExtrinsic, RigResult, Status};
+use roomcal::result::{BoardDetection, Detections, RigResult, Status};
 use roomcal::rig::{Rig, SensorKind};
 use roomcal::target::Room;
 
@@ -164,11 +164,10 @@ fn camera_frame(rig: &Rig, c: usize, paths: &[PathBuf]) -> Result<Option<GreyIma
     Ok(frames.into_iter().next())
 }
 
-/// The rig's report pictures, one per camera (`REPORT` with the camera's name before its
-/// extension: `report.png` → `report-front.png`): the camera's frame with every LiDAR's
-/// sweep drawn through the solved rig (that camera's intrinsics, LiDAR → camera composed
-/// from the two extrinsics to the first camera), coloured by range. A camera without a
-/// solved camera model is left out. Returns the files written.
+/// The rig's report pictures, one per camera ([`roomcal::report::camera_path`]: `report.png`
+/// → `report-front.png`): the camera's frame (its frames averaged) with every LiDAR's sweep
+/// drawn through the solved rig ([`roomcal::report::rig_overlay`]). A camera without a
+/// solved model, or a LiDAR without an extrinsic, is left out. Returns the files written.
 pub fn write_reports(
     report: &Path,
     rig: &Rig,
@@ -176,51 +175,27 @@ pub fn write_reports(
     detections: &RigDetections,
     result: &RigResult,
 ) -> Result<Vec<PathBuf>, Failure> {
-    let to_first = |name: &str| {
-        let e = result.extrinsics.iter().find(|e| e.from == name);
-        e.map_or_else(Se3::identity, RigExtrinsic::to_se3)
-    };
     let mut written = Vec::new();
     for (c, camera) in rig.cameras.iter().enumerate() {
         let solved = result.sensors.get(camera.name.as_str()).and_then(|s| s.camera.as_ref());
         let (Some(solved), Some(frame)) = (solved, camera_frame(rig, c, &inputs.images[c])?) else {
             continue;
         };
-        let camera_from_first = to_first(&camera.name).inverse();
-        let clouds: Vec<Vec<Point>> = rig
+        let clouds: Vec<(Se3, &[Point])> = rig
             .lidars
             .iter()
             .zip(&detections.lidars)
-            .map(|(lidar, (_, cloud))| {
-                let motion = camera_from_first.compose(&to_first(&lidar.name));
-                cloud.iter().map(|p| moved(p, &motion)).collect()
+            .filter_map(|(l, (_, cloud))| {
+                Some((result.between(&l.name, &camera.name)?, &cloud[..]))
             })
             .collect();
-        let clouds: Vec<&[Point]> = clouds.iter().map(Vec::as_slice).collect();
-        let path = report_path(report, &camera.name);
-        let identity = Se3::identity();
-        roomcal::report::overlay(&frame.data, &solved.to_camera(), Some(&identity), &clouds, &[])
+        let path = roomcal::report::camera_path(report, &camera.name);
+        roomcal::report::rig_overlay(&frame.data, &solved.to_camera(), &clouds)
             .save(&path)
             .map_err(|e| bad_input(anyhow!("writing the report {}: {e}", path.display())))?;
         written.push(path);
     }
     Ok(written)
-}
-
-/// `report.png` → `report-NAME.png`.
-fn report_path(report: &Path, name: &str) -> PathBuf {
-    let stem = report.file_stem().map_or_else(|| "report".into(), |s| s.to_string_lossy());
-    let file = match report.extension() {
-        Some(ext) => format!("{stem}-{name}.{}", ext.to_string_lossy()),
-        None => format!("{stem}-{name}"),
-    };
-    report.with_file_name(file)
-}
-
-/// A return moved by `motion` (its other fields kept).
-fn moved(p: &Point, motion: &Se3) -> Point {
-    let q = motion.act(&Vec3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z)));
-    Point { x: q.x as f32, y: q.y as f32, z: q.z as f32, ..*p }
 }
 
 /// LiDAR `l`'s boards in its sweeps (accumulated), and the sweeps.

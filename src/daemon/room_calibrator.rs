@@ -1,5 +1,5 @@
 //! The daemon's real calibrator: the room's detectors and [`crate::calibrate::calibrate`]
-//! behind the daemon's [`Calibrator`] trait, drawing each run's report picture when asked;
+//! behind the daemon's [`Calibrator`] trait, drawing each run's report picture(s) when asked;
 //! for a rig ([`RoomCalibrator::with_rig`]) every camera's detectors and
 //! [`crate::calibrate::rig::calibrate_rig`].
 
@@ -11,6 +11,7 @@ use crate::calibrate::{
 };
 use crate::capture::GreyFrame;
 use crate::detect::holes::RefusedBoard;
+use crate::geometry::Se3;
 use crate::lidar::Point;
 use crate::result::{CalibrationResult, RigResult};
 use crate::rig::Rig;
@@ -44,7 +45,9 @@ impl RoomCalibrator {
     }
 
     /// Also writes every run's report picture (PNG, as `roomcal calibrate --report` draws
-    /// it) to `path`, atomically, e.g. the store's `last-run.png`.
+    /// it) to `path`, atomically, e.g. the store's `last-run.png`; a rig's run writes one
+    /// per camera, the camera's name before the extension (`last-run-front.png`: its frame
+    /// with every LiDAR drawn through the solved rig, [`crate::report::rig_overlay`]).
     pub fn with_report(mut self, path: PathBuf) -> Self {
         self.report = Some(path);
         self
@@ -62,19 +65,22 @@ impl RoomCalibrator {
         let Some(path) = &self.report else { return };
         let clouds: Vec<&[Point]> = sweep.map(|s| s.as_slice()).into_iter().collect();
         let picture = crate::report::calibration_report(&frame.pixels, &clouds, run, refused);
-        let mut png = std::io::Cursor::new(Vec::new());
-        let written = picture
-            .write_to(&mut png, image::ImageFormat::Png)
-            .map_err(|e| e.to_string())
-            .and_then(|()| {
-                crate::store::write_atomic(path, png.get_ref()).map_err(|e| e.to_string())
-            });
-        if let Err(e) = written {
-            tracing::warn!(
-                "{}: the run's report picture was not written ({e}); the calibration is unaffected",
-                path.display()
-            );
-        }
+        write_picture(path, &picture);
+    }
+}
+
+/// Writes a report picture as PNG to `path`, atomically; a failure is logged, never fatal.
+fn write_picture(path: &std::path::Path, picture: &image::RgbImage) {
+    let mut png = std::io::Cursor::new(Vec::new());
+    let written = picture
+        .write_to(&mut png, image::ImageFormat::Png)
+        .map_err(|e| e.to_string())
+        .and_then(|()| crate::store::write_atomic(path, png.get_ref()).map_err(|e| e.to_string()));
+    if let Err(e) = written {
+        tracing::warn!(
+            "{}: the run's report picture was not written ({e}); the calibration is unaffected",
+            path.display()
+        );
     }
 }
 
@@ -145,6 +151,26 @@ impl Calibrator for RoomCalibrator {
         let options =
             CalibrateOptions { current_rig: current.cloned(), ..CalibrateOptions::default() };
         let run = calibrate_rig(&self.room, rig, &cameras, &lidars, &options);
+        if let Some(path) = &self.report {
+            for (camera, frame) in rig.cameras.iter().zip(frames) {
+                let Some(solved) =
+                    run.result.sensors.get(camera.name.as_str()).and_then(|s| s.camera.as_ref())
+                else {
+                    continue;
+                };
+                let clouds: Vec<(Se3, &[Point])> = rig
+                    .lidars
+                    .iter()
+                    .zip(sweeps)
+                    .filter_map(|(l, sweep)| {
+                        Some((run.result.between(&l.name, &camera.name)?, &sweep[..]))
+                    })
+                    .collect();
+                let picture =
+                    crate::report::rig_overlay(&frame.pixels, &solved.to_camera(), &clouds);
+                write_picture(&crate::report::camera_path(path, &camera.name), &picture);
+            }
+        }
         CalibrationOutcome::DoneRig(Box::new(run.result))
     }
 }
