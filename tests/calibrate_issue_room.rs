@@ -13,6 +13,10 @@
 
 use std::path::Path;
 
+#[path = "common/gauss.rs"]
+mod gauss;
+use gauss::Noise;
+
 use roomcal::calibrate::{calibrate, CalibrateOptions, CameraBoard, Detectors, FrameDetections};
 use roomcal::geometry::se3::so3_exp;
 use roomcal::geometry::{Camera, CameraModel};
@@ -132,16 +136,4 @@ fn the_issue_room_calibrates_right() {
     assert!(fx_error < 3.0 * sigma.fx / result.camera.fx, "fx off {fx_error}");
     // What the issue saw with the wrongly placed board: 0.23° / 23 mm.
     assert!(rotation_deg < 0.1 && translation_m < 0.015, "{rotation_deg}° / {translation_m} m");
-}
-
-/// Gaussian noise for the test (Box–Muller on an LCG).
-struct Noise(u64);
-impl Noise {
-    fn uniform(&mut self) -> f64 {
-        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        ((self.0 >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    }
-    fn normal(&mut self) -> f64 {
-        (-2.0 * self.uniform().ln()).sqrt() * (2.0 * std::f64::consts::PI * self.uniform()).cos()
-    }
 }

@@ -5,6 +5,10 @@
 
 use std::path::Path;
 
+#[path = "common/gauss.rs"]
+mod gauss;
+use gauss::Noise;
+
 use roomcal::calibrate::{
     calibrate, plane_points, CalibrateOptions, CameraBoard, FrameDetections, LidarBoard,
 };
@@ -37,18 +41,6 @@ fn scene(room: &Room, seed: u64) -> Scene {
         ..SimOptions::default()
     };
     simulate(room, &options).unwrap()
-}
-
-/// Tiny deterministic Gaussian noise for the test (Box–Muller on an LCG).
-struct Noise(u64);
-impl Noise {
-    fn uniform(&mut self) -> f64 {
-        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        ((self.0 >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    }
-    fn normal(&mut self) -> f64 {
-        (-2.0 * self.uniform().ln()).sqrt() * (2.0 * std::f64::consts::PI * self.uniform()).cos()
-    }
 }
 
 /// What perfect detectors with the given noise would report, the LiDAR's holes shuffled.
