@@ -88,6 +88,29 @@ pub fn rig_overlay(grey: &[u8], camera: &Camera, clouds: &[(Se3, &[Point])]) -> 
     with_range_bar(image, range_max)
 }
 
+/// Camera `camera` (its index in `rig`) of a rig's `result`: its frame `grey` with every
+/// LiDAR's sweep (`sweeps`, in the rig's LiDAR order) drawn through the solved rig — the
+/// camera's solved intrinsics, LiDAR → camera through the first camera
+/// ([`crate::result::RigResult::between`]) — as [`rig_overlay`] draws it. `None` when the
+/// camera has no solved model; a LiDAR without an extrinsic is left out.
+pub fn rig_camera_report(
+    rig: &crate::rig::Rig,
+    result: &crate::result::RigResult,
+    camera: usize,
+    grey: &[u8],
+    sweeps: &[&[Point]],
+) -> Option<RgbImage> {
+    let name = rig.cameras.get(camera)?.name.as_str();
+    let solved = result.sensors.get(name)?.camera.as_ref()?;
+    let clouds: Vec<(Se3, &[Point])> = rig
+        .lidars
+        .iter()
+        .zip(sweeps)
+        .filter_map(|(l, sweep)| Some((result.between(&l.name, name)?, *sweep)))
+        .collect();
+    Some(rig_overlay(grey, &solved.to_camera(), &clouds))
+}
+
 /// `report.png` → `report-NAME.png`: where one camera's picture of a rig's report goes.
 pub fn camera_path(report: &std::path::Path, name: &str) -> std::path::PathBuf {
     let stem = report.file_stem().map_or_else(|| "report".into(), |s| s.to_string_lossy());

@@ -11,7 +11,6 @@ use anyhow::anyhow;
 use roomcal::calibrate::rig::{calibrate_rig, LidarInput};
 use roomcal::calibrate::{CalibrateOptions, CameraBoard, Detectors, LidarBoard};
 use roomcal::detect::GreyImage;
-use roomcal::geometry::Se3;
 use roomcal::lidar::Point;
 use roomcal::result::{BoardDetection, Detections, RigResult, Status};
 use roomcal::rig::{Rig, SensorKind};
@@ -166,8 +165,8 @@ fn camera_frame(rig: &Rig, c: usize, paths: &[PathBuf]) -> Result<Option<GreyIma
 
 /// The rig's report pictures, one per camera ([`roomcal::report::camera_path`]: `report.png`
 /// → `report-front.png`): the camera's frame (its frames averaged) with every LiDAR's sweep
-/// drawn through the solved rig ([`roomcal::report::rig_overlay`]). A camera without a
-/// solved model, or a LiDAR without an extrinsic, is left out. Returns the files written.
+/// drawn through the solved rig ([`roomcal::report::rig_camera_report`]). A camera without
+/// a solved model is left out. Returns the files written.
 pub fn write_reports(
     report: &Path,
     rig: &Rig,
@@ -175,22 +174,17 @@ pub fn write_reports(
     detections: &RigDetections,
     result: &RigResult,
 ) -> Result<Vec<PathBuf>, Failure> {
+    let sweeps: Vec<&[Point]> = detections.lidars.iter().map(|(_, c)| c.as_slice()).collect();
     let mut written = Vec::new();
     for (c, camera) in rig.cameras.iter().enumerate() {
-        let solved = result.sensors.get(camera.name.as_str()).and_then(|s| s.camera.as_ref());
-        let (Some(solved), Some(frame)) = (solved, camera_frame(rig, c, &inputs.images[c])?) else {
+        let Some(frame) = camera_frame(rig, c, &inputs.images[c])? else { continue };
+        let Some(picture) =
+            roomcal::report::rig_camera_report(rig, result, c, &frame.data, &sweeps)
+        else {
             continue;
         };
-        let clouds: Vec<(Se3, &[Point])> = rig
-            .lidars
-            .iter()
-            .zip(&detections.lidars)
-            .filter_map(|(l, (_, cloud))| {
-                Some((result.between(&l.name, &camera.name)?, &cloud[..]))
-            })
-            .collect();
         let path = roomcal::report::camera_path(report, &camera.name);
-        roomcal::report::rig_overlay(&frame.data, &solved.to_camera(), &clouds)
+        picture
             .save(&path)
             .map_err(|e| bad_input(anyhow!("writing the report {}: {e}", path.display())))?;
         written.push(path);

@@ -11,7 +11,6 @@ use crate::calibrate::{
 };
 use crate::capture::GreyFrame;
 use crate::detect::holes::RefusedBoard;
-use crate::geometry::Se3;
 use crate::lidar::Point;
 use crate::result::{CalibrationResult, RigResult};
 use crate::rig::Rig;
@@ -152,23 +151,13 @@ impl Calibrator for RoomCalibrator {
             CalibrateOptions { current_rig: current.cloned(), ..CalibrateOptions::default() };
         let run = calibrate_rig(&self.room, rig, &cameras, &lidars, &options);
         if let Some(path) = &self.report {
-            for (camera, frame) in rig.cameras.iter().zip(frames) {
-                let Some(solved) =
-                    run.result.sensors.get(camera.name.as_str()).and_then(|s| s.camera.as_ref())
-                else {
-                    continue;
-                };
-                let clouds: Vec<(Se3, &[Point])> = rig
-                    .lidars
-                    .iter()
-                    .zip(sweeps)
-                    .filter_map(|(l, sweep)| {
-                        Some((run.result.between(&l.name, &camera.name)?, &sweep[..]))
-                    })
-                    .collect();
+            let sweeps: Vec<&[Point]> = sweeps.iter().map(Vec::as_slice).collect();
+            for (c, (camera, frame)) in rig.cameras.iter().zip(frames).enumerate() {
                 let picture =
-                    crate::report::rig_overlay(&frame.pixels, &solved.to_camera(), &clouds);
-                write_picture(&crate::report::camera_path(path, &camera.name), &picture);
+                    crate::report::rig_camera_report(rig, &run.result, c, &frame.pixels, &sweeps);
+                if let Some(picture) = picture {
+                    write_picture(&crate::report::camera_path(path, &camera.name), &picture);
+                }
             }
         }
         CalibrationOutcome::DoneRig(Box::new(run.result))
