@@ -275,9 +275,16 @@ impl Tally {
         self.0.entry(what).or_default().push((error, sigma));
     }
 
-    /// Every camera's fx %, cx, cy px and every extrinsic's rotation ° and translation mm.
-    fn record(&mut self, sim: &RigSimulation, result: &roomcal::result::RigResult) {
-        for camera in &sim.rig.cameras {
+    /// Every camera's fx %, cx, cy px and every extrinsic's rotation ° and translation mm,
+    /// of the sensors `verdicts` accepts (a rejected sensor claims no result).
+    fn record(
+        &mut self,
+        sim: &RigSimulation,
+        result: &roomcal::result::RigResult,
+        verdicts: &roomcal::result::RigResult,
+    ) {
+        let accepted = |name: &str| verdicts.sensors[name].status == Status::Accepted;
+        for camera in sim.rig.cameras.iter().filter(|c| accepted(c.name.as_str())) {
             let name = camera.name.as_str();
             let truth = sim.truth.sensors[name].camera.as_ref().unwrap();
             let (got, sigma) = (
@@ -290,7 +297,7 @@ impl Tally {
             self.add(format!("{name} cy px"), (got.cy - truth.cy).abs(), sigma.cy);
         }
         let root3 = 3f64.sqrt();
-        for ext in &result.extrinsics {
+        for ext in result.extrinsics.iter().filter(|e| accepted(e.from.as_str())) {
             let truth = &sim.truth.sensors[ext.from.as_str()].to_reference;
             let got = Extrinsic { rotation: ext.rotation, translation: ext.translation };
             let (deg, m) = truth.difference(&got);
@@ -333,13 +340,26 @@ impl Tally {
 /// issue's targets (RMS over the vehicles) the intrinsics' are asserted (fx ≤ 0.1 %,
 /// cx, cy ≤ 1.5 px); the extrinsics' (camera→camera ≤ 0.03° / 3 mm, LiDAR→camera
 /// ≤ 0.05° / 4 mm) are printed met or missed — one frame in this survey does not hold them
-/// all, and its σ say so. No LiDAR→camera RMS error may be more than 10 % above the
+/// all, and its σ say so. No extrinsic's RMS error may be more than 10 % above the
 /// composition's: both hold the LiDARs by the same surveyed planes' points, which carry most
 /// of their information, and agree to a few per cent (to 0.1 % with the exact survey).
 /// Printed with `-- --nocapture`.
 #[test]
 fn ten_rigs_in_a_realistically_surveyed_room_joint_against_composition() {
-    study(|truth, seed| realistic_survey(truth, &mut Rng(1000 + seed)), true);
+    study(Some(&|truth, seed| realistic_survey(truth, &mut Rng(1000 + seed))), true);
+}
+
+/// The same ten vehicles in the room without a survey (free boards, one frame): the joint
+/// solve ties the cameras through the boards both see and each LiDAR through the boards it
+/// places, where the composition chains pair runs. Its σ must be honest (RMS error/σ within
+/// 0.5–1.6) and no LiDAR→camera RMS error more than 10 % above the composition's; the
+/// issue's targets are for a surveyed room and only printed here. Measured (seeds 1–10):
+/// wide→front 0.023° / 3.70 mm RMS where the composition gave 0.36° / 23.8 mm; the bumper
+/// VLP-32C places fewer than two boards a camera sees on five vehicles (four by one
+/// board, seed 4 by none), which are rejected naming it, as their pair runs were.
+#[test]
+fn ten_rigs_with_free_boards_joint_against_composition() {
+    study(None, true);
 }
 
 /// As above with the exact survey (σ 0), what the sensors alone allow
@@ -350,27 +370,30 @@ fn ten_rigs_in_a_realistically_surveyed_room_joint_against_composition() {
 #[test]
 #[ignore]
 fn ten_rigs_in_an_exactly_surveyed_room_joint_against_composition() {
-    study(|truth, _| exact_survey(truth), false);
+    study(Some(&|truth, _| exact_survey(truth)), false);
 }
 
-/// Calibrates seeds 1–10 in the room `survey` gives, prints joint against composition
-/// and checks it (σ honesty only when `honest_sigma`).
-fn study(survey: impl Fn(&RoomTruth, u64) -> SurveySpec, honest_sigma: bool) {
+/// A survey drawn for a room's truth and a seed.
+type SurveyOf<'a> = &'a dyn Fn(&RoomTruth, u64) -> SurveySpec;
+
+/// Calibrates seeds 1–10 in the room `survey` gives (`None`: free boards), prints joint
+/// against composition and checks it (σ honesty only when `honest_sigma`).
+fn study(survey: Option<SurveyOf<'_>>, honest_sigma: bool) {
     const SEEDS: u64 = 10;
     let (mut joint, mut composed) = (Tally::default(), Tally::default());
     let mut accepted = 0;
     for seed in 1..=SEEDS {
         let sim = with_wide_coverage(simulated(seed));
         let mut room = sim.room.clone();
-        room.survey = Some(survey(&sim.room_truth, seed));
-        let run = run_seeded(&sim, &room, false, seed);
+        room.survey = survey.map(|survey| survey(&sim.room_truth, seed));
+        let run = run_seeded(&sim, &room, survey.is_none(), seed);
         match run.result.pair.status {
             Status::Accepted => accepted += 1,
             Status::Rejected => println!("seed {seed}: rejected: {:?}", run.result.pair.reason),
         }
-        joint.record(&sim, &run.result);
-        let composition = run.composition.as_ref().expect("a surveyed rig keeps its composition");
-        composed.record(&sim, composition);
+        joint.record(&sim, &run.result, &run.result);
+        let composition = run.composition.as_ref().expect("a rig keeps its composition");
+        composed.record(&sim, composition, &run.result);
     }
     println!("{accepted}/{SEEDS} accepted; per quantity over the vehicles: RMS error (largest), RMS σ, RMS error/σ");
     println!("{:<18} {:>36} {:>36}", "quantity", "joint", "composition");
@@ -392,8 +415,7 @@ fn study(survey: impl Fn(&RoomTruth, u64) -> SurveySpec, honest_sigma: bool) {
         println!(
             "{what:<18} {e:>8.4} ({max:.4}) σ {s:.4} {ratio:>4.2}   {ce:>8.4} ({cmax:.4}) σ {cs:.4} {cratio:>4.2}   target {target} {verdict}"
         );
-        let lidar = what.starts_with("top") || what.starts_with("bumper");
-        if lidar && e > 1.1 * ce {
+        if what.contains('→') && e > 1.1 * ce {
             failures.push(format!(
                 "{what}: joint RMS error {e:.4} more than 10 % above the composition's {ce:.4}"
             ));
@@ -401,11 +423,11 @@ fn study(survey: impl Fn(&RoomTruth, u64) -> SurveySpec, honest_sigma: bool) {
         if honest_sigma && !(0.5..=1.6).contains(&ratio) {
             failures.push(format!("{what}: joint RMS error/σ {ratio:.2}"));
         }
-        if matches!(unit, "%" | "px") && e > target {
+        if survey.is_some() && matches!(unit, "%" | "px") && e > target {
             failures.push(format!("{what}: joint RMS error {e:.4} above the target {target}"));
         }
     }
-    if honest_sigma && accepted < SEEDS {
+    if survey.is_some() && honest_sigma && accepted < SEEDS {
         failures.push(format!("{accepted}/{SEEDS} rigs accepted"));
     }
     assert!(failures.is_empty(), "{failures:#?}");

@@ -11,6 +11,7 @@ use rig_scene::*;
 use roomcal::geometry::se3::so3_log;
 use roomcal::geometry::Se3;
 use roomcal::solve::rig::{apply_rig_step, inverse_jacobian, rig_covariance, solve_rig};
+use roomcal::solve::room::BlockPrior;
 use roomcal::solve::Loss;
 
 /// All whitened residuals (measurements then priors) and the analytic Jacobian over
@@ -143,6 +144,68 @@ fn solve_recovers_the_truth_from_a_perturbed_start() {
 /// trials an honest σ gives 1 ± 0.23 at 2σ).
 #[test]
 fn sigma_matches_the_spread_over_noisy_solves() {
+    sigma_study(false);
+}
+
+/// Without a survey (free boards, frame 0's room pose held), the σ are as honest.
+#[test]
+fn free_board_sigma_matches_the_spread_over_noisy_solves() {
+    sigma_study(true);
+}
+
+/// Free boards: the solve holds frame 0's room pose where it starts (the gauge) and finds
+/// every intrinsic, every mounting and frame 1 relative to frame 0.
+#[test]
+fn free_boards_recover_the_rig_from_a_perturbed_start() {
+    let s = scene(None);
+    let p = free_problem(&s, 0.1, 0.003, Loss::Huber(3.0));
+    assert!(p.holds_first_frame());
+    let mut params = boards_only(&perturbed(&s));
+    let held = params.room_to_first[0];
+    let report = solve_rig(&p, &mut params, 50).unwrap();
+    assert!(report.iterations > 1 && report.final_cost < 1e-8 * report.initial_cost, "{report:?}");
+    assert_eq!(params.room_to_first[0], held, "frame 0 is the gauge");
+    let t = &s.truth;
+    for c in 0..C {
+        assert!((params.cameras[c].fx - t.cameras[c].fx).abs() < 1e-4, "camera {c} fx");
+        assert!((params.cameras[c].cy - t.cameras[c].cy).abs() < 1e-4, "camera {c} cy");
+    }
+    let close = |a: &Se3, b: &Se3| left_difference(a, b).amax() < 1e-7;
+    assert!(close(&params.first_to_camera[1], &t.first_to_camera[1]));
+    for l in 0..L {
+        assert!(close(&params.lidar_to_first[l], &t.lidar_to_first[l]), "LiDAR {l}");
+    }
+    let between = |p: &Params| p.room_to_first[1].compose(&p.room_to_first[0].inverse());
+    assert!(close(&between(&params), &between(t)), "frame 1 relative to frame 0");
+}
+
+/// Surveyed and free blocks do not mix, and a free block has infinite σ on both axes.
+#[test]
+fn blocks_are_all_surveyed_or_all_free() {
+    let s = scene(None);
+    let mut p = problem(&s, 0.1, 0.003, Loss::Squared);
+    assert!(!p.holds_first_frame());
+    assert!(p.add_block(BlockPrior::free(Se3::identity())).is_err());
+    let mut q = free_problem(&s, 0.1, 0.003, Loss::Squared);
+    assert!(q.add_block(s.priors[0]).is_err());
+    let half = BlockPrior { sigma_m: f64::INFINITY, ..s.priors[0] };
+    assert!(q.add_block(half).is_err(), "σ infinite on one axis only");
+    assert_eq!(q.residual_count() + 6 * 7, problem_rows(&s), "free blocks add no prior rows");
+}
+
+/// Rows of the surveyed problem over the same boards' measurements, planes' left out.
+fn problem_rows(s: &Scene) -> usize {
+    let p = problem(s, 0.1, 0.003, Loss::Squared);
+    let planes: usize = s
+        .measured
+        .iter()
+        .filter(|m| m.block >= BOARDS)
+        .map(|m| m.plane.map_or(0, |pl| pl.count))
+        .sum();
+    p.residual_count() - planes
+}
+
+fn sigma_study(free: bool) {
     const TRIALS: usize = 40;
     let (corner_px, hole_m, point_m) = (0.15, 0.003, 0.01);
     // Per quantity: Σ (error/σ)² over trials.
@@ -162,8 +225,12 @@ fn sigma_matches_the_spread_over_noisy_solves() {
     let mut rng = Rng(2026);
     for _ in 0..TRIALS {
         let s = scene(Some((corner_px, hole_m, point_m, &mut rng)));
-        let p = problem(&s, corner_px, hole_m, Loss::Squared);
-        let mut params = perturbed(&s);
+        let (p, mut params) = match free {
+            false => (problem(&s, corner_px, hole_m, Loss::Squared), perturbed(&s)),
+            true => {
+                (free_problem(&s, corner_px, hole_m, Loss::Squared), boards_only(&perturbed(&s)))
+            }
+        };
         solve_rig(&p, &mut params, 100).unwrap();
         let cov = rig_covariance(&p, &params).unwrap();
         let t = &s.truth;

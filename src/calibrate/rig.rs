@@ -32,7 +32,7 @@ use std::collections::BTreeMap;
 
 use nalgebra::{DMatrix, Matrix3};
 
-use super::identify::GATE_M;
+use super::identify::{half_turn_symmetric, oriented, GATE_DEG, GATE_M};
 use super::surveyed::MOVED_BOARD_CHI2;
 use super::{
     calibrate_with_clouds, gate, median, CalibrateOptions, Calibration, CameraBoard,
@@ -69,8 +69,9 @@ pub struct RigCalibration {
     pub first: Calibration,
     /// Every pair run: (camera, LiDAR or `None` for intrinsics only) → run.
     pub runs: BTreeMap<(usize, Option<usize>), Calibration>,
-    /// In a surveyed room, the result as the pair runs composed it, before the joint
-    /// solve replaced its values (for comparisons; `None` otherwise).
+    /// The result as the pair runs composed it, before the joint solve replaced its
+    /// values (for comparisons; `None` for a rig beyond the joint solve's capacity, whose
+    /// result it is).
     pub composition: Option<RigResult>,
 }
 
@@ -186,15 +187,17 @@ pub fn calibrate_rig(
     let composition = RigResult { pair, sensors, extrinsics };
     let mut result = composition.clone();
     let fits = rig.cameras.len() <= JOINT_CAMERAS && rig.lidars.len() <= JOINT_LIDARS;
-    let joint_survey = room.survey.as_ref().filter(|_| surveyed && fits);
-    if surveyed && joint_survey.is_none() {
+    let targets = match (surveyed, &room.survey) {
+        (true, Some(survey)) => Targets::Surveyed(survey),
+        _ => Targets::Free,
+    };
+    if !fits {
         tracing::warn!("a rig beyond the joint solve's capacity keeps the composition");
-    }
-    if let Some(survey) = joint_survey {
+    } else {
         let inputs = (cameras, lidars);
-        match solve_jointly(room, survey, rig, &runs, &camera_runs, inputs, &start) {
+        match solve_jointly(room, targets, rig, &runs, &camera_runs, inputs, &start) {
             Ok(joint) => {
-                apply_joint(&mut result, &joint, rig);
+                apply_joint(&mut result, &joint, rig, targets);
                 let lidar_runs =
                     Runs { runs: &runs, cameras: &camera_runs, lidars: &lidar_cameras };
                 judge_jointly(&mut result, &joint, room, rig, &lidar_runs);
@@ -205,7 +208,7 @@ pub fn calibrate_rig(
     if let Some(current) = in_force {
         judge_changes(&mut result, current, &room.quality, rig);
     }
-    let composition = joint_survey.map(|_| composition);
+    let composition = fits.then_some(composition);
     RigCalibration { result, first, runs, composition }
 }
 
@@ -245,26 +248,32 @@ fn judge_changes(result: &mut RigResult, current: &RigResult, q: &QualitySpec, r
 
 /// The joint solution written into the result: every camera's intrinsics, σ and pose in
 /// the room, every extrinsic and its σ, the one-pair fields (first camera, first LiDAR).
-/// The sensors' verdicts are [`judge_jointly`]'s.
-fn apply_joint(result: &mut RigResult, joint: &Joint, rig: &Rig) {
+/// The sensors' verdicts are [`judge_jointly`]'s. With free boards there is no room frame,
+/// so no camera has a pose in the room, and a sensor the boards do not tie to the first
+/// camera was not solved: a camera keeps its pair run's values, and no extrinsic is given.
+fn apply_joint(result: &mut RigResult, joint: &Joint, rig: &Rig, targets: Targets<'_>) {
     let (p, cov) = (&joint.params, &joint.covariance);
+    let e = &joint.evidence;
     let lidar_of = |name: &Option<String>| match name.as_deref().and_then(|n| rig.find(n)) {
         Some((SensorKind::Lidar, l)) => Some(l),
         _ => None,
     };
-    for (c, camera) in rig.cameras.iter().enumerate() {
+    for (c, camera) in rig.cameras.iter().enumerate().filter(|(c, _)| e.camera_tied[*c]) {
         let Some(entry) = result.sensors.get_mut(camera.name.as_str()) else { continue };
         let lidar = lidar_of(&entry.solved_with);
         entry.camera = Some(CameraResult::from_camera(&p.cameras[c]));
         entry.uncertainty = Some(joint_uncertainty(joint, c, lidar));
         let room_to_camera = p.first_to_camera[c].compose(&p.room_to_first[0]);
-        entry.camera_in_room = Some(Extrinsic::from_se3(&room_to_camera.inverse()));
+        entry.camera_in_room = match targets {
+            Targets::Surveyed(_) => Some(Extrinsic::from_se3(&room_to_camera.inverse())),
+            Targets::Free => None,
+        };
     }
     // Every sensor but the first camera, in the rig's order: the joint solve has each
     // mounting, also where the composition had none (a LiDAR no camera shares a board with
     // starts at its nominal mounting and is tied to the room by its planes).
     let first = rig.cameras[0].name.as_str();
-    let cameras = (1..rig.cameras.len()).map(|c| {
+    let cameras = (1..rig.cameras.len()).filter(|&c| e.camera_tied[c]).map(|c| {
         let a = &p.first_to_camera[c];
         (rig.cameras[c].name.as_str(), a.inverse(), cov.camera_to_first(c, a))
     });
@@ -272,6 +281,7 @@ fn apply_joint(result: &mut RigResult, joint: &Joint, rig: &Rig) {
         .lidars
         .iter()
         .enumerate()
+        .filter(|(l, _)| e.lidar_tied[*l])
         .map(|(l, lidar)| (lidar.name.as_str(), p.lidar_to_first[l], cov.lidar_to_first(l)));
     result.extrinsics = cameras
         .chain(lidars)
@@ -318,6 +328,11 @@ struct Runs<'a> {
 /// survey gives each its pose, so a LiDAR whose holes no camera sees is still tied to the
 /// room), its hole term's RMS, and the σ of its mounting relative to its camera. The rig is
 /// accepted only when every sensor is.
+///
+/// With free boards the same, but nothing is surveyed: a camera counts the boards it sees,
+/// a LiDAR the boards it places by their holes in a camera (a board's face alone leaves
+/// the LiDAR three ways to move), and a sensor the shared boards do not tie to the first
+/// camera (directly or through a LiDAR) is rejected by name.
 fn judge_jointly(result: &mut RigResult, joint: &Joint, room: &Room, rig: &Rig, runs: &Runs<'_>) {
     let q = &room.quality;
     let mut failures = Vec::new();
@@ -331,18 +346,27 @@ fn judge_jointly(result: &mut RigResult, joint: &Joint, room: &Room, rig: &Rig, 
         let Some(entry) = result.sensors.get_mut(lidar.name.as_str()) else { continue };
         let c = runs.lidars[l].unwrap_or(0);
         let e = &joint.evidence;
-        let targets = e.lidar_hole_boards[l] + e.lidar_face_boards[l] + e.lidar_planes[l];
-        let verdict = gate::check(targets >= q.min_lidar_boards as usize, || {
-            format!(
-                "it registers against {targets} surveyed boards and planes, at least {} needed",
-                q.min_lidar_boards
-            )
-        })
-        .and_then(|()| match e.lidar_hole_boards[l] {
-            0 => Ok(()),
-            _ => gate::holes_fit(q, joint.report.hole_rms_px[l]),
-        })
-        .and_then(|()| gate::extrinsic_certain(q, &joint_uncertainty(joint, c, Some(l))));
+        let (targets, seen) = match e.free {
+            false => {
+                let n = e.lidar_hole_boards[l] + e.lidar_face_boards[l] + e.lidar_planes[l];
+                (n, format!("it registers against {n} surveyed boards and planes"))
+            }
+            true => {
+                let n = e.lidar_hole_boards[l];
+                (n, format!("it places {n} boards a camera sees by their holes"))
+            }
+        };
+        let verdict = untied(e.lidar_tied[l])
+            .and_then(|()| {
+                gate::check(targets >= q.min_lidar_boards as usize, || {
+                    format!("{seen}, at least {} needed", q.min_lidar_boards)
+                })
+            })
+            .and_then(|()| match e.lidar_hole_boards[l] {
+                0 => Ok(()),
+                _ => gate::holes_fit(q, joint.report.hole_rms_px[l]),
+            })
+            .and_then(|()| gate::extrinsic_certain(q, &joint_uncertainty(joint, c, Some(l))));
         entry.solved_with.get_or_insert_with(|| rig.cameras[c].name.to_string());
         set_verdict(entry, verdict);
         note_failure(&mut failures, "lidar", lidar.name.as_str(), entry);
@@ -366,9 +390,12 @@ fn judge_camera(
 ) -> Result<(), String> {
     let q = &room.quality;
     let min_boards = q.min_boards.unwrap_or(room.board.count) as usize;
-    let seen = joint.evidence.camera_boards[c];
+    let e = &joint.evidence;
+    untied(e.camera_tied[c])?;
+    let seen = e.camera_boards[c];
+    let kind = if e.free { "" } else { "surveyed " };
     gate::check(seen >= min_boards, || {
-        format!("it sees {seen} surveyed boards, the room needs {min_boards}")
+        format!("it sees {seen} {kind}boards, the room needs {min_boards}")
     })?;
     gate::corners_fit(q, joint.report.corner_rms_px[c])?;
     gate::covers(q, gate::coverage(&run.camera, &run.boards))?;
@@ -382,6 +409,13 @@ fn judge_camera(
         }
         _ => Ok(()),
     }
+}
+
+/// A sensor the free boards do not tie to the first camera: nothing places it.
+fn untied(tied: bool) -> Result<(), String> {
+    gate::check(tied, || {
+        "it shares no board with the first camera, directly or through another sensor".into()
+    })
 }
 
 fn set_verdict(entry: &mut SensorResult, verdict: Result<(), String>) {
@@ -661,7 +695,7 @@ fn left_difference(a: &Se3, b: &Se3) -> nalgebra::SVector<f64, 6> {
     nalgebra::SVector::<f64, 6>::new(w.x, w.y, w.z, t.x, t.y, t.z)
 }
 
-// ---- The joint solve (surveyed rooms) -------------------------------------------------
+// ---- The joint solve --------------------------------------------------------------------
 
 /// Capacities of the joint solve; a rig beyond them keeps the composition.
 const JOINT_CAMERAS: usize = 4;
@@ -690,15 +724,29 @@ struct Joint {
     evidence: Evidence,
 }
 
-/// What the joint solve measured of each sensor: per camera the surveyed boards it saw,
-/// per LiDAR the surveyed boards it placed by their holes (seen in a camera), the boards
-/// it has only face points of, and the surveyed planes it has points on.
+/// What the joint solve measured of each sensor: per camera the boards it saw, per LiDAR
+/// the boards it placed by their holes (seen in a camera), the boards it has only face
+/// points of, and the surveyed planes it has points on; with free boards, whether the
+/// shared boards tie each sensor to the first camera (in a surveyed room the room does).
 #[derive(Clone, Debug, Default)]
 struct Evidence {
+    free: bool,
     camera_boards: Vec<usize>,
     lidar_hole_boards: Vec<usize>,
     lidar_face_boards: Vec<usize>,
     lidar_planes: Vec<usize>,
+    camera_tied: Vec<bool>,
+    lidar_tied: Vec<bool>,
+}
+
+/// What the joint solve's boards are held to.
+#[derive(Clone, Copy, Debug)]
+enum Targets<'a> {
+    /// The room's survey: its boards and planes, their σ the priors.
+    Surveyed(&'a SurveySpec),
+    /// No survey: the boards the cameras see, free, in the first camera's frame (the
+    /// room frame is the first camera's; frame 0's room pose is held at the identity).
+    Free,
 }
 
 /// The starting mountings from the composition (`None` where it failed: the nominal
@@ -732,13 +780,14 @@ enum Block {
     Plane(usize),
 }
 
-/// Solves every sensor of the rig jointly in the surveyed room, from the pair runs'
-/// intrinsics and room pose and the composed mountings. As in the one-pair run, a board
+/// Solves every sensor of the rig jointly, from the pair runs' intrinsics (and, in a
+/// surveyed room, room pose) and the composed mountings. As in the one-pair run, a board
 /// the solution puts outside its survey σ is named, left out and the rig solved again; a
-/// second one rejects the rig.
+/// second one rejects the rig. With free boards, a sensor the shared boards do not tie to
+/// the first camera is left out of the solve (its verdict says so).
 fn solve_jointly(
     room: &Room,
-    survey: &SurveySpec,
+    targets: Targets<'_>,
     rig: &Rig,
     runs: &BTreeMap<(usize, Option<usize>), Calibration>,
     camera_runs: &[(usize, Option<usize>)],
@@ -749,12 +798,23 @@ fn solve_jointly(
     // One input per rig LiDAR (a caller's extra inputs have no sensor).
     let lidar_inputs = &lidar_inputs[..lidar_inputs.len().min(rig.lidars.len())];
     let spec = &room.board;
-    let surveyed: Vec<Se3> = survey.boards.iter().map(|b| b.pose()).collect();
     let model_holes: Vec<Vec3> = (0..spec.holes.len()).map(|h| spec.hole(h)).collect();
-    let params = start_params(rig, runs, camera_runs, start)?;
-    let cameras: Vec<CameraMeasurements> = (0..rig.cameras.len())
-        .map(|c| camera_measurements(&runs[&camera_runs[c]], &surveyed))
-        .collect();
+    let (surveyed, cameras, params) = match targets {
+        Targets::Surveyed(survey) => {
+            let surveyed: Vec<Se3> = survey.boards.iter().map(|b| b.pose()).collect();
+            let room_to_first = room_to_first(rig, &runs[&camera_runs[0]])?;
+            let params = start_params(rig, runs, camera_runs, start, room_to_first);
+            let cameras: Vec<CameraMeasurements> = (0..rig.cameras.len())
+                .map(|c| camera_measurements(&runs[&camera_runs[c]], &surveyed))
+                .collect();
+            (surveyed, cameras, params)
+        }
+        Targets::Free => {
+            let params = start_params(rig, runs, camera_runs, start, Se3::identity());
+            let (boards, cameras) = free_boards(spec, rig, runs, camera_runs, &params);
+            (boards, cameras, params)
+        }
+    };
     let mut lidars = Vec::new();
     for (l, input) in lidar_inputs.iter().enumerate() {
         let (preferred, boards) = (start.lidar_cameras[l], input.boards);
@@ -771,10 +831,20 @@ fn solve_jointly(
             boards.map_or(1.0, |b| median(b.iter().map(|b| b.sigma_px)).max(0.02))
         }),
     };
+    let tied = match targets {
+        Targets::Surveyed(_) => None,
+        Targets::Free => Some(tie_to_first(&mut measured, rig.cameras.len(), rig.lidars.len())),
+    };
     let clouds: Vec<&[Point]> = lidar_inputs.iter().map(|i| i.cloud).collect();
     let mut left_out = None;
     loop {
-        let (joint, moved) = solve_passes(survey, &surveyed, &clouds, &measured, params.clone())?;
+        let (mut joint, moved) =
+            solve_passes(targets, &surveyed, &clouds, &measured, params.clone())?;
+        if let Some((cameras, lidars)) = &tied {
+            joint.evidence.free = true;
+            joint.evidence.camera_tied.clone_from(cameras);
+            joint.evidence.lidar_tied.clone_from(lidars);
+        }
         match (moved, left_out) {
             (None, _) => return Ok(joint),
             (Some((board, _)), None) => {
@@ -821,51 +891,59 @@ impl Evidence {
                 .collect()
         };
         Evidence {
+            free: false,
             camera_boards: m.cameras.iter().map(Vec::len).collect(),
             lidar_hole_boards: count(true),
             lidar_face_boards: count(false),
             lidar_planes: planes.iter().map(Vec::len).collect(),
+            camera_tied: vec![true; m.cameras.len()],
+            lidar_tied: vec![true; lidars],
         }
     }
 }
 
 /// The two passes of the joint solve (surveyed-plane points selected from the start, then
-/// from the first solution), and the board farthest outside its survey σ if any is beyond
-/// [`MOVED_BOARD_CHI2`] (survey index, χ²).
+/// from the first solution; free boards have no planes and one pass), and the board
+/// farthest outside its survey σ if any is beyond [`MOVED_BOARD_CHI2`] (survey index, χ²).
+/// `boards` are the surveyed boards, or the free boards' starts.
 fn solve_passes(
-    survey: &SurveySpec,
-    surveyed: &[Se3],
+    targets: Targets<'_>,
+    boards: &[Se3],
     clouds: &[&[Point]],
     m: &Measured,
     start: JointParams,
 ) -> Result<(Joint, Option<(usize, f64)>), String> {
     let select = |params: &JointParams, previous: Option<&[Vec<(usize, PlanePoints)>]>| {
-        let planes = clouds.iter().enumerate().map(|(l, cloud)| {
-            super::surveyed::room_planes(
+        let planes = clouds.iter().enumerate().map(|(l, cloud)| match targets {
+            Targets::Surveyed(survey) => super::surveyed::room_planes(
                 survey,
-                surveyed,
+                boards,
                 &[*cloud],
                 &params.room_to_first[0],
                 &params.lidar_to_first[l],
                 previous.map(|p| p[l].as_slice()),
-            )
+            ),
+            Targets::Free => Vec::new(),
         });
         planes.collect::<Vec<_>>()
     };
-    let at_priors = |problem: &JointProblem<'_>, p: &JointParams| {
+    let start_blocks = |problem: &JointProblem<'_>, p: &JointParams| {
         problem.params_at_priors(p.cameras, p.first_to_camera, p.lidar_to_first, p.room_to_first)
     };
-    let planes = select(&start, None);
-    let (problem, _) = joint_problem(survey, m, &planes)?;
-    let mut params = at_priors(&problem, &start);
-    let first = solve_rig(&problem, &mut params, 100).map_err(joint_reason)?;
-    let planes = select(&params, Some(&planes));
-    let (problem, blocks) = joint_problem(survey, m, &planes)?;
-    let mut p = at_priors(&problem, &params);
-    let report = solve_rig(&problem, &mut p, 100).map_err(joint_reason)?;
+    let mut planes = select(&start, None);
+    let (mut problem, mut blocks) = joint_problem(targets, boards, m, &planes)?;
+    let mut p = start_blocks(&problem, &start);
+    let mut report = solve_rig(&problem, &mut p, 100).map_err(joint_reason)?;
+    let mut iterations = report.iterations;
+    if let Targets::Surveyed(_) = targets {
+        planes = select(&p, Some(&planes));
+        (problem, blocks) = joint_problem(targets, boards, m, &planes)?;
+        p = start_blocks(&problem, &p);
+        report = solve_rig(&problem, &mut p, 100).map_err(joint_reason)?;
+        iterations += report.iterations;
+    }
     let moved = moved_board(&problem, &p, &blocks);
     let covariance = rig_covariance(&problem, &p).map_err(joint_reason)?;
-    let iterations = first.iterations + report.iterations;
     let evidence = Evidence::of(m, &planes);
     Ok((Joint { params: p, covariance, report, iterations, evidence }, moved))
 }
@@ -893,23 +971,25 @@ fn joint_reason(e: crate::solve::SolveError) -> String {
     format!("the joint rig solve failed: {e}")
 }
 
-/// The start: every camera's intrinsics from its run, the room pose from the first
-/// camera's run, the mountings composed (nominal where the composition failed). Unused
-/// slots hold copies nothing observes (the solve fixes them).
+/// The first camera's room → camera pose from its run (surveyed rooms).
+fn room_to_first(rig: &Rig, first: &Calibration) -> Result<Se3, String> {
+    let in_room = first.result.camera_in_room.as_ref();
+    let in_room = in_room
+        .ok_or_else(|| format!("camera `{}` has no pose in the room", rig.cameras[0].name))?;
+    Ok(in_room.to_se3().inverse())
+}
+
+/// The start: every camera's intrinsics from its run, the room pose given, the mountings
+/// composed (nominal where the composition failed). Unused slots hold copies nothing
+/// observes (the solve fixes them).
 fn start_params(
     rig: &Rig,
     runs: &BTreeMap<(usize, Option<usize>), Calibration>,
     camera_runs: &[(usize, Option<usize>)],
     start: &Start,
-) -> Result<JointParams, String> {
+    room_to_first: Se3,
+) -> JointParams {
     let first = &runs[&camera_runs[0]];
-    let room_to_first = first
-        .result
-        .camera_in_room
-        .as_ref()
-        .ok_or_else(|| format!("camera `{}` has no pose in the room", rig.cameras[0].name))?
-        .to_se3()
-        .inverse();
     let cameras =
         core::array::from_fn(|c| camera_runs.get(c).map_or(first.camera, |key| runs[key].camera));
     let first_to_camera = core::array::from_fn(|c| match (c, rig.cameras.get(c)) {
@@ -920,13 +1000,101 @@ fn start_params(
         Some(lidar) => start.lidar_to_first[l].unwrap_or(lidar.to_reference),
         None => Se3::identity(),
     });
-    Ok(RigParams {
+    RigParams {
         cameras,
         first_to_camera,
         lidar_to_first,
         room_to_first: [room_to_first],
         blocks: heapless::Vec::new(),
-    })
+    }
+}
+
+/// Without a survey: one board per physical board the cameras see, in the first camera's
+/// frame (each camera's solved board poses carried there by its start mounting), and each
+/// camera's boards on them. A board lands on one another camera saw already when it is
+/// within the identification gate of it (either way round on a half-turn symmetric board:
+/// its corners are then reversed into that board's order); else it is a new board.
+fn free_boards(
+    spec: &crate::target::BoardSpec,
+    rig: &Rig,
+    runs: &BTreeMap<(usize, Option<usize>), Calibration>,
+    camera_runs: &[(usize, Option<usize>)],
+    start: &JointParams,
+) -> (Vec<Se3>, Vec<CameraMeasurements>) {
+    let turns: &[bool] = if half_turn_symmetric(spec) { &[false, true] } else { &[false] };
+    let mut boards: Vec<Se3> = Vec::new();
+    let mut cameras = Vec::new();
+    for (c, key) in camera_runs.iter().enumerate().take(rig.cameras.len()) {
+        let to_first = start.first_to_camera[c].inverse();
+        let mut seen: CameraMeasurements = Vec::new();
+        for b in &runs[key].boards {
+            let in_first = to_first.compose(&b.pose);
+            let same = |k: usize, turned: bool| {
+                let (board, got) = (&boards[k], oriented(&in_first, turned));
+                let shift = (board.translation - got.translation).norm();
+                let angle = so3_log(&(board.rotation * got.rotation.transpose())).norm();
+                shift <= GATE_M && angle.to_degrees() <= GATE_DEG
+            };
+            let taken = |k: usize| seen.iter().any(|(j, _)| *j == k);
+            let pairs = (0..boards.len()).flat_map(|k| turns.iter().map(move |&t| (k, t)));
+            let found = pairs.filter(|&(k, t)| !taken(k) && same(k, t)).min_by(|a, b| {
+                let d = |k: usize| (boards[k].translation - in_first.translation).norm();
+                d(a.0).total_cmp(&d(b.0))
+            });
+            let (k, turned) = found.unwrap_or_else(|| {
+                boards.push(in_first);
+                (boards.len() - 1, false)
+            });
+            let mut corners = b.corners.clone();
+            if turned {
+                corners.reverse();
+            }
+            seen.push((k, corners));
+        }
+        cameras.push(seen);
+    }
+    (boards, cameras)
+}
+
+/// With free boards, which sensors the measurements tie to the first camera: through the
+/// boards two cameras see, and a LiDAR through the boards it places by their holes (a
+/// face alone leaves it free to slide and turn in the board's plane). Measurements of a
+/// sensor that is not tied are dropped (they would leave the solve singular); returns
+/// (cameras tied, LiDARs tied).
+fn tie_to_first(m: &mut Measured, cameras: usize, lidars: usize) -> (Vec<bool>, Vec<bool>) {
+    let blocks = m.cameras.iter().flatten().map(|(k, _)| k + 1).max().unwrap_or(0);
+    // Union–find over [cameras | LiDARs | boards].
+    let mut parent: Vec<usize> = (0..cameras + lidars + blocks).collect();
+    fn root(parent: &mut [usize], mut i: usize) -> usize {
+        while parent[i] != i {
+            parent[i] = parent[parent[i]];
+            i = parent[i];
+        }
+        i
+    }
+    let mut join = |a: usize, b: usize| {
+        let (ra, rb) = (root(&mut parent, a), root(&mut parent, b));
+        parent[ra] = rb;
+    };
+    for (c, seen) in m.cameras.iter().enumerate() {
+        for (k, _) in seen {
+            join(c, cameras + lidars + k);
+        }
+    }
+    for b in m.lidars.iter().filter(|b| !b.holes_lidar.is_empty()) {
+        join(cameras + b.lidar, cameras + lidars + b.board);
+    }
+    let first = root(&mut parent, 0);
+    let mut tied = |i: usize| root(&mut parent, i) == first;
+    let camera_tied: Vec<bool> = (0..cameras).map(&mut tied).collect();
+    let lidar_tied: Vec<bool> = (0..lidars).map(|l| tied(cameras + l)).collect();
+    for (c, seen) in m.cameras.iter_mut().enumerate() {
+        if !camera_tied[c] {
+            seen.clear();
+        }
+    }
+    m.lidars.retain(|b| lidar_tied[b.lidar] && camera_tied[b.camera.unwrap_or(0)]);
+    (camera_tied, lidar_tied)
 }
 
 /// A camera's boards as its run used them, each on the surveyed board its solved pose
@@ -1024,10 +1192,12 @@ fn lidar_measurements(
     out
 }
 
-/// The joint problem over the measurements: one block per surveyed board anything sees
-/// and per surveyed plane a LiDAR has points on, with the survey's priors.
+/// The joint problem over the measurements: one block per board anything sees and per
+/// surveyed plane a LiDAR has points on, with the survey's priors (free boards: none,
+/// started at `boards`).
 fn joint_problem<'a>(
-    survey: &SurveySpec,
+    targets: Targets<'_>,
+    boards: &[Se3],
     m: &'a Measured,
     planes: &[Vec<(usize, PlanePoints)>],
 ) -> Result<(JointProblem<'a>, Vec<Block>), String> {
@@ -1038,8 +1208,9 @@ fn joint_problem<'a>(
         if let Some(i) = blocks.iter().position(|b| *b == which) {
             return Ok(i);
         }
-        let prior = match which {
-            Block::Board(k) => {
+        let prior = match (targets, which) {
+            (Targets::Free, Block::Board(k)) => BlockPrior::free(boards[k]),
+            (Targets::Surveyed(survey), Block::Board(k)) => {
                 let s = &survey.boards[k];
                 BlockPrior {
                     pose: s.pose(),
@@ -1047,7 +1218,8 @@ fn joint_problem<'a>(
                     sigma_rad: s.sigma_deg.to_radians(),
                 }
             }
-            Block::Plane(i) => {
+            (Targets::Free, Block::Plane(_)) => return Err("free boards have no planes".into()),
+            (Targets::Surveyed(survey), Block::Plane(i)) => {
                 let s = &survey.planes[i];
                 BlockPrior {
                     pose: plane_frame(&Vec3::from(s.normal), s.offset),

@@ -22,6 +22,13 @@
 //! camera's frame, no intrinsics). Sensors whose views never overlap are tied through the
 //! room. The first camera's mounting is the identity, not a parameter.
 //!
+//! Without a survey every block is a free board ([`BlockPrior::free`]): nothing holds it
+//! but its measurements, so the room frame is undetermined; the problem then holds frame
+//! 0's room → first camera pose at its start (the gauge: the room frame is the first
+//! camera's in frame 0 when that start is the identity), and sensors are tied through the
+//! boards they both see. Such a block needs corners (6 constraints) or its `U_k` is
+//! singular; [`RigProblem::add_observation`] cannot know that, the caller keeps to it.
+//!
 //! Capacities are const generics: `C` cameras, `L` LiDARs, `F` frames, `B` blocks, `O`
 //! observations, and `N` = [`rig_shared`]`(C, L, F)` shared parameters (checked at compile
 //! time: stable Rust cannot compute it from the others in a type). Nothing here allocates.
@@ -172,11 +179,16 @@ impl<
         }
     }
 
-    /// Adds a block (surveyed board or plane) with its prior; returns its index.
+    /// Adds a block (surveyed board or plane) with its prior; returns its index. Blocks
+    /// are all surveyed or all free ([`BlockPrior::free`]).
     pub fn add_block(&mut self, prior: BlockPrior) -> Result<usize, SolveError> {
         let positive = |v: f64| v.is_finite() && v >= 0.0;
-        if !positive(prior.sigma_m) || !positive(prior.sigma_rad) {
+        let surveyed = positive(prior.sigma_m) && positive(prior.sigma_rad);
+        if !surveyed && !prior.is_free() {
             return Err(SolveError::BadSetting("survey σ must be non-negative"));
+        }
+        if self.priors.first().is_some_and(|p| p.is_free() != prior.is_free()) {
+            return Err(SolveError::BadSetting("blocks are all surveyed or all free"));
         }
         self.priors.push(prior).map_err(|_| SolveError::TooManyBoards { capacity: B })?;
         Ok(self.priors.len() - 1)
@@ -339,11 +351,20 @@ impl<
         Ok((corners.map(rms), holes.map(rms)))
     }
 
-    /// Scalar residuals: measurements and 6 prior rows per block.
+    /// Scalar residuals: measurements and 6 prior rows per surveyed block.
     pub fn residual_count(&self) -> usize {
         let measured: usize =
             self.observations.iter().map(|o| o.observation.residual_count()).sum();
-        measured + 6 * self.priors.len()
+        measured + self.prior_rows()
+    }
+
+    /// Whether the blocks are free boards, so frame 0's room pose is held (the gauge).
+    pub fn holds_first_frame(&self) -> bool {
+        self.priors.first().is_some_and(BlockPrior::is_free)
+    }
+
+    fn prior_rows(&self) -> usize {
+        self.priors.iter().map(BlockPrior::rows).sum()
     }
 
     fn noise(&self, camera: usize) -> Noise {
@@ -410,7 +431,7 @@ impl<
         &self,
         params: &RigParams<K, C, L, F, B>,
     ) -> Result<SchurSystem<N, B>, SolveError> {
-        let mut ne = SchurSystem::new(self.priors.len(), 6 * self.priors.len());
+        let mut ne = SchurSystem::new(self.priors.len(), self.prior_rows());
         self.for_each_residual(params, |k, kind, r, js, jb, rows| {
             ne.add(k, kind.loss(self.loss), r, js, jb, rows);
         })?;
@@ -439,6 +460,9 @@ impl<
             for f in fixed.iter_mut().skip(at.intrinsics(c) + used).take(INTRINSICS - used) {
                 *f = true;
             }
+        }
+        if self.holds_first_frame() {
+            fixed[at.frame_pose(0)..at.frame_pose(0) + 6].fill(true);
         }
         fixed
     }

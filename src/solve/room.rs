@@ -48,6 +48,28 @@ pub struct BlockPrior {
     pub sigma_rad: f64,
 }
 
+impl BlockPrior {
+    /// A block nothing holds (a free board of the rig problem, [`super::rig`]): infinite
+    /// σ, so its prior rows weigh nothing; `pose` is only the start.
+    pub fn free(pose: Se3) -> BlockPrior {
+        BlockPrior { pose, sigma_m: f64::INFINITY, sigma_rad: f64::INFINITY }
+    }
+
+    /// Whether nothing holds the block ([`BlockPrior::free`]).
+    pub fn is_free(&self) -> bool {
+        self.sigma_m == f64::INFINITY && self.sigma_rad == f64::INFINITY
+    }
+
+    /// Scalar residuals the prior adds: 6, none for a free block.
+    pub fn rows(&self) -> usize {
+        if self.is_free() {
+            0
+        } else {
+            6
+        }
+    }
+}
+
 /// The estimate of a room problem.
 #[derive(Clone, Debug)]
 pub struct RoomParams<C, const B: usize> {

@@ -239,7 +239,38 @@ pub fn problem(s: &Scene, corner_sigma_px: f64, hole_sigma_m: f64, loss: Loss) -
     for prior in &s.priors {
         p.add_block(*prior).unwrap();
     }
-    for m in &s.measured {
+    add_measured(&mut p, s, hole_sigma_m, |_| true);
+    p
+}
+
+/// The same scene without a survey: the four boards free (started at their truth), the
+/// room's planes and everything measured of them left out.
+pub fn free_problem(s: &Scene, corner_sigma_px: f64, hole_sigma_m: f64, loss: Loss) -> Problem<'_> {
+    let mut p = Problem::new([corner_sigma_px; C], 1.0, loss);
+    for k in 0..BOARDS {
+        p.add_block(BlockPrior::free(s.truth.blocks[k])).unwrap();
+    }
+    add_measured(&mut p, s, hole_sigma_m, |m| m.block < BOARDS);
+    p
+}
+
+/// Boards of the scene (blocks `0..BOARDS`; the room's planes follow).
+pub const BOARDS: usize = 4;
+
+/// The free-board problem's params: `params` with the planes' blocks dropped.
+pub fn boards_only(params: &Params) -> Params {
+    let mut p = params.clone();
+    p.blocks.truncate(BOARDS);
+    p
+}
+
+fn add_measured<'a>(
+    p: &mut Problem<'a>,
+    s: &'a Scene,
+    hole_sigma_m: f64,
+    keep: impl Fn(&Measured) -> bool,
+) {
+    for m in s.measured.iter().filter(|m| keep(m)) {
         let has_holes = !m.holes_lidar.is_empty();
         let observation = BoardObservation {
             object: if m.corners.is_empty() { &[] } else { &s.object },
@@ -264,7 +295,6 @@ pub fn problem(s: &Scene, corner_sigma_px: f64, hole_sigma_m: f64, loss: Loss) -
         };
         p.add_observation(o).unwrap();
     }
-    p
 }
 
 /// A start away from the truth in every unknown.
