@@ -587,6 +587,29 @@ fn in_a_surveyed_room_each_sensor_is_judged_by_the_joint_solve() {
     assert_eq!(run.sensors["front"].status, Status::Accepted, "{reason}");
 }
 
+/// Without a survey nothing ties seed 4's bumper (it places no board a camera sees): the
+/// free-board joint solve leaves it out and rejects it by name, gives it no extrinsic, and
+/// still solves the others (every given extrinsic within 3σ of the truth).
+#[test]
+fn with_free_boards_a_sensor_nothing_ties_is_named() {
+    let sim = with_wide_coverage(simulated(4));
+    let run = run_seeded(&sim, &sim.room, true, 4);
+    let reason = rejected_naming(&run.result, "free boards, seed 4", "lidar `bumper`");
+    assert!(reason.contains("shares no board with the first camera"), "{reason}");
+    for name in ["front", "wide", "top"] {
+        assert_eq!(run.result.sensors[name].status, Status::Accepted, "{name}: {reason}");
+    }
+    assert!(run.result.extrinsics.iter().all(|e| e.from != "bumper"));
+    let bound = 3.0 * 3f64.sqrt();
+    for ext in &run.result.extrinsics {
+        let truth = &sim.truth.sensors[ext.from.as_str()].to_reference;
+        let got = Extrinsic { rotation: ext.rotation, translation: ext.translation };
+        let (deg, m) = truth.difference(&got);
+        assert!(deg <= bound * ext.sigma_rotation_deg, "{}: {deg}°", ext.from);
+        assert!(m <= bound * ext.sigma_translation_m, "{}: {m} m", ext.from);
+    }
+}
+
 /// Asserts the rig was rejected with a reason containing `needle`, prints it (`what`) and
 /// returns it.
 fn rejected_naming(run: &roomcal::result::RigResult, what: &str, needle: &str) -> String {
