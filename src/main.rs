@@ -295,7 +295,8 @@ struct SimulateArgs {
     rig_seed: Option<u64>,
     /// Frames of a standing vehicle: also image-2.png, cloud-2.pcd, … up to N, the same
     /// room with new sensor noise (for `calibrate --standing`, as the daemon averages them);
-    /// with --visits, every visit gets N frames.
+    /// with --visits, every visit gets N frames; with --rig, every camera NAME-2.png, … and
+    /// every LiDAR NAME-2.pcd, … (`calibrate --rig --image NAME=… --image NAME=…`).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=100))]
     frames: u16,
     /// LiDAR range noise sigma (m).
@@ -328,7 +329,7 @@ struct SimulateArgs {
     /// writes NAME.png per camera, NAME.pcd per LiDAR, rig-truth.json, room-truth.json
     /// and room.toml. With --visits: the rig is one more vehicle of the visited room,
     /// written to DIR/rig/ (survey the visits, then calibrate the rig in the surveyed room).
-    #[arg(long, value_name = "RIG", conflicts_with_all = ["capture", "rig_seed", "frames"])]
+    #[arg(long, value_name = "RIG", conflicts_with_all = ["capture", "rig_seed"])]
     rig: Option<PathBuf>,
     /// With --visits and --rig: this many rigs, each its own vehicle (intrinsics, mountings,
     /// parking) parked in the visited room, written to DIR/rig-01/, rig-02/, … (new

@@ -332,3 +332,74 @@ fn several_rigs_are_new_vehicles_in_the_visited_room() {
     assert_eq!(code, 2, "{stderr}");
     assert!(stderr.contains("--visits") && stderr.contains("--rig"), "{stderr}");
 }
+
+/// `simulate --rig --frames 3`: a standing vehicle, every camera's `NAME-2.png`,
+/// `NAME-3.png` and every LiDAR's `NAME-2.pcd`, `NAME-3.pcd` beside the first frame, which
+/// is the one-frame simulation's byte for byte; `calibrate --rig` given every frame per name
+/// (averaged, accumulated) is within its σ of the truth, and its corners are quieter than
+/// the one frame's.
+#[test]
+fn a_standing_rig_is_calibrated_from_all_its_frames() {
+    let (room, rig) = (config("room.toml"), config("rig.toml"));
+    let simulate = |dir: &Path, frames: &str| {
+        let d = dir.to_string_lossy().into_owned();
+        let args = ["simulate", "--room", &room, "--rig", &rig, "--out", &d, "--seed", "3"];
+        let (code, _, stderr) =
+            roomcal(&[&args[..], &["--supersample", "1", "--frames", frames]].concat());
+        assert_eq!(code, 0, "{stderr}");
+    };
+    let (one, three) = (temp_dir("standing-one"), temp_dir("standing-three"));
+    simulate(&one, "1");
+    simulate(&three, "3");
+    let bytes = |d: &Path, file: &str| {
+        std::fs::read(d.join(file)).unwrap_or_else(|e| panic!("{}: {e}", d.join(file).display()))
+    };
+    for file in ["front.png", "wide.png", "top.pcd", "bumper.pcd"] {
+        assert_eq!(bytes(&one, file), bytes(&three, file), "{file}: the first frame");
+    }
+    assert!(!one.join("front-2.png").exists());
+    for file in ["front-2.png", "front-3.png", "wide-3.png", "top-2.pcd", "bumper-3.pcd"] {
+        let (name, extension) = file.split_once('-').unwrap();
+        let first = format!("{name}.{}", extension.split('.').nth(1).unwrap());
+        assert_ne!(bytes(&three, file), bytes(&three, &first), "{file}: its own noise");
+    }
+
+    let text = std::fs::read_to_string(three.join("room.toml")).unwrap();
+    let wide_room = three.join("wide-room.toml");
+    std::fs::write(&wide_room, text.replace("min_coverage = 0.35", "min_coverage = 0.2")).unwrap();
+    let wide_room = wide_room.to_string_lossy().into_owned();
+    let mut inputs = Vec::new();
+    for (flag, name, extension) in
+        [("--image", "front", "png"), ("--image", "wide", "png"), ("--cloud", "top", "pcd")]
+            .into_iter()
+            .chain([("--cloud", "bumper", "pcd")])
+    {
+        for k in 1..=3 {
+            let file = if k == 1 {
+                format!("{name}.{extension}")
+            } else {
+                format!("{name}-{k}.{extension}")
+            };
+            inputs.push(flag.to_string());
+            inputs.push(format!("{name}={}", three.join(file).display()));
+        }
+    }
+    let run = |inputs: &[String], out: &Path| -> serde_json::Value {
+        let inputs: Vec<&str> = inputs.iter().map(String::as_str).collect();
+        let (code, stdout, stderr) = calibrate_in(&wide_room, &inputs, out);
+        println!("{stdout}{stderr}");
+        assert!(code == 0 || code == 3, "{stderr}");
+        serde_json::from_str(&std::fs::read_to_string(out).unwrap()).unwrap()
+    };
+    let standing = run(&inputs, &three.join("standing.json"));
+    let first_only: Vec<String> =
+        inputs.chunks(6).flat_map(|sensor| sensor[..2].to_vec()).collect();
+    let single = run(&first_only, &three.join("single.json"));
+    let truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(three.join("rig-truth.json")).unwrap())
+            .unwrap();
+    assert_extrinsics_within_their_sigma(&standing, &truth);
+    let rms = |r: &serde_json::Value| r["quality"]["corner_rms_px"].as_f64().unwrap();
+    println!("corner RMS: standing {:.4} px, one frame {:.4} px", rms(&standing), rms(&single));
+    assert!(rms(&standing) < rms(&single), "averaged frames have quieter corners");
+}

@@ -11,6 +11,11 @@
 //! field of view, spread as units of one model differ), the vehicle its parking error.
 //! The boards are laid out for the first camera (through a narrower lens, see `visits`).
 //! The same seed gives the same bytes.
+//!
+//! A standing vehicle ([`SimOptions::standing_frames`] = N): every camera renders N − 1
+//! more frames and every LiDAR casts N − 1 more sweeps (each from its own start azimuth
+//! within a step) of the same parking with new sensor noise, from their own forks, so the
+//! first frame and sweep are the same bytes with or without them.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -48,6 +53,10 @@ pub struct RigSimulation {
     pub images: Vec<Vec<u8>>,
     /// Per rig LiDAR, its sweep.
     pub clouds: Vec<Vec<Point>>,
+    /// A standing vehicle's further frames: per camera, frames 2, 3, … (empty for one).
+    pub more_images: Vec<Vec<Vec<u8>>>,
+    /// …and per LiDAR its further sweeps.
+    pub more_clouds: Vec<Vec<Vec<Point>>>,
     pub truth: RigTruth,
 }
 
@@ -160,7 +169,8 @@ fn simulate_from(
         sensors: BTreeMap::new(),
     };
     let scene = SceneContext { room: &room, options, boards_in_room, world_seed };
-    let mut images = Vec::new();
+    let further = options.standing_frames.max(1) - 1;
+    let (mut images, mut more_images, mut more_clouds) = (Vec::new(), Vec::new(), Vec::new());
     for (c, camera) in rig.cameras.iter().enumerate() {
         let mut sensor_rng = rng.fork(10 + c as u64);
         let to_reference = match c {
@@ -172,6 +182,14 @@ fn simulate_from(
         let room_to_camera = reference_to_room.compose(&to_reference).inverse();
         let (image, boards) = scene.camera_view(&intrinsics, &room_to_camera, &mut sensor_rng)?;
         images.push(image);
+        let mut standing = sensor_rng.fork(6);
+        more_images.push(
+            (0..further)
+                .map(|_| {
+                    scene.camera_view(&intrinsics, &room_to_camera, &mut standing).map(|v| v.0)
+                })
+                .collect::<Result<Vec<_>, _>>()?,
+        );
         let sensor = SensorTruth {
             camera: Some(CameraResult::from_camera(&intrinsics)),
             lidar_model: None,
@@ -188,6 +206,12 @@ fn simulate_from(
         let room_to_lidar = reference_to_room.compose(&to_reference).inverse();
         let (cloud, boards) = scene.lidar_view(lidar.model, &room_to_lidar, &mut sensor_rng)?;
         clouds.push(cloud);
+        let mut standing = sensor_rng.fork(6);
+        more_clouds.push(
+            (0..further)
+                .map(|_| scene.lidar_view(lidar.model, &room_to_lidar, &mut standing).map(|v| v.0))
+                .collect::<Result<Vec<_>, _>>()?,
+        );
         let sensor = SensorTruth {
             camera: None,
             lidar_model: Some(lidar.model),
@@ -208,11 +232,21 @@ fn simulate_from(
         }
     };
     let room_truth = layout.truth(&room, options.seed, frame);
-    Ok(RigSimulation { room, rig: rig.clone(), room_truth, images, clouds, truth })
+    Ok(RigSimulation {
+        room,
+        rig: rig.clone(),
+        room_truth,
+        images,
+        clouds,
+        more_images,
+        more_clouds,
+        truth,
+    })
 }
 
-/// Writes `NAME.png` per camera, `NAME.pcd` per LiDAR, `rig-truth.json`, `room-truth.json`
-/// and the simulated `room.toml` (the room's `[camera]`/`[lidar]` are the rig's first pair).
+/// Writes `NAME.png` per camera, `NAME.pcd` per LiDAR (a standing vehicle's frame k > 1
+/// as `NAME-k.png`, `NAME-k.pcd`), `rig-truth.json`, `room-truth.json` and the simulated
+/// `room.toml` (the room's `[camera]`/`[lidar]` are the rig's first pair).
 pub fn write_rig(sim: &RigSimulation, dir: &Path) -> Result<Vec<std::path::PathBuf>, SimError> {
     let fail = |path: &Path, e: &dyn std::fmt::Display| SimError::Write {
         path: path.to_owned(),
@@ -220,19 +254,29 @@ pub fn write_rig(sim: &RigSimulation, dir: &Path) -> Result<Vec<std::path::PathB
     };
     std::fs::create_dir_all(dir).map_err(|e| fail(dir, &e))?;
     let mut written = Vec::new();
-    for (camera, image) in sim.rig.cameras.iter().zip(&sim.images) {
-        let path = dir.join(format!("{}.png", camera.name));
-        image::GrayImage::from_raw(camera.spec.width, camera.spec.height, image.clone())
-            .expect("the renderer makes width × height pixels")
-            .save(&path)
-            .map_err(|e| fail(&path, &e))?;
-        written.push(path);
+    let frame_name = |name: &str, k: usize, extension: &str| match k {
+        1 => format!("{name}.{extension}"),
+        _ => format!("{name}-{k}.{extension}"),
+    };
+    for (c, camera) in sim.rig.cameras.iter().enumerate() {
+        let more = sim.more_images.get(c).map_or(&[][..], Vec::as_slice);
+        for (k, image) in std::iter::once(&sim.images[c]).chain(more).enumerate() {
+            let path = dir.join(frame_name(camera.name.as_str(), k + 1, "png"));
+            image::GrayImage::from_raw(camera.spec.width, camera.spec.height, image.clone())
+                .expect("the renderer makes width × height pixels")
+                .save(&path)
+                .map_err(|e| fail(&path, &e))?;
+            written.push(path);
+        }
     }
-    for (lidar, cloud) in sim.rig.lidars.iter().zip(&sim.clouds) {
-        let path = dir.join(format!("{}.pcd", lidar.name));
-        crate::lidar::pcd::write(&path, cloud, crate::lidar::pcd::PcdFormat::Binary)
-            .map_err(|e| fail(&path, &e))?;
-        written.push(path);
+    for (l, lidar) in sim.rig.lidars.iter().enumerate() {
+        let more = sim.more_clouds.get(l).map_or(&[][..], Vec::as_slice);
+        for (k, cloud) in std::iter::once(&sim.clouds[l]).chain(more).enumerate() {
+            let path = dir.join(frame_name(lidar.name.as_str(), k + 1, "pcd"));
+            crate::lidar::pcd::write(&path, cloud, crate::lidar::pcd::PcdFormat::Binary)
+                .map_err(|e| fail(&path, &e))?;
+            written.push(path);
+        }
     }
     for (name, text) in [
         ("rig-truth.json", pretty_json(&sim.truth)),
