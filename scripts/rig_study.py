@@ -16,7 +16,11 @@ draws them, RMS px; LiDAR → camera composed from the two extrinsics). σ: the 
 rigs; the Cramér–Rao bound of the camera→camera extrinsic is `scripts/crb_rig.py`'s.
 
     cargo build --release && scripts/rig_study.py [--vehicles 10] [--survey-visits 16] \\
-        [--seed 1] [--work DIR]
+        [--seed 1] [--frames 1] [--work DIR]
+
+`--frames N`: a standing vehicle, N frames per camera (averaged) and N sweeps per LiDAR
+(accumulated), the issue's "standing (10 + 10)" with N = 10 (the visits are simulated with N
+frames too, the survey uses their first).
 
 Tables in markdown on stdout; every rig's figures in DIR/rigs.json.
 """
@@ -50,6 +54,7 @@ def main():
     ap.add_argument("--survey-visits", type=int, default=16)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--supersample", type=int, default=1)
+    ap.add_argument("--frames", type=int, default=1)
     ap.add_argument("--work", default=None)
     args = ap.parse_args()
     work = args.work or tempfile.mkdtemp(prefix="rig-study-")
@@ -57,7 +62,8 @@ def main():
     if not os.path.exists(os.path.join(sim, "room-truth.json")):
         run([ROOMCAL, "simulate", "--room", ROOM, "--rig", RIG, "--out", sim,
              "--visits", str(args.survey_visits), "--rigs", str(args.vehicles),
-             "--seed", str(args.seed), "--supersample", str(args.supersample)])
+             "--seed", str(args.seed), "--supersample", str(args.supersample),
+             "--frames", str(args.frames)])
     surveyed = os.path.join(work, "surveyed.toml")
     if not os.path.exists(surveyed):
         cmd = [ROOMCAL, "survey", "--room", os.path.join(sim, "room.toml"), "--out", surveyed]
@@ -70,7 +76,7 @@ def main():
         folder = os.path.join(sim, f"rig-{k:02}")
         with open(os.path.join(folder, "rig-truth.json")) as f:
             truth = json.load(f)
-        result = calibrate(surveyed, folder, truth)
+        result = calibrate(surveyed, folder, truth, args.frames)
         figures = rig_errors(result, truth)
         figures["rig"] = k
         rigs.append(figures)
@@ -87,15 +93,16 @@ def run(cmd):
         sys.exit(f"{' '.join(cmd[:2])} failed ({done.returncode}): {done.stderr.strip()}")
 
 
-def calibrate(surveyed, folder, truth):
-    """`roomcal calibrate --rig` of one rig's files; its result file (accepted or not)."""
+def calibrate(surveyed, folder, truth, frames):
+    """`roomcal calibrate --rig` of one rig's files (every frame of each sensor); its result
+    file (accepted or not)."""
     out = os.path.join(folder, "result.json")
     cmd = [ROOMCAL, "calibrate", "--room", surveyed, "--rig", RIG, "--out", out, "--quiet"]
     for name, sensor in truth["sensors"].items():
-        if "camera" in sensor:
-            cmd += ["--image", f"{name}={os.path.join(folder, name + '.png')}"]
-        else:
-            cmd += ["--cloud", f"{name}={os.path.join(folder, name + '.pcd')}"]
+        flag, extension = ("--image", "png") if "camera" in sensor else ("--cloud", "pcd")
+        for k in range(1, frames + 1):
+            file = f"{name}.{extension}" if k == 1 else f"{name}-{k}.{extension}"
+            cmd += [flag, f"{name}={os.path.join(folder, file)}"]
     done = subprocess.run(cmd, capture_output=True, text=True)
     if done.returncode not in (0, 3) or not os.path.exists(out):
         sys.exit(f"calibrate {folder} failed ({done.returncode}): {done.stderr.strip()}")
@@ -146,7 +153,8 @@ def lidar_to_camera(lidar, camera, to_first):
 
 def print_tables(rigs, args):
     cameras = {q.split(" ")[0] for q in rigs[0]["errors"] if q.endswith("fx %")}
-    print(f"\n{len(rigs)} new rigs, one frame per sensor, room surveyed from {args.survey_visits} "
+    frames = "one frame" if args.frames == 1 else f"standing, {args.frames} frames + {args.frames} sweeps"
+    print(f"\n{len(rigs)} new rigs, {frames} per sensor, room surveyed from {args.survey_visits} "
           f"visits (seed {args.seed}, supersample {args.supersample}); "
           f"{sum(r['status'] == 'accepted' for r in rigs)}/{len(rigs)} accepted\n")
     print("| quantity | RMS error (largest) | RMS σ | RMS error/σ | within 3σ | target |")

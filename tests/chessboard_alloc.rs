@@ -70,4 +70,11 @@ fn detect_allocates_nothing_after_warm_up() {
     eprintln!("allocations in 4 detect calls after warm-up: {allocs}; boards {found:?}");
     assert_eq!(found, vec![6, 2, 6, 2]);
     assert_eq!(allocs, 0);
+    // Released (as the daemon does after a run), the response buffer is made again on the
+    // next frame, and the boards are the same.
+    det.detect(&img, &mut out).unwrap();
+    let before = out.clone();
+    det.release_workspace();
+    det.detect(&img, &mut out).unwrap();
+    assert_eq!(out, before, "a released detector finds the same boards");
 }

@@ -1,6 +1,7 @@
 //! The LiDAR board detector's workspace: after the first sweep of a size, detecting again
 //! makes no heap allocation (a counting global allocator, enabled only on this test's
-//! thread while the detector runs). Also: a board-sized plane without holes (a crate face,
+//! thread while the detector runs), and after `release_workspace` it finds the same boards
+//! again. Also: a board-sized plane without holes (a crate face,
 //! a door) is refused, not placed.
 
 #[path = "common/counting_alloc.rs"]
@@ -36,6 +37,13 @@ fn second_sweep_allocates_nothing() {
     println!("allocations in the second detect: {n}");
     assert_eq!(n, 0);
     assert_eq!(boards, first, "the same sweep gives the same boards");
+    // Released (as the daemon does after a run), the workspace grows again on the next
+    // sweep and the detector finds the same boards.
+    detector.release_workspace();
+    let ((), n) = count_allocations(|| detector.detect(&cloud, &mut boards));
+    println!("allocations after a release: {n}");
+    assert!(n > 0, "the released buffers are made again");
+    assert_eq!(boards, first, "a released detector gives the same boards");
 }
 
 /// A solid 1.2 × 1.0 m plane 4 m ahead, no holes, covered by 80 rings 0.2° apart.

@@ -212,7 +212,7 @@ fn each_floor_point_counts_by_its_own_noise_along_the_normal() {
         .map(|p| Vec3::new(p.x as f64, p.y as f64, p.z as f64))
         .filter(|p| p.z < -1.9 && p.x.abs() < 3.8)
         .collect();
-    let summary = PlanePoints::along_beams(&floor, &normal, 2.0, 1e-4).unwrap();
+    let summary = PlanePoints::along_beams(floor.iter().copied(), &normal, 2.0, 1e-4).unwrap();
     // The weight-1 σ is the range noise (normal incidence, with the 0.1 mm floor) …
     assert!((summary.sigma_m - 0.02).abs() < 0.002, "σ_r estimated {:.4} m", summary.sigma_m);
     // … and each point weighs σ₀² / (σ_r² cos² + floor²): the total is their sum.

@@ -57,6 +57,16 @@ impl Detectors {
         })
     }
 
+    /// Frees the chessboard detector's frame-sized workspace until its next frame.
+    pub fn release_chessboard(&mut self) {
+        self.chess.release_workspace();
+    }
+
+    /// Frees the hole detector's sweep-sized workspaces until its next sweep.
+    pub fn release_holes(&mut self) {
+        self.holes.release_workspace();
+    }
+
     /// Every board the LiDAR places in the cloud, with its hole centres.
     pub fn detect_cloud(&mut self, points: &[crate::lidar::Point]) -> Vec<LidarBoard> {
         self.holes.detect(points, &mut self.found_holes);

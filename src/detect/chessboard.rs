@@ -141,6 +141,12 @@ impl ChessboardDetector {
         self.h as u32
     }
 
+    /// Frees the frame-sized response buffer (2 bytes a pixel) until the next detection,
+    /// which makes it again; see [`crate::detect::holes::HoleDetector::release_workspace`].
+    pub fn release_workspace(&mut self) {
+        self.resp = Vec::new();
+    }
+
     /// Finds every board in `img` (row-major 8-bit grey, `width * height` bytes) and
     /// replaces the contents of `out` with them (at most [`MAX_BOARDS`]).
     pub fn detect(&mut self, img: &[u8], out: &mut Vec<Board>) -> Result<(), DetectError> {
@@ -153,6 +159,9 @@ impl ChessboardDetector {
         }
         out.clear();
         out.reserve(MAX_BOARDS);
+        if self.resp.len() != self.w * self.h {
+            self.resp = vec![0; self.w * self.h];
+        }
         let view = View { data: img, w: self.w, h: self.h };
         response::chess_response(img, self.w, self.h, &mut self.resp);
         self.find_peaks();

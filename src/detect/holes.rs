@@ -454,6 +454,30 @@ impl HoleDetector {
         &self.refused
     }
 
+    /// Frees the buffers sized by the last sweep (its points, beam index, voxels and
+    /// regions: tens of MB for a rig's accumulated sweeps) until the next detection, which
+    /// grows them again. The daemon calls it once a run's clouds are detected, so they do
+    /// not sit idle under its solve, its report and between visits (README, "Speed and
+    /// memory"); what was refused stays for the report.
+    pub fn release_workspace(&mut self) {
+        self.pts = Vec::new();
+        self.beams = Vec::new();
+        self.bin_start = Vec::new();
+        self.bin_fill = Vec::new();
+        self.keys = Vec::new();
+        self.voxels = Vec::new();
+        self.map = HashMap::default();
+        self.label = Vec::new();
+        self.queue = Vec::new();
+        self.region_voxels = Vec::new();
+        self.segs = Vec::new();
+        self.order = Vec::new();
+        self.roots = Vec::new();
+        self.seg = Vec::new();
+        self.aside = Vec::new();
+        self.on_board = Vec::new();
+    }
+
     /// Finds every board in `points` (LiDAR frame; several sweeps of a static scene may be
     /// concatenated) and writes them to `out` (cleared first).
     pub fn detect(&mut self, points: &[Point], out: &mut Vec<LidarBoard>) {

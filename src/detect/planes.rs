@@ -112,6 +112,15 @@ pub struct PlaneSelection {
     pub cut: PlaneCut,
 }
 
+/// A selected point as the cloud holds it (f32: half the memory of a `Vec3`, and the cloud
+/// has no more precision to keep); a floor seen by a roof LiDAR is 10⁵ of them.
+pub type PlanePoint = [f32; 3];
+
+/// A selected point in the solver's type.
+pub fn plane_point(p: &PlanePoint) -> Vec3 {
+    Vec3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))
+}
+
 /// The points of `cloud` (sensor frame, the sensor at the origin) on each of `planes`: a
 /// point is a plane's when its cut admits it, no other plane's cut does, and `keep` says
 /// yes (e.g. it is clear of every board). One pass, one dot product per point and plane.
@@ -119,8 +128,8 @@ pub fn select_plane_points<'a>(
     cloud: impl Iterator<Item = &'a Point>,
     planes: &[PlaneSelection],
     keep: impl Fn(&Vec3) -> bool,
-) -> Vec<Vec<Vec3>> {
-    let mut selected: Vec<Vec<Vec3>> = vec![Vec::new(); planes.len()];
+) -> Vec<Vec<PlanePoint>> {
+    let mut selected: Vec<Vec<PlanePoint>> = vec![Vec::new(); planes.len()];
     for p in cloud {
         if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
             continue;
@@ -131,7 +140,7 @@ pub fn select_plane_points<'a>(
         });
         if let (Some((only, _)), None) = (within.next(), within.next()) {
             if keep(&q) {
-                selected[only].push(q);
+                selected[only].push([p.x, p.y, p.z]);
             }
         }
     }
@@ -226,19 +235,19 @@ const TRIM_ROUNDS: usize = 4;
 /// a pole, a board's foot) leaves points a few centimetres off it, all on one side: kept, a
 /// few hundred of them move a floor by millimetres.
 pub fn trimmed_plane_points(
-    points: &[Vec3],
+    points: &[PlanePoint],
     normal: &Vec3,
     offset: f64,
     floor_m: f64,
 ) -> Option<PlanePoints> {
-    let mut summary = PlanePoints::along_beams(points, normal, offset, floor_m)?;
-    let mut kept: Vec<Vec3> = Vec::with_capacity(points.len());
+    let all = points.iter().map(plane_point);
+    let mut summary = PlanePoints::along_beams(all.clone(), normal, offset, floor_m)?;
     for _ in 0..TRIM_ROUNDS {
         let (n, d) = summary.fitted_plane_towards(normal);
         let cut = PlaneCut::measured(&summary, floor_m);
-        kept.clear();
-        kept.extend(points.iter().filter(|q| cut.admits(n.dot(q) - d, incidence2(&n, q))));
-        let next = PlanePoints::along_beams(&kept, &n, d, floor_m)?;
+        // Filtered as read, not copied: the summary passes over the points twice.
+        let kept = all.clone().filter(|q| cut.admits(n.dot(q) - d, incidence2(&n, q)));
+        let next = PlanePoints::along_beams(kept, &n, d, floor_m)?;
         let settled = next.count == summary.count;
         summary = next;
         if settled {

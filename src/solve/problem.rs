@@ -243,18 +243,23 @@ impl PlanePoints {
     /// is trusted below `floor_m` (beam angle, footprint, a plane that is not quite flat).
     /// `σ_r` is estimated from the points' own residuals; the weight-1 σ is the normal
     /// incidence one, `√(σ_r² + floor²)`. `None` as [`Self::from_points`].
-    pub fn along_beams(points: &[Vec3], normal: &Vec3, offset: f64, floor_m: f64) -> Option<Self> {
+    pub fn along_beams(
+        points: impl Iterator<Item = Vec3> + Clone,
+        normal: &Vec3,
+        offset: f64,
+        floor_m: f64,
+    ) -> Option<Self> {
         let incidence2 = |p: &Vec3| incidence2(normal, p);
         let (mut excess, mut cos2) = (0.0f64, 0.0f64);
-        for p in points {
-            let residual = normal.dot(p) - offset;
+        for p in points.clone() {
+            let residual = normal.dot(&p) - offset;
             excess += residual * residual - floor_m * floor_m;
-            cos2 += incidence2(p);
+            cos2 += incidence2(&p);
         }
         let range2 = if cos2 > 0.0 { (excess / cos2).max(0.0) } else { 0.0 };
         let reference2 = range2 + floor_m * floor_m;
         let weighted =
-            points.iter().map(|p| (*p, reference2 / (range2 * incidence2(p) + floor_m * floor_m)));
+            points.map(|p| (p, reference2 / (range2 * incidence2(&p) + floor_m * floor_m)));
         Self::from_weighted_points(weighted, libm::sqrt(reference2))
     }
 
