@@ -769,7 +769,8 @@ fn calibrate_rig(
         None => None,
     };
     let inputs = cli::rig::inputs(&rig, rig_path, &args.image, &args.cloud, true)?;
-    let detections = cli::rig::detect_all(room, &rig, &inputs, args.lidar_calibration.as_deref())?;
+    let angles = args.lidar_calibration.as_deref();
+    let detections = cli::rig::detect_all(room, &rig, &inputs, angles, args.free_boards)?;
     let options = roomcal::calibrate::CalibrateOptions {
         two_stage: args.two_stage,
         current: None,
@@ -942,7 +943,7 @@ fn detect(args: DetectArgs) -> Result<(), Failure> {
         let rig = roomcal::rig::load(rig_path).map_err(bad_input)?;
         let inputs = cli::rig::inputs(&rig, rig_path, &args.image, &args.cloud, false)?;
         let angles = args.lidar_calibration.as_deref();
-        let detections = cli::rig::detect_all(&room, &rig, &inputs, angles)?;
+        let detections = cli::rig::detect_all(&room, &rig, &inputs, angles, false)?;
         let json = cli::rig::detections_json(&rig, &inputs, &detections);
         std::fs::write(&args.out, json)
             .with_context(|| format!("writing {}", args.out.display()))

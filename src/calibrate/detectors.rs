@@ -43,6 +43,38 @@ impl RigDetectors {
     pub fn detect_cloud(&mut self, points: &[crate::lidar::Point]) -> Vec<LidarBoard> {
         self.first().detect_cloud(points)
     }
+
+    /// The boards of a rig LiDAR's sweep: where `expected` says (from
+    /// [`expected_in_rig_lidars`]), else every board a global search places.
+    pub fn detect_lidar(
+        &mut self,
+        points: &[crate::lidar::Point],
+        expected: Option<&[Se3]>,
+    ) -> Vec<LidarBoard> {
+        self.first().detect_where_expected(points, expected)
+    }
+}
+
+/// Where each LiDAR of `rig` should see the surveyed boards (board → LiDAR, every surveyed
+/// board, per LiDAR): the first camera's boards identified against the survey give its room
+/// pose (start intrinsics, corners only), and each LiDAR's nominal mounting carries the
+/// surveyed boards into it, as the one-pair run carries its camera's boards
+/// ([`super::calibrate_detecting`]). `None` outside a surveyed room, with `free_boards`, or
+/// when the first camera's boards identify nothing (the LiDARs are then searched globally).
+pub fn expected_in_rig_lidars(
+    room: &Room,
+    rig: &crate::rig::Rig,
+    first_camera: &[CameraBoard],
+    free_boards: bool,
+) -> Option<Vec<Vec<Se3>>> {
+    let survey = room.survey.as_ref().filter(|_| !free_boards)?;
+    let frame = super::FrameDetections { camera: first_camera.to_vec(), lidar: Vec::new() };
+    let first = super::identify_detections(&rig.pair_room(room, 0, None), survey, &frame).ok()?;
+    let expected = rig.lidars.iter().map(|lidar| {
+        let room_to_lidar = lidar.to_reference.inverse().compose(&first.room_to_camera);
+        survey.boards.iter().map(|b| room_to_lidar.compose(&b.pose())).collect()
+    });
+    Some(expected.collect())
 }
 
 impl Detectors {
@@ -65,6 +97,24 @@ impl Detectors {
     /// Frees the hole detector's sweep-sized workspaces until its next sweep.
     pub fn release_holes(&mut self) {
         self.holes.release_workspace();
+    }
+
+    /// The boards at `expected` (board → LiDAR) when that places at least two, else every
+    /// board a global search places (the one-pair run's rule, [`super::calibrate_detecting`]);
+    /// without `expected`, the global search.
+    pub fn detect_where_expected(
+        &mut self,
+        points: &[crate::lidar::Point],
+        expected: Option<&[Se3]>,
+    ) -> Vec<LidarBoard> {
+        if let Some(expected) = expected {
+            let placed: Vec<LidarBoard> =
+                self.detect_expected(points, expected).into_iter().flatten().collect();
+            if placed.len() >= 2 {
+                return placed;
+            }
+        }
+        self.detect_cloud(points)
     }
 
     /// Every board the LiDAR places in the cloud, with its hole centres.

@@ -30,7 +30,7 @@ pub mod rig;
 pub mod survey;
 mod surveyed;
 
-pub use detectors::{plane_points, Detectors, RigDetectors};
+pub use detectors::{expected_in_rig_lidars, plane_points, Detectors, RigDetectors};
 pub use gate::coverage;
 pub use surveyed::{identify_detections, FrameIdentities};
 

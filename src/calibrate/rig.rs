@@ -465,8 +465,13 @@ fn pair_run(
         camera: cameras.get(c).cloned().unwrap_or_default(),
         lidar: l.and_then(|l| lidars.get(l)).map_or(Vec::new(), |i| i.boards.to_vec()),
     };
-    let clouds: Vec<&[Point]> =
-        l.and_then(|l| lidars.get(l)).map(|i| i.cloud).into_iter().collect();
+    // In a surveyed room a pair run is the joint solve's start: its sweep's points on the
+    // surveyed planes, which the joint solve selects again for every LiDAR, are left out
+    // (selecting and trimming them in every pair's two passes was an eighth of a rig's CPU).
+    let clouds: Vec<&[Point]> = match surveyed {
+        true => Vec::new(),
+        false => l.and_then(|l| lidars.get(l)).map(|i| i.cloud).into_iter().collect(),
+    };
     calibrate_with_clouds(&pair, std::slice::from_ref(&frame), &clouds, options)
 }
 

@@ -9,8 +9,11 @@ use std::path::{Path, PathBuf};
 use anyhow::anyhow;
 
 use roomcal::calibrate::rig::{calibrate_rig, LidarInput};
-use roomcal::calibrate::{CalibrateOptions, CameraBoard, Detectors, LidarBoard};
+use roomcal::calibrate::{
+    expected_in_rig_lidars, CalibrateOptions, CameraBoard, Detectors, LidarBoard,
+};
 use roomcal::detect::GreyImage;
+use roomcal::geometry::Se3;
 use roomcal::lidar::Point;
 use roomcal::result::{BoardDetection, Detections, RigResult, Status};
 use roomcal::rig::{Rig, SensorKind};
@@ -102,27 +105,38 @@ pub struct RigDetections {
 }
 
 /// Loads and detects every sensor's data (frames averaged, sweeps accumulated), the
-/// sensors spread over the cores.
+/// sensors spread over the cores: the cameras (and the sweeps' loading) first, then the
+/// LiDARs, in a surveyed room (unless `free_boards`) where the first camera's boards say
+/// the room's boards are ([`expected_in_rig_lidars`]), as the daemon does.
 pub fn detect_all(
     room: &Room,
     rig: &Rig,
     inputs: &RigInputs,
     angles: Option<&Path>,
+    free_boards: bool,
 ) -> Result<RigDetections, Failure> {
     let cameras = (0..rig.cameras.len()).map(Sensor::Camera);
     let sensors: Vec<Sensor> = cameras.chain((0..rig.lidars.len()).map(Sensor::Lidar)).collect();
-    let detected = roomcal::parallel::map(&sensors, |_, sensor| match *sensor {
-        Sensor::Camera(c) => detect_camera(room, rig, c, &inputs.images[c]).map(Detected::Camera),
-        Sensor::Lidar(l) => {
-            detect_lidar(room, rig, l, &inputs.clouds[l], angles).map(Detected::Lidar)
-        }
+    let loaded = roomcal::parallel::map(&sensors, |_, sensor| match *sensor {
+        Sensor::Camera(c) => detect_camera(room, rig, c, &inputs.images[c]).map(Loaded::Camera),
+        Sensor::Lidar(l) => load_lidar(rig, l, &inputs.clouds[l], angles).map(Loaded::Lidar),
     });
     let mut out = RigDetections { cameras: Vec::new(), lidars: Vec::new() };
-    for detected in detected {
-        match detected? {
-            Detected::Camera(boards) => out.cameras.push(boards),
-            Detected::Lidar(lidar) => out.lidars.push(lidar),
+    let mut clouds = Vec::new();
+    for loaded in loaded {
+        match loaded? {
+            Loaded::Camera(boards) => out.cameras.push(boards),
+            Loaded::Lidar(cloud) => clouds.push(cloud),
         }
+    }
+    let first = out.cameras.first().map_or(&[][..], Vec::as_slice);
+    let expected = expected_in_rig_lidars(room, rig, first, free_boards);
+    let found = roomcal::parallel::map(&clouds, |l, cloud| {
+        let at = expected.as_ref().and_then(|e| e.get(l)).map(Vec::as_slice);
+        detect_lidar(room, rig, l, cloud, at)
+    });
+    for (boards, cloud) in found.into_iter().zip(clouds) {
+        out.lidars.push((boards?, cloud));
     }
     Ok(out)
 }
@@ -133,10 +147,10 @@ enum Sensor {
     Lidar(usize),
 }
 
-/// What one sensor's data showed.
-enum Detected {
+/// What one sensor's data showed: a camera's boards, a LiDAR's sweep (detected next).
+enum Loaded {
     Camera(Vec<CameraBoard>),
-    Lidar((Vec<LidarBoard>, Vec<Point>)),
+    Lidar(Vec<Point>),
 }
 
 /// Camera `c`'s boards in its frames (averaged: a standing vehicle's).
@@ -193,23 +207,34 @@ pub fn write_reports(
 }
 
 /// LiDAR `l`'s boards in its sweeps (accumulated), and the sweeps.
-fn detect_lidar(
-    room: &Room,
+fn load_lidar(
     rig: &Rig,
     l: usize,
     paths: &[PathBuf],
     angles: Option<&Path>,
-) -> Result<(Vec<LidarBoard>, Vec<Point>), Failure> {
+) -> Result<Vec<Point>, Failure> {
     let model = rig.lidars[l].model.packet_model();
     let mut cloud = Vec::new();
     for path in paths {
         cloud.extend(roomcal::lidar::read_cloud(path, model, angles).map_err(bad_input)?);
     }
+    Ok(cloud)
+}
+
+/// LiDAR `l`'s boards in its sweep: at `expected` when given (the global search when that
+/// places fewer than two), else by global search.
+fn detect_lidar(
+    room: &Room,
+    rig: &Rig,
+    l: usize,
+    cloud: &[Point],
+    expected: Option<&[Se3]>,
+) -> Result<Vec<LidarBoard>, Failure> {
     if cloud.is_empty() {
-        return Ok((Vec::new(), cloud));
+        return Ok(Vec::new());
     }
     let mut detectors = Detectors::new(&rig.pair_room(room, 0, Some(l))).map_err(bad_input)?;
-    Ok((detectors.detect_cloud(&cloud), cloud))
+    Ok(detectors.detect_where_expected(cloud, expected))
 }
 
 /// Where `calibrate --rig` writes: the result file, the exports (accepted runs only), the

@@ -7,7 +7,8 @@ use std::path::PathBuf;
 
 use crate::calibrate::rig::{calibrate_rig, LidarInput};
 use crate::calibrate::{
-    calibrate_detecting, CalibrateOptions, Detectors, FrameDetections, LidarBoard, RigDetectors,
+    calibrate_detecting, expected_in_rig_lidars, CalibrateOptions, Detectors, FrameDetections,
+    LidarBoard, RigDetectors,
 };
 use crate::capture::GreyFrame;
 use crate::detect::holes::RefusedBoard;
@@ -150,8 +151,15 @@ impl Calibrator for RoomCalibrator {
         // held under the next detections, the solve, the report and between visits (the
         // run's peak memory, README "Speed and memory").
         detectors.cameras.iter_mut().for_each(Detectors::release_chessboard);
-        let boards: Vec<Vec<LidarBoard>> =
-            sweeps.iter().map(|s| detectors.detect_cloud(s)).collect();
+        // In a surveyed room each LiDAR is searched where the room expects its boards.
+        let first = cameras.first().map_or(&[][..], Vec::as_slice);
+        let expected = expected_in_rig_lidars(&self.room, rig, first, false);
+        let boards: Vec<Vec<LidarBoard>> = (sweeps.iter().enumerate())
+            .map(|(l, s)| {
+                let at = expected.as_ref().and_then(|e| e.get(l)).map(Vec::as_slice);
+                detectors.detect_lidar(s, at)
+            })
+            .collect();
         detectors.first().release_holes();
         let lidars: Vec<LidarInput<'_>> =
             boards.iter().zip(sweeps).map(|(boards, cloud)| LidarInput { boards, cloud }).collect();
