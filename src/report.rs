@@ -2,12 +2,14 @@
 //! solved calibration (coloured by range, with its colour bar), the detected corners, each
 //! board's hole centres as the camera places them and as the LiDAR measured them, and —
 //! for a calibration run — the board numbers, a legend of the marks, the status, the σ and
-//! RMS figures and the LiDAR planes that were refused, each with its reason. Text is drawn
+//! RMS figures and the LiDAR planes that were refused, each with its reason. A rig's picture
+//! ([`rig_camera_report`]) is one camera's: every LiDAR's sweep and hole centres through the
+//! solved rig, the camera's corners, the rig's and the sensors' verdicts. Text is drawn
 //! with the built-in bitmap font ([`crate::font`]).
 
 use image::{Rgb, RgbImage};
 
-use crate::calibrate::Calibration;
+use crate::calibrate::{Calibration, CameraBoard, LidarBoard};
 use crate::detect::holes::RefusedBoard;
 use crate::font;
 use crate::geometry::{Camera, Se3, Vec2, Vec3};
@@ -88,27 +90,93 @@ pub fn rig_overlay(grey: &[u8], camera: &Camera, clouds: &[(Se3, &[Point])]) -> 
     with_range_bar(image, range_max)
 }
 
+/// What one camera's picture of a rig marks: the camera's detected boards, and per LiDAR
+/// (the rig's order) its sweep and the boards it placed (hole centres, LiDAR frame).
+pub struct RigMarks<'a> {
+    pub corners: &'a [CameraBoard],
+    pub sweeps: &'a [&'a [Point]],
+    pub lidar_boards: &'a [&'a [LidarBoard]],
+}
+
 /// Camera `camera` (its index in `rig`) of a rig's `result`: its frame `grey` with every
-/// LiDAR's sweep (`sweeps`, in the rig's LiDAR order) drawn through the solved rig — the
-/// camera's solved intrinsics, LiDAR → camera through the first camera
-/// ([`crate::result::RigResult::between`]) — as [`rig_overlay`] draws it. `None` when the
-/// camera has no solved model; a LiDAR without an extrinsic is left out.
+/// LiDAR's sweep drawn through the solved rig — the camera's solved intrinsics, LiDAR →
+/// camera through the first camera ([`crate::result::RigResult::between`]) — as
+/// [`rig_overlay`] draws it, the camera's detected corners, every LiDAR's hole centres
+/// through the same motions (where they fall on the corners' boards' holes, the rig agrees
+/// with itself), and a footer with the rig's verdict, this camera's intrinsics and σ, each
+/// sensor's verdict and the legend. `None` when the camera has no solved model; a LiDAR
+/// without an extrinsic is left out.
 pub fn rig_camera_report(
     rig: &crate::rig::Rig,
     result: &crate::result::RigResult,
     camera: usize,
     grey: &[u8],
-    sweeps: &[&[Point]],
+    marks: &RigMarks<'_>,
 ) -> Option<RgbImage> {
     let name = rig.cameras.get(camera)?.name.as_str();
-    let solved = result.sensors.get(name)?.camera.as_ref()?;
-    let clouds: Vec<(Se3, &[Point])> = rig
-        .lidars
-        .iter()
-        .zip(sweeps)
-        .filter_map(|(l, sweep)| Some((result.between(&l.name, name)?, *sweep)))
+    let solved = result.sensors.get(name)?.camera.as_ref()?.to_camera();
+    let motions: Vec<Option<Se3>> =
+        rig.lidars.iter().map(|l| result.between(&l.name, name)).collect();
+    let clouds: Vec<(Se3, &[Point])> = (motions.iter().zip(marks.sweeps))
+        .filter_map(|(motion, sweep)| Some(((*motion)?, *sweep)))
         .collect();
-    Some(rig_overlay(grey, &solved.to_camera(), &clouds))
+    let mut image = grey_frame(grey, &solved);
+    let range_max = draw_points(&mut image, &solved, &clouds);
+    for corner in marks.corners.iter().flat_map(|b| &b.corners) {
+        cross(&mut image, corner, 4, CORNER);
+    }
+    for (motion, boards) in motions.iter().zip(marks.lidar_boards) {
+        let Some(motion) = motion else { continue };
+        for hole in boards.iter().flat_map(|b| &b.holes) {
+            if let Some(px) = solved.project(&motion.act(hole)) {
+                ring(&mut image, &px, 6.0, HOLE_LIDAR);
+                cross(&mut image, &px, 3, HOLE_LIDAR);
+            }
+        }
+    }
+    let legend = [
+        (Mark::Corner, "detected checkerboard corners"),
+        (Mark::HoleFromLidar, "hole centres from each LiDAR (through the solved rig)"),
+        (Mark::Points, "LiDAR points, coloured by range"),
+    ];
+    let scale = text_scale(&image);
+    Some(with_footer(&image, &rig_status_lines(rig, result, name), &legend, range_max, scale))
+}
+
+/// The rig's verdict, camera `name`'s intrinsics and σ, and each sensor's verdict.
+fn rig_status_lines(
+    rig: &crate::rig::Rig,
+    result: &crate::result::RigResult,
+    name: &str,
+) -> Vec<(String, Rgb<u8>)> {
+    let verdict = |status: Status, reason: Option<&str>| match status {
+        Status::Accepted => ("accepted".to_string(), ACCEPTED_TEXT),
+        Status::Rejected => {
+            (format!("REJECTED: {}", reason.unwrap_or("no reason given")), REJECTED_TEXT)
+        }
+    };
+    let (rig_verdict, colour) = verdict(result.pair.status, result.pair.reason.as_deref());
+    let mut lines =
+        vec![(format!("rig of {} sensors: {rig_verdict}", result.sensors.len()), colour)];
+    if let Some(entry) = result.sensors.get(name) {
+        if let (Some(c), Some(u)) = (&entry.camera, &entry.uncertainty) {
+            lines.push((
+                format!(
+                    "camera {name}: fx {:.2} fy {:.2} (σ {:.2}) cx {:.2} cy {:.2} (σ {:.2} {:.2}) px",
+                    c.fx, c.fy, u.fx, c.cx, c.cy, u.cx, u.cy
+                ),
+                TEXT,
+            ));
+        }
+    }
+    let sensors = rig.cameras.iter().map(|c| ("camera", c.name.as_str()));
+    for (kind, sensor) in sensors.chain(rig.lidars.iter().map(|l| ("LiDAR", l.name.as_str()))) {
+        if let Some(entry) = result.sensors.get(sensor) {
+            let (text, colour) = verdict(entry.status, entry.reason.as_deref());
+            lines.push((format!("{kind} {sensor}: {text}"), colour));
+        }
+    }
+    lines
 }
 
 /// `report.png` → `report-NAME.png`: where one camera's picture of a rig's report goes.

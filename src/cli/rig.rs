@@ -179,7 +179,8 @@ fn camera_frame(rig: &Rig, c: usize, paths: &[PathBuf]) -> Result<Option<GreyIma
 
 /// The rig's report pictures, one per camera ([`roomcal::report::camera_path`]: `report.png`
 /// → `report-front.png`): the camera's frame (its frames averaged) with every LiDAR's sweep
-/// drawn through the solved rig ([`roomcal::report::rig_camera_report`]). A camera without
+/// and hole centres drawn through the solved rig, its corners and the verdicts
+/// ([`roomcal::report::rig_camera_report`]). A camera without
 /// a solved model is left out. Returns the files written.
 pub fn write_reports(
     report: &Path,
@@ -189,11 +190,17 @@ pub fn write_reports(
     result: &RigResult,
 ) -> Result<Vec<PathBuf>, Failure> {
     let sweeps: Vec<&[Point]> = detections.lidars.iter().map(|(_, c)| c.as_slice()).collect();
+    let lidar_boards: Vec<&[LidarBoard]> =
+        detections.lidars.iter().map(|(b, _)| b.as_slice()).collect();
     let mut written = Vec::new();
     for (c, camera) in rig.cameras.iter().enumerate() {
         let Some(frame) = camera_frame(rig, c, &inputs.images[c])? else { continue };
-        let Some(picture) =
-            roomcal::report::rig_camera_report(rig, result, c, &frame.data, &sweeps)
+        let marks = roomcal::report::RigMarks {
+            corners: &detections.cameras[c],
+            sweeps: &sweeps,
+            lidar_boards: &lidar_boards,
+        };
+        let Some(picture) = roomcal::report::rig_camera_report(rig, result, c, &frame.data, &marks)
         else {
             continue;
         };

@@ -168,9 +168,15 @@ impl Calibrator for RoomCalibrator {
         let run = calibrate_rig(&self.room, rig, &cameras, &lidars, &options);
         if let Some(path) = &self.report {
             let sweeps: Vec<&[Point]> = sweeps.iter().map(Vec::as_slice).collect();
+            let lidar_boards: Vec<&[LidarBoard]> = boards.iter().map(Vec::as_slice).collect();
             for (c, (camera, frame)) in rig.cameras.iter().zip(frames).enumerate() {
+                let marks = crate::report::RigMarks {
+                    corners: cameras.get(c).map_or(&[][..], Vec::as_slice),
+                    sweeps: &sweeps,
+                    lidar_boards: &lidar_boards,
+                };
                 let picture =
-                    crate::report::rig_camera_report(rig, &run.result, c, &frame.pixels, &sweeps);
+                    crate::report::rig_camera_report(rig, &run.result, c, &frame.pixels, &marks);
                 if let Some(picture) = picture {
                     write_picture(&crate::report::camera_path(path, &camera.name), &picture);
                 }
