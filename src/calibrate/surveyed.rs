@@ -104,10 +104,12 @@ pub(super) fn solve_surveyed(
         let keep: Vec<usize> =
             (0..identified.len()).filter(|&i| !left_out.contains(&identified[i].2)).collect();
         let ext = extrinsic.unwrap_or_else(Se3::identity);
-        // Plane points from the start, then again from the first solve.
+        // Plane points from the start, then again from the first solve; without a sweep
+        // (a rig's pair run) there is nothing to select again, and one solve is the run.
         let mut planes = room_planes(survey, &surveyed, clouds, &room_to_camera, &ext, None);
         let mut params = None;
-        for pass in 0..2 {
+        let passes = if clouds.iter().any(|c| !c.is_empty()) { 2 } else { 1 };
+        for pass in 2 - passes..2 {
             let mut problem: Problem<'_> = RoomProblem::new(corner_sigma, 2.0, Loss::Huber(3.0));
             let blocks = add_observations(
                 &mut problem,
