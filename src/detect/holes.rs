@@ -316,7 +316,10 @@ pub struct HoleDetector {
     mask: Mask,
     coarse_mask: Mask,
     yaws: Vec<f64>,
-    pts: Vec<Vec3>,
+    /// The returns within range, as the sweep holds them (f32: half a `Vec3`'s memory for
+    /// the largest buffer a rig's daemon makes; [`point_of`] gives the same f64 values the
+    /// sweep's f32 would).
+    pts: Vec<[f32; 3]>,
     /// Every return as (azimuth, range, elevation), by elevation bin ([`RING_BIN_DEG`],
     /// bin `k` at `beams[bin_start[k]..bin_start[k + 1]]`), each bin by azimuth: what a
     /// stretch of a scan line returned ([`HoleDetector::hidden_stretch`]).
@@ -500,7 +503,7 @@ impl HoleDetector {
             let start = i;
             let mut m = Moments::default();
             while i < self.keys.len() && self.keys[i].0 == key {
-                m.add(&self.pts[self.keys[i].1 as usize]);
+                m.add(&point_of(&self.pts[self.keys[i].1 as usize]));
                 i += 1;
             }
             self.map.insert(key, self.voxels.len() as u32);
@@ -515,8 +518,8 @@ impl HoleDetector {
         let (near, far) = self.config.range_m;
         self.pts.clear();
         self.keys.clear();
-        // Exactly the sweep's size, not a doubling's slack: a rig's daemon keeps a detector
-        // sized for its largest sweep for good.
+        // Exactly the sweep's size, not a doubling's slack (the daemon frees it after each
+        // run, `release_workspace`).
         self.pts.reserve_exact(points.len());
         self.keys.reserve_exact(points.len());
         let inv = 1.0 / self.config.voxel_m;
@@ -528,7 +531,7 @@ impl HoleDetector {
             }
             let key = voxel_key(&(v * inv));
             self.keys.push((key, self.pts.len() as u32));
-            self.pts.push(v);
+            self.pts.push([p.x, p.y, p.z]);
         }
         self.learn_rings();
         self.index_beams();
@@ -1265,8 +1268,8 @@ impl HoleDetector {
     fn learn_rings(&mut self) {
         self.rings.clear();
         self.rings.resize(RING_BINS, 0);
-        for p in &self.pts {
-            self.rings[ring_bin(elevation(p))] += 1;
+        for p in self.pts.iter().map(point_of) {
+            self.rings[ring_bin(elevation(&p))] += 1;
         }
     }
 
@@ -1286,8 +1289,8 @@ impl HoleDetector {
         self.beams.resize(self.pts.len(), (0.0, 0.0, 0.0));
         self.bin_fill.clear();
         self.bin_fill.extend_from_slice(&self.bin_start);
-        for p in &self.pts {
-            let e = elevation(p);
+        for p in self.pts.iter().map(point_of) {
+            let e = elevation(&p);
             let slot = &mut self.bin_fill[ring_bin(e)];
             self.beams[*slot as usize] = (p.y.atan2(p.x) as f32, p.norm() as f32, e as f32);
             *slot += 1;
@@ -1606,10 +1609,10 @@ impl HoleDetector {
         let d = n.dot(&c);
         let reach2 = (self.board_diagonal() / 2.0).powi(2);
         let aside2 = (self.board_diagonal() / 2.0 + OUTLINE_CLUTTER).powi(2);
-        for p in &self.pts {
-            let s = n.dot(p);
+        for p in self.pts.iter().map(point_of) {
+            let s = n.dot(&p);
             if (s - d).abs() < ASIDE_M && d > 0.0 && (p * (d / s) - c).norm_squared() < aside2 {
-                self.aside.push(*p);
+                self.aside.push(p);
             }
             if s <= 0.0 || d <= 0.0 {
                 continue;
@@ -1620,10 +1623,10 @@ impl HoleDetector {
                 continue;
             }
             if t < 1.0 {
-                self.through_lines.push((elevation(p), self.through.len() as u32));
+                self.through_lines.push((elevation(&p), self.through.len() as u32));
                 self.through.push([q.dot(&ex), q.dot(&ey)]);
             } else {
-                self.front_lines.push((elevation(p), self.front.len() as u32));
+                self.front_lines.push((elevation(&p), self.front.len() as u32));
                 self.front.push([q.dot(&ex), q.dot(&ey)]);
             }
         }
@@ -2497,6 +2500,12 @@ fn ring_bin(e: f64) -> usize {
 }
 
 /// Elevation angle of `p` seen from the sensor (rad): what tells its scan line.
+/// A return as the detector keeps it, in the solver's type (the same values as the
+/// sweep's f32 converted directly).
+fn point_of(p: &[f32; 3]) -> Vec3 {
+    Vec3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))
+}
+
 fn elevation(p: &Vec3) -> f64 {
     p.z.atan2(p.x.hypot(p.y))
 }

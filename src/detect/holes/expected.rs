@@ -9,7 +9,7 @@
 //! two at the board): the board's own plane is the densest band about it within
 //! [`EXPECTED_BAND_M`], then refitted and gathered again until it settles.
 
-use super::{HoleDetector, LidarBoard, Point, Region, Se3, Vec3};
+use super::{point_of, HoleDetector, LidarBoard, Point, Region, Se3, Vec3};
 
 /// How far (m) a board may lie from where it is expected, beyond its half diagonal.
 pub const EXPECTED_REACH_M: f64 = 0.3;
@@ -72,8 +72,9 @@ impl HoleDetector {
             })
             .collect();
         self.pts.retain(|p| {
+            let p = point_of(p);
             let range = p.norm();
-            cones.iter().any(|(towards, cos)| towards.dot(p) >= cos * range)
+            cones.iter().any(|(towards, cos)| towards.dot(&p) >= cos * range)
         });
         self.keys.clear();
     }
@@ -86,10 +87,10 @@ impl HoleDetector {
         let bins = (2.0 * EXPECTED_BAND_M / OFFSET_BIN_M) as usize;
         self.hist.clear();
         self.hist.resize(bins, 0);
-        for p in &self.pts {
+        for p in self.pts.iter().map(point_of) {
             let d = p - c;
             let offset = n.dot(&d);
-            let within = d.norm_squared() <= reach * reach && nearest_to(&self.rivals, p, &c);
+            let within = d.norm_squared() <= reach * reach && nearest_to(&self.rivals, &p, &c);
             if within && offset.abs() < EXPECTED_BAND_M {
                 let bin = ((offset + EXPECTED_BAND_M) / OFFSET_BIN_M) as usize;
                 self.hist[bin.min(bins - 1)] += 1;
@@ -121,7 +122,8 @@ impl HoleDetector {
         let within = |p: &Vec3| {
             (p - centre).norm_squared() <= radius * radius && nearest_to(rivals, p, &centre)
         };
-        self.seg.extend(self.pts.iter().filter(|p| within(p) && n.dot(&(*p - c)).abs() < tol));
+        let points = self.pts.iter().map(point_of);
+        self.seg.extend(points.filter(|p| within(p) && n.dot(&(*p - c)).abs() < tol));
     }
 }
 

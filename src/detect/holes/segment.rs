@@ -7,7 +7,9 @@
 //! three of its lines. Fragments whose union is still one thin plane no larger than the
 //! board are one board.
 
-use super::{neighbour_keys, smallest_eigen, HoleDetector, Moments, Vec3, KEY_BIAS, KEY_MASK};
+use super::{
+    neighbour_keys, point_of, smallest_eigen, HoleDetector, Moments, Vec3, KEY_BIAS, KEY_MASK,
+};
 
 /// A region of planar voxels; at a union-find root also the whole merged group.
 #[derive(Clone, Copy, Debug, Default)]
@@ -221,7 +223,7 @@ impl HoleDetector {
                         continue;
                     }
                     for &(_, p) in &self.keys[v.start as usize..v.end as usize] {
-                        let p = self.pts[p as usize];
+                        let p = point_of(&self.pts[p as usize]);
                         // The band, not twice it: a wider gather let a neighbouring
                         // surface into issue 14's 4.5 m board and lost its plane.
                         if n.dot(&(p - c)).abs() < tol {
