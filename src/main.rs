@@ -704,6 +704,7 @@ fn calibrate(args: CalibrateArgs) -> Result<(), Failure> {
             current_rig: None,
             without_planes: args.without_planes,
             free_boards: args.free_boards,
+            corner_start: None,
         },
     );
     if !args.quiet {
@@ -777,6 +778,7 @@ fn calibrate_rig(
         current_rig,
         without_planes: args.without_planes,
         free_boards: args.free_boards,
+        corner_start: None,
     };
     let outputs = cli::rig::RigOutputs {
         out: &args.out,

@@ -85,7 +85,7 @@ pub(super) fn solve_all(
         camera,
         poses,
         mut iterations,
-    } = camera_start(room, frames)?;
+    } = camera_start(room, frames, options.corner_start.as_ref())?;
 
     let pairs = match &room.lidar {
         Some(lidar) => {
@@ -218,10 +218,31 @@ pub(super) struct CameraStart<'f> {
     pub iterations: usize,
 }
 
-/// The [`CameraStart`] of `frames`; an error when no image holds a complete checkerboard.
+/// A camera's intrinsics and board poses from its corners alone ([`intrinsics_start`]),
+/// made once and given to every run of the same camera's detections
+/// ([`CalibrateOptions::corner_start`]: a rig's pair runs of one camera): it is the costliest
+/// part of a run's start (several full solves from several seeds).
+#[derive(Clone, Debug, PartialEq)]
+pub struct CornerStart {
+    pub camera: Camera,
+    /// Board → camera of each complete board, in the frames' order.
+    pub poses: Vec<Se3>,
+    pub iterations: usize,
+}
+
+/// The [`CornerStart`] of `frames` in `room` (its camera and board); an error when no
+/// image holds a complete checkerboard.
+pub fn corner_start(room: &Room, frames: &[FrameDetections]) -> Result<CornerStart, String> {
+    let start = camera_start(room, frames, None)?;
+    Ok(CornerStart { camera: start.camera, poses: start.poses, iterations: start.iterations })
+}
+
+/// The [`CameraStart`] of `frames`, from `given` when it is these frames' (as many poses
+/// as complete boards); an error when no image holds a complete checkerboard.
 pub(super) fn camera_start<'f>(
     room: &Room,
     frames: &'f [FrameDetections],
+    given: Option<&CornerStart>,
 ) -> Result<CameraStart<'f>, String> {
     let object: Vec<Vec3> = (0..room.board.corner_count()).map(|i| room.board.corner(i)).collect();
     let holes_board: Vec<Vec3> = (0..room.board.holes.len()).map(|h| room.board.hole(h)).collect();
@@ -236,7 +257,10 @@ pub(super) fn camera_start<'f>(
         return Err("no complete checkerboard was detected in any image".into());
     }
     let corner_sigma = median(boards.iter().map(|(_, b)| b.sigma_px)).max(0.02);
-    let (camera, poses, iterations) = intrinsics_start(room, &object, &boards, corner_sigma)?;
+    let (camera, poses, iterations) = match given.filter(|g| g.poses.len() == boards.len()) {
+        Some(g) => (g.camera, g.poses.clone(), g.iterations),
+        None => intrinsics_start(room, &object, &boards, corner_sigma)?,
+    };
     Ok(CameraStart { object, holes_board, boards, corner_sigma, camera, poses, iterations })
 }
 

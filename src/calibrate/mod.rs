@@ -24,6 +24,7 @@
 mod association;
 mod detectors;
 mod free;
+pub use free::{corner_start, CornerStart};
 mod gate;
 pub mod identify;
 pub mod rig;
@@ -83,6 +84,11 @@ pub struct CalibrateOptions {
     pub without_planes: bool,
     /// Ignores the room's `[survey]`: every board observation gets its own pose.
     pub free_boards: bool,
+    /// The camera's start from these detections' corners, made once beforehand (a rig's
+    /// pair runs of one camera share it); `None`: the run makes it. It must be of these
+    /// frames in this room's camera: a start whose pose count differs from the complete
+    /// boards is not used.
+    pub corner_start: Option<CornerStart>,
 }
 
 /// One board observation as the solver used it.
@@ -163,7 +169,10 @@ pub fn calibrate_with_clouds(
     options: &CalibrateOptions,
 ) -> Calibration {
     let solved = match surveyed_room(room, options) {
-        Some(survey) => surveyed::solve_surveyed(room, survey, frames, clouds, None),
+        Some(survey) => {
+            let given = options.corner_start.as_ref();
+            surveyed::solve_surveyed(room, survey, frames, clouds, None, given)
+        }
         None => free::solve_free(room, frames, options),
     };
     gated(room, frames, options, solved)
@@ -191,7 +200,9 @@ pub fn calibrate_detecting(
     };
     let solved = match surveyed_room(room, options) {
         Some(survey) => {
-            let solved = surveyed::solve_surveyed(room, survey, frames, clouds, Some(&mut finder));
+            let given = options.corner_start.as_ref();
+            let solved =
+                surveyed::solve_surveyed(room, survey, frames, clouds, Some(&mut finder), given);
             // A run that stopped before looking (no identified camera board) still reports
             // what the sweeps hold, as a run without survey would.
             for f in 0..frames.len().min(clouds.len()) {

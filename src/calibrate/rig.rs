@@ -35,7 +35,7 @@ use nalgebra::{DMatrix, Matrix3};
 use super::identify::{half_turn_symmetric, oriented, GATE_DEG, GATE_M};
 use super::surveyed::MOVED_BOARD_CHI2;
 use super::{
-    calibrate_with_clouds, gate, median, CalibrateOptions, Calibration, CameraBoard,
+    calibrate_with_clouds, corner_start, gate, median, CalibrateOptions, Calibration, CameraBoard,
     FrameDetections, LidarBoard, MAX_OBSERVATIONS,
 };
 use crate::geometry::{se3::so3_log, Camera, Se3, Vec2, Vec3};
@@ -88,12 +88,22 @@ pub fn calibrate_rig(
     let in_force = options.current_rig.as_ref();
     // The pair runs are gated per sensor; the change limits are the rig's (below).
     let options = &CalibrateOptions { current: None, current_rig: None, ..options.clone() };
+    // Each camera's start from its corners, once: every pair run of the camera starts
+    // from it (it is the costliest part of a run's start).
+    let starts: Vec<CalibrateOptions> = crate::parallel::map(&rig.cameras, |c, _| {
+        let frame = FrameDetections {
+            camera: cameras.get(c).cloned().unwrap_or_default(),
+            lidar: Vec::new(),
+        };
+        let start = corner_start(&rig.pair_room(room, c, None), std::slice::from_ref(&frame));
+        CalibrateOptions { corner_start: start.ok(), ..options.clone() }
+    });
     // Every camera with every LiDAR: independent runs, spread over the cores.
     let keys: Vec<(usize, Option<usize>)> = (0..rig.cameras.len())
         .flat_map(|c| (0..rig.lidars.len()).map(move |l| (c, Some(l))))
         .collect();
     let solved = crate::parallel::map(&keys, |_, &key| {
-        pair_run(room, rig, cameras, lidars, key, surveyed, options)
+        pair_run(room, rig, cameras, lidars, key, surveyed, &starts[key.0])
     });
     let mut runs: BTreeMap<_, _> = keys.into_iter().zip(solved).collect();
     let counts: Vec<Vec<usize>> = (0..rig.cameras.len())
@@ -105,7 +115,8 @@ pub fn calibrate_rig(
         (0..rig.cameras.len()).map(|c| (c, best(rig.lidars.len(), |l| placed(c, l)))).collect();
     for &key in &camera_runs {
         if key.1.is_none() {
-            runs.insert(key, pair_run(room, rig, cameras, lidars, key, surveyed, options));
+            let run = pair_run(room, rig, cameras, lidars, key, surveyed, &starts[key.0]);
+            runs.insert(key, run);
         }
     }
     let lidar_cameras: Vec<Option<usize>> =

@@ -51,6 +51,7 @@ pub(super) fn solve_surveyed(
     frames: &[FrameDetections],
     clouds: &[&[Point]],
     finder: Option<&mut dyn FindLidarBoards>,
+    given: Option<&super::free::CornerStart>,
 ) -> Result<Calibration, String> {
     let spec = &room.board;
     let CameraStart {
@@ -61,7 +62,7 @@ pub(super) fn solve_surveyed(
         camera,
         poses,
         mut iterations,
-    } = camera_start(room, frames)?;
+    } = camera_start(room, frames, given)?;
     let surveyed: Vec<Se3> = survey.boards.iter().map(|b| b.pose()).collect();
 
     let (identified, room_to_camera, unmatched) =
