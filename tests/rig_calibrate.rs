@@ -705,3 +705,32 @@ fn a_rigs_lidars_are_found_where_the_surveyed_room_expects_their_boards() {
     }
     println!("boards placed: {expected_total} where expected, {global_total} by global search");
 }
+
+/// A run given its camera's start from the corners (`CalibrateOptions::corner_start`, as a
+/// rig's pair runs share it) is the run that makes the start itself, value for value; a
+/// start of other detections (another pose count) is not used.
+#[test]
+fn a_run_given_its_corner_start_is_the_run_that_makes_it() {
+    use roomcal::calibrate::{calibrate_with_clouds, corner_start, FrameDetections};
+    let sim = with_wide_coverage(simulated(2026));
+    let mut room = sim.rig.pair_room(&sim.room, 0, Some(0));
+    room.survey = Some(exact_survey(&sim.room_truth));
+    let (cameras, lidars) = detections(&sim, &mut Rng(5));
+    let frames = [FrameDetections { camera: cameras[0].clone(), lidar: lidars[0].clone() }];
+    let clouds: [&[roomcal::lidar::Point]; 1] = [&sim.clouds[0]];
+    let start = corner_start(&room, &frames).unwrap();
+    for free_boards in [false, true] {
+        let plain = CalibrateOptions { free_boards, ..CalibrateOptions::default() };
+        let given = CalibrateOptions { corner_start: Some(start.clone()), ..plain.clone() };
+        let made = calibrate_with_clouds(&room, &frames, &clouds, &plain);
+        let shared = calibrate_with_clouds(&room, &frames, &clouds, &given);
+        assert_eq!(made.result, shared.result, "free boards {free_boards}");
+        assert_eq!(made.result.status, Status::Accepted, "{:?}", made.result.reason);
+    }
+    let mut other = start.clone();
+    other.poses.pop();
+    other.camera.fx *= 1.5;
+    let given = CalibrateOptions { corner_start: Some(other), ..CalibrateOptions::default() };
+    let plain = calibrate_with_clouds(&room, &frames, &clouds, &CalibrateOptions::default());
+    assert_eq!(calibrate_with_clouds(&room, &frames, &clouds, &given).result, plain.result);
+}
