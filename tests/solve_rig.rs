@@ -122,21 +122,33 @@ fn solve_recovers_the_truth_from_a_perturbed_start() {
     let p = problem(&s, 0.1, 0.003, Loss::Huber(3.0));
     let mut params = perturbed(&s);
     let report = solve_rig(&p, &mut params, 50).unwrap();
+    assert_recovers_the_rig(&report, &params, &s.truth);
+    for f in 0..F {
+        assert!(close(&params.room_to_first[f], &s.truth.room_to_first[f]), "frame {f}");
+    }
+    assert!(report.corner_rms_px.iter().all(|&e| e < 1e-6), "{report:?}");
+}
+
+/// Poses agree to 1e-7 (rad, m) on every axis.
+fn close(a: &Se3, b: &Se3) -> bool {
+    left_difference(a, b).amax() < 1e-7
+}
+
+/// The solve converged from its perturbed start onto the truth's intrinsics and mountings.
+fn assert_recovers_the_rig(
+    report: &roomcal::solve::rig::RigReport<C, L>,
+    params: &Params,
+    t: &Params,
+) {
     assert!(report.iterations > 1 && report.final_cost < 1e-8 * report.initial_cost, "{report:?}");
-    let t = &s.truth;
     for c in 0..C {
         assert!((params.cameras[c].fx - t.cameras[c].fx).abs() < 1e-4, "camera {c} fx");
         assert!((params.cameras[c].cy - t.cameras[c].cy).abs() < 1e-4, "camera {c} cy");
     }
-    let close = |a: &Se3, b: &Se3| left_difference(a, b).amax() < 1e-7;
     assert!(close(&params.first_to_camera[1], &t.first_to_camera[1]));
     for l in 0..L {
         assert!(close(&params.lidar_to_first[l], &t.lidar_to_first[l]), "LiDAR {l}");
     }
-    for f in 0..F {
-        assert!(close(&params.room_to_first[f], &t.room_to_first[f]), "frame {f}");
-    }
-    assert!(report.corner_rms_px.iter().all(|&e| e < 1e-6), "{report:?}");
 }
 
 /// The solver's σ against the spread of its own solutions over noisy scenes: for every
@@ -163,18 +175,9 @@ fn free_boards_recover_the_rig_from_a_perturbed_start() {
     let mut params = boards_only(&perturbed(&s));
     let held = params.room_to_first[0];
     let report = solve_rig(&p, &mut params, 50).unwrap();
-    assert!(report.iterations > 1 && report.final_cost < 1e-8 * report.initial_cost, "{report:?}");
     assert_eq!(params.room_to_first[0], held, "frame 0 is the gauge");
     let t = &s.truth;
-    for c in 0..C {
-        assert!((params.cameras[c].fx - t.cameras[c].fx).abs() < 1e-4, "camera {c} fx");
-        assert!((params.cameras[c].cy - t.cameras[c].cy).abs() < 1e-4, "camera {c} cy");
-    }
-    let close = |a: &Se3, b: &Se3| left_difference(a, b).amax() < 1e-7;
-    assert!(close(&params.first_to_camera[1], &t.first_to_camera[1]));
-    for l in 0..L {
-        assert!(close(&params.lidar_to_first[l], &t.lidar_to_first[l]), "LiDAR {l}");
-    }
+    assert_recovers_the_rig(&report, &params, t);
     let between = |p: &Params| p.room_to_first[1].compose(&p.room_to_first[0].inverse());
     assert!(close(&between(&params), &between(t)), "frame 1 relative to frame 0");
 }
