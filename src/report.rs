@@ -82,14 +82,6 @@ pub fn overlay(
     with_range_bar(image, range_max)
 }
 
-/// One camera of a rig: its frame with several LiDARs' sweeps, each drawn through its own
-/// LiDAR → camera motion, coloured by range, with the colour bar.
-pub fn rig_overlay(grey: &[u8], camera: &Camera, clouds: &[(Se3, &[Point])]) -> RgbImage {
-    let mut image = grey_frame(grey, camera);
-    let range_max = draw_points(&mut image, camera, clouds);
-    with_range_bar(image, range_max)
-}
-
 /// What one camera's picture of a rig marks: the camera's detected boards, and per LiDAR
 /// (the rig's order) its sweep and the boards it placed (hole centres, LiDAR frame).
 pub struct RigMarks<'a> {
@@ -100,8 +92,8 @@ pub struct RigMarks<'a> {
 
 /// Camera `camera` (its index in `rig`) of a rig's `result`: its frame `grey` with every
 /// LiDAR's sweep drawn through the solved rig — the camera's solved intrinsics, LiDAR →
-/// camera through the first camera ([`crate::result::RigResult::between`]) — as
-/// [`rig_overlay`] draws it, the camera's detected corners, every LiDAR's hole centres
+/// camera through the first camera ([`crate::result::RigResult::between`]), each cloud
+/// through its own motion and coloured by range — the camera's detected corners, every LiDAR's hole centres
 /// through the same motions (where they fall on the corners' boards' holes, the rig agrees
 /// with itself), and a footer with the rig's verdict, this camera's intrinsics and σ, each
 /// sensor's verdict and the legend. `None` when the camera has no solved model; a LiDAR
@@ -143,18 +135,22 @@ pub fn rig_camera_report(
     Some(with_footer(&image, &rig_status_lines(rig, result, name), &legend, range_max, scale))
 }
 
+/// A verdict as the pictures write it: `ACCEPTED`, or `REJECTED: reason`, in its colour.
+fn verdict(status: Status, reason: Option<&str>) -> (String, Rgb<u8>) {
+    match status {
+        Status::Accepted => ("ACCEPTED".to_string(), ACCEPTED_TEXT),
+        Status::Rejected => {
+            (format!("REJECTED: {}", reason.unwrap_or("no reason given")), REJECTED_TEXT)
+        }
+    }
+}
+
 /// The rig's verdict, camera `name`'s intrinsics and σ, and each sensor's verdict.
 fn rig_status_lines(
     rig: &crate::rig::Rig,
     result: &crate::result::RigResult,
     name: &str,
 ) -> Vec<(String, Rgb<u8>)> {
-    let verdict = |status: Status, reason: Option<&str>| match status {
-        Status::Accepted => ("accepted".to_string(), ACCEPTED_TEXT),
-        Status::Rejected => {
-            (format!("REJECTED: {}", reason.unwrap_or("no reason given")), REJECTED_TEXT)
-        }
-    };
     let (rig_verdict, colour) = verdict(result.pair.status, result.pair.reason.as_deref());
     let mut lines =
         vec![(format!("rig of {} sensors: {rig_verdict}", result.sensors.len()), colour)];
@@ -621,13 +617,7 @@ fn draw_legend(image: &mut RgbImage, x: i64, y: i64, entries: &[(Mark, &str)], s
 fn status_lines(run: &Calibration) -> Vec<(String, Rgb<u8>)> {
     let r = &run.result;
     let (u, c, q) = (&r.uncertainty, &r.camera, &r.quality);
-    let mut lines = vec![match r.status {
-        Status::Accepted => ("ACCEPTED".to_string(), ACCEPTED_TEXT),
-        Status::Rejected => (
-            format!("REJECTED: {}", r.reason.as_deref().unwrap_or("no reason given")),
-            REJECTED_TEXT,
-        ),
-    }];
+    let mut lines = vec![verdict(r.status, r.reason.as_deref())];
     lines.push((format!("fx {:.2} fy {:.2} px (σ {:.2} {:.2})", c.fx, c.fy, u.fx, u.fy), TEXT));
     lines.push((format!("cx {:.2} cy {:.2} px (σ {:.2} {:.2})", c.cx, c.cy, u.cx, u.cy), TEXT));
     if run.lidar_to_camera.is_some() {
@@ -715,7 +705,8 @@ mod tests {
         let right = Se3 { rotation: Mat3::identity(), translation: Vec3::new(1.0, 0.0, 0.0) };
         let grey = vec![0u8; 200 * 100];
         let clouds = [(Se3::identity(), &cloud[..]), (right, &cloud[..])];
-        let picture = rig_overlay(&grey, &camera(), &clouds);
+        let mut picture = grey_frame(&grey, &camera());
+        assert!(draw_points(&mut picture, &camera(), &clouds).is_some());
         let coloured = |x: u32, y: u32| {
             let p = picture.get_pixel(x, y);
             p[0] != p[1] || p[1] != p[2]
@@ -729,7 +720,10 @@ mod tests {
     fn nothing_in_view_draws_no_colour_bar() {
         let behind = [point(0.0, 0.0, -4.0)];
         let grey = vec![0u8; 200 * 100];
-        let picture = rig_overlay(&grey, &camera(), &[(Se3::identity(), &behind[..])]);
+        let mut picture = grey_frame(&grey, &camera());
+        let span = draw_points(&mut picture, &camera(), &[(Se3::identity(), &behind[..])]);
+        assert_eq!(span, None, "no range to span: no colour bar");
+        let picture = with_range_bar(picture, span);
         assert!(picture.pixels().all(|p| p[0] == p[1] && p[1] == p[2]));
     }
 

@@ -39,11 +39,6 @@ impl RigDetectors {
         &mut self.cameras[0]
     }
 
-    /// Every board LiDAR sweep `points` places (any LiDAR of the rig).
-    pub fn detect_cloud(&mut self, points: &[crate::lidar::Point]) -> Vec<LidarBoard> {
-        self.first().detect_cloud(points)
-    }
-
     /// The boards of a rig LiDAR's sweep: where `expected` says (from
     /// [`expected_in_rig_lidars`]), else every board a global search places.
     pub fn detect_lidar(
@@ -110,7 +105,7 @@ impl Detectors {
         if let Some(expected) = expected {
             let placed: Vec<LidarBoard> =
                 self.detect_expected(points, expected).into_iter().flatten().collect();
-            if placed.len() >= 2 {
+            if placed.len() >= super::MIN_EXPECTED_PLACED {
                 return placed;
             }
         }

@@ -234,6 +234,11 @@ pub(crate) trait FindLidarBoards {
     fn everywhere(&mut self, frame: usize) -> Vec<LidarBoard>;
 }
 
+/// A sweep where the room's expectation places fewer boards than this is searched
+/// globally (a nominal mounting far off, a room that changed), in the one-pair run and a
+/// rig's alike.
+pub(crate) const MIN_EXPECTED_PLACED: usize = 2;
+
 /// Two refused planes whose centroids are this close (m) are one board seen twice.
 const SAME_PLANE_M: f64 = 0.3;
 

@@ -232,7 +232,8 @@ impl Expected<'_> {
                 .into_iter()
                 .flatten()
                 .collect();
-            frame.lidar = match placed.len() < 2 && boards.len() >= 2 {
+            let fewer = placed.len() < super::MIN_EXPECTED_PLACED;
+            frame.lidar = match fewer && boards.len() >= super::MIN_EXPECTED_PLACED {
                 true => finder.everywhere(f),
                 false => placed,
             };

@@ -213,7 +213,7 @@ pub fn write_reports(
     Ok(written)
 }
 
-/// LiDAR `l`'s boards in its sweeps (accumulated), and the sweeps.
+/// LiDAR `l`'s sweeps, read and accumulated into one cloud.
 fn load_lidar(
     rig: &Rig,
     l: usize,

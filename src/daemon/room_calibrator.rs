@@ -47,7 +47,7 @@ impl RoomCalibrator {
     /// Also writes every run's report picture (PNG, as `roomcal calibrate --report` draws
     /// it) to `path`, atomically, e.g. the store's `last-run.png`; a rig's run writes one
     /// per camera, the camera's name before the extension (`last-run-front.png`: its frame
-    /// with every LiDAR drawn through the solved rig, [`crate::report::rig_overlay`]).
+    /// with every LiDAR drawn through the solved rig, [`crate::report::rig_camera_report`]).
     pub fn with_report(mut self, path: PathBuf) -> Self {
         self.report = Some(path);
         self
