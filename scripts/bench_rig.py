@@ -12,7 +12,12 @@ first pair, with the survey's tables appended). The two alternate run by run; wa
 (the process, image decoding and detection included) and CPU seconds of the child; medians.
 Stdout is a markdown table.
 
-    cargo build --release && scripts/bench_rig.py DIR [--rig config/rig.toml] [--runs 5]
+    cargo build --release && scripts/bench_rig.py DIR [--rig config/rig.toml] [--runs 5] [--one-core]
+
+--one-core pins both runs to the first core (the rig's sensors then run one after another):
+on two cores the rig's parallel pieces share one physical core's caches and pipelines with
+each other, so its CPU seconds grow while its wall seconds shrink; on one core CPU and wall
+seconds are the same work.
 """
 import argparse
 import os
@@ -41,7 +46,10 @@ def main():
     ap.add_argument("dir")
     ap.add_argument("--rig", default=os.path.join(ROOT, "config", "rig.toml"))
     ap.add_argument("--runs", type=int, default=5)
+    ap.add_argument("--one-core", action="store_true")
     a = ap.parse_args()
+    if a.one_core:
+        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     rig_dir = os.path.join(a.dir, "rig")
     out = os.path.join(a.dir, "bench-result.json")
     rig_run = [ROOMCAL, "calibrate", "--room", os.path.join(a.dir, "surveyed.toml"), "--rig", a.rig, "--quiet", "--out", out]
@@ -56,7 +64,8 @@ def main():
         pair.append(timed(pair_run, ok=(0, 3)))
     med = lambda xs, i: statistics.median(x[i] for x in xs)
     load = os.getloadavg()[0]
-    print(f"machine: {os.cpu_count()} cores, load average {load:.1f} at the end; median of {a.runs} runs")
+    cores = len(os.sched_getaffinity(0))
+    print(f"machine: {os.cpu_count()} cores ({cores} used), load average {load:.1f} at the end; median of {a.runs} runs")
     print()
     print("| run | exit | wall s | CPU s |")
     print("|---|---|---|---|")

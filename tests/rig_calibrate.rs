@@ -675,7 +675,7 @@ fn a_rigs_lidars_are_found_where_the_surveyed_room_expects_their_boards() {
             let mut detectors = Detectors::new(&sim.rig.pair_room(&room, 0, Some(l))).unwrap();
             let cloud = &sim.clouds[l];
             let global = detectors.detect_cloud(cloud);
-            let at = detectors.detect_where_expected(cloud, Some(&expected[l]));
+            let at = detectors.detect_where_expected(cloud, Some(&expected.lidars[l]));
             let truth = &sim.truth.sensors[lidar.name.as_str()].boards;
             for board in &at {
                 let centre = board.holes.iter().sum::<Vec3>() / board.holes.len() as f64;
@@ -704,6 +704,29 @@ fn a_rigs_lidars_are_found_where_the_surveyed_room_expects_their_boards() {
         }
     }
     println!("boards placed: {expected_total} where expected, {global_total} by global search");
+}
+
+/// The first camera's start that found the LiDARs' boards (`RigExpectation::first_start`),
+/// given to the rig's calibration, is the start it would make: the same result, value for
+/// value.
+#[test]
+fn a_rig_given_its_first_cameras_start_is_the_rig_that_makes_it() {
+    use roomcal::calibrate::expected_in_rig_lidars;
+    let sim = with_wide_coverage(simulated(2026));
+    let mut room = sim.room.clone();
+    room.survey = Some(exact_survey(&sim.room_truth));
+    let (cameras, lidars) = detections(&sim, &mut Rng(5));
+    let inputs: Vec<LidarInput<'_>> =
+        lidars.iter().zip(&sim.clouds).map(|(b, c)| LidarInput { boards: b, cloud: c }).collect();
+    let expected = expected_in_rig_lidars(&room, &sim.rig, &cameras[0], false).unwrap();
+    let given = CalibrateOptions {
+        corner_start: Some(expected.first_start),
+        ..CalibrateOptions::default()
+    };
+    let made = calibrate_rig(&room, &sim.rig, &cameras, &inputs, &CalibrateOptions::default());
+    let with_start = calibrate_rig(&room, &sim.rig, &cameras, &inputs, &given);
+    assert_eq!(with_start.result, made.result);
+    assert_eq!(made.result.pair.status, roomcal::result::Status::Accepted);
 }
 
 /// A run given its camera's start from the corners (`CalibrateOptions::corner_start`, as a

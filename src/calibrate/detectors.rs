@@ -50,26 +50,39 @@ impl RigDetectors {
     }
 }
 
-/// Where each LiDAR of `rig` should see the surveyed boards (board → LiDAR, every surveyed
-/// board, per LiDAR): the first camera's boards identified against the survey give its room
-/// pose (start intrinsics, corners only), and each LiDAR's nominal mounting carries the
-/// surveyed boards into it, as the one-pair run carries its camera's boards
-/// ([`super::calibrate_detecting`]). `None` outside a surveyed room, with `free_boards`, or
-/// when the first camera's boards identify nothing (the LiDARs are then searched globally).
+/// What a surveyed room expects a rig's LiDARs to see ([`expected_in_rig_lidars`]).
+#[derive(Clone, Debug)]
+pub struct RigExpectation {
+    /// Per LiDAR, every surveyed board's expected pose (board → LiDAR).
+    pub lidars: Vec<Vec<Se3>>,
+    /// The first camera's start from its corners that identified its boards: the rig's
+    /// calibration takes it as [`super::CalibrateOptions::corner_start`] instead of making
+    /// it again.
+    pub first_start: super::CornerStart,
+}
+
+/// Where each LiDAR of `rig` should see the surveyed boards: the first camera's boards
+/// identified against the survey give its room pose (start intrinsics, corners only), and
+/// each LiDAR's nominal mounting carries the surveyed boards into it, as the one-pair run
+/// carries its camera's boards ([`super::calibrate_detecting`]). `None` outside a surveyed
+/// room, with `free_boards`, or when the first camera's boards identify nothing (the
+/// LiDARs are then searched globally).
 pub fn expected_in_rig_lidars(
     room: &Room,
     rig: &crate::rig::Rig,
     first_camera: &[CameraBoard],
     free_boards: bool,
-) -> Option<Vec<Vec<Se3>>> {
+) -> Option<RigExpectation> {
     let survey = room.survey.as_ref().filter(|_| !free_boards)?;
     let frame = super::FrameDetections { camera: first_camera.to_vec(), lidar: Vec::new() };
-    let first = super::identify_detections(&rig.pair_room(room, 0, None), survey, &frame).ok()?;
-    let expected = rig.lidars.iter().map(|lidar| {
+    let pair = rig.pair_room(room, 0, None);
+    let first_start = super::corner_start(&pair, std::slice::from_ref(&frame)).ok()?;
+    let first = super::surveyed::identify_from(&pair, survey, &frame, Some(&first_start)).ok()?;
+    let lidars = rig.lidars.iter().map(|lidar| {
         let room_to_lidar = lidar.to_reference.inverse().compose(&first.room_to_camera);
         survey.boards.iter().map(|b| room_to_lidar.compose(&b.pose())).collect()
     });
-    Some(expected.collect())
+    Some(RigExpectation { lidars: lidars.collect(), first_start })
 }
 
 impl Detectors {

@@ -285,21 +285,7 @@ pub(super) fn intrinsics_start(
             })
             .map_err(solver_reason)?;
     }
-    let model = room.camera.model;
-    let mut seeds: Vec<(Camera, IntrinsicsSeed)> = Vec::new();
-    let zhang = IntrinsicsSeed::Zhang { width: room.camera.width, height: room.camera.height };
-    if model == CameraModel::PinholeRadtan {
-        seeds.push((nominal_camera(room, default_fov(model)), zhang));
-    }
-    if room.camera.fx.is_some() {
-        seeds.push((nominal_camera(room, default_fov(model)), IntrinsicsSeed::Given));
-    }
-    for &fov in fov_guesses(model) {
-        let mut guess = nominal_camera(room, fov);
-        let plain = Camera::from_fov(model, room.camera.width, room.camera.height, fov, [0.0; 5]);
-        (guess.fx, guess.fy) = (plain.fx, plain.fy);
-        seeds.push((guess, IntrinsicsSeed::Given));
-    }
+    let seeds = intrinsics_seeds(room);
     let mut best: Option<(f64, JointParams<Camera, MAX_OBSERVATIONS>)> = None;
     let mut iterations = 0;
     let mut last_error = None;
@@ -332,6 +318,39 @@ pub(super) fn intrinsics_start(
             last_error.map_or("no seed".into(), solver_reason)
         )),
     }
+}
+
+/// The starts [`intrinsics_start`] tries, in order: Zhang's closed form, the room's
+/// intrinsics when it gives a focal length, then the fields of view. With a focal length
+/// those are tried nearest it first (in ratio), and a guess within 5 % of it is left out: it
+/// is the room's start again, which would confirm nothing. (A 90° lens with the fields of
+/// view from the narrowest spent 394 LM iterations on its start, 200 of them on the 45° and
+/// 60° guesses, which never converged; nearest first, 194.)
+fn intrinsics_seeds(room: &Room) -> Vec<(Camera, IntrinsicsSeed)> {
+    let model = room.camera.model;
+    let zhang = (model == CameraModel::PinholeRadtan).then(|| {
+        let seed = IntrinsicsSeed::Zhang { width: room.camera.width, height: room.camera.height };
+        (nominal_camera(room, default_fov(model)), seed)
+    });
+    let mut guesses: Vec<(Camera, IntrinsicsSeed)> = fov_guesses(model)
+        .iter()
+        .map(|&fov| {
+            let mut guess = nominal_camera(room, fov);
+            let plain =
+                Camera::from_fov(model, room.camera.width, room.camera.height, fov, [0.0; 5]);
+            (guess.fx, guess.fy) = (plain.fx, plain.fy);
+            (guess, IntrinsicsSeed::Given)
+        })
+        .collect();
+    let Some(fx) = room.camera.fx else {
+        return zhang.into_iter().chain(guesses).collect();
+    };
+    // How far a guess's focal length is from the room's, as a ratio either way.
+    let off = |c: &Camera| libm::log(c.fx / fx).abs();
+    guesses.retain(|(c, _)| off(c) > libm::log(1.05));
+    guesses.sort_by(|a, b| off(&a.0).total_cmp(&off(&b.0)));
+    let given = (nominal_camera(room, default_fov(model)), IntrinsicsSeed::Given);
+    zhang.into_iter().chain(std::iter::once(given)).chain(guesses).collect()
 }
 
 pub(super) fn accepted(

@@ -31,7 +31,9 @@ pub mod rig;
 pub mod survey;
 mod surveyed;
 
-pub use detectors::{expected_in_rig_lidars, plane_points, Detectors, RigDetectors};
+pub use detectors::{
+    expected_in_rig_lidars, plane_points, Detectors, RigDetectors, RigExpectation,
+};
 pub use gate::coverage;
 pub use surveyed::{identify_detections, FrameIdentities};
 
@@ -85,9 +87,10 @@ pub struct CalibrateOptions {
     /// Ignores the room's `[survey]`: every board observation gets its own pose.
     pub free_boards: bool,
     /// The camera's start from these detections' corners, made once beforehand (a rig's
-    /// pair runs of one camera share it); `None`: the run makes it. It must be of these
-    /// frames in this room's camera: a start whose pose count differs from the complete
-    /// boards is not used.
+    /// pair runs of one camera share it; given to [`calibrate_rig`], the first camera's,
+    /// as [`RigExpectation::first_start`] made it); `None`: the run makes it. It must be of
+    /// these frames in this room's camera: a start whose pose count differs from the
+    /// complete boards is not used.
     pub corner_start: Option<CornerStart>,
 }
 

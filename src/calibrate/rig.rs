@@ -89,14 +89,16 @@ pub fn calibrate_rig(
     // The pair runs are gated per sensor; the change limits are the rig's (below).
     let options = &CalibrateOptions { current: None, current_rig: None, ..options.clone() };
     // Each camera's start from its corners, once: every pair run of the camera starts
-    // from it (it is the costliest part of a run's start).
+    // from it (it is the costliest part of a run's start). The first camera's may be
+    // given (made to find the LiDARs' boards).
     let starts: Vec<CalibrateOptions> = crate::parallel::map(&rig.cameras, |c, _| {
-        let frame = FrameDetections {
-            camera: cameras.get(c).cloned().unwrap_or_default(),
-            lidar: Vec::new(),
-        };
-        let start = corner_start(&rig.pair_room(room, c, None), std::slice::from_ref(&frame));
-        CalibrateOptions { corner_start: start.ok(), ..options.clone() }
+        let given = options.corner_start.clone().filter(|_| c == 0);
+        let start = given.or_else(|| {
+            let camera = cameras.get(c).cloned().unwrap_or_default();
+            let frame = FrameDetections { camera, lidar: Vec::new() };
+            corner_start(&rig.pair_room(room, c, None), std::slice::from_ref(&frame)).ok()
+        });
+        CalibrateOptions { corner_start: start, ..options.clone() }
     });
     // Every camera with every LiDAR: independent runs, spread over the cores.
     let keys: Vec<(usize, Option<usize>)> = (0..rig.cameras.len())

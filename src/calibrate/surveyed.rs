@@ -308,6 +308,17 @@ pub fn identify_detections(
     survey: &SurveySpec,
     frame: &FrameDetections,
 ) -> Result<FrameIdentities, String> {
+    identify_from(room, survey, frame, None)
+}
+
+/// [`identify_detections`] from `given`, the frame's [`super::CornerStart`] when it was
+/// made already (a rig's first camera: [`super::expected_in_rig_lidars`]).
+pub(super) fn identify_from(
+    room: &Room,
+    survey: &SurveySpec,
+    frame: &FrameDetections,
+    given: Option<&super::CornerStart>,
+) -> Result<FrameIdentities, String> {
     let spec = &room.board;
     let object: Vec<Vec3> = (0..spec.corner_count()).map(|i| spec.corner(i)).collect();
     let holes_board: Vec<Vec3> = (0..spec.holes.len()).map(|h| spec.hole(h)).collect();
@@ -320,7 +331,10 @@ pub fn identify_detections(
         return Err("no complete checkerboard was detected in the image".into());
     }
     let corner_sigma = median(seen.iter().map(|(_, b)| b.sigma_px)).max(0.02);
-    let (_, poses, _) = intrinsics_start(room, &object, &seen, corner_sigma)?;
+    let poses = match given.filter(|g| g.poses.len() == seen.len()) {
+        Some(g) => g.poses.clone(),
+        None => intrinsics_start(room, &object, &seen, corner_sigma)?.1,
+    };
     let surveyed: Vec<Se3> = survey.boards.iter().map(|b| b.pose()).collect();
     let (ids, room_to_camera) =
         identify(spec, &surveyed, &poses).map_err(|e| format!("frame 0: {e}"))?;

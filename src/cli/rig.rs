@@ -10,7 +10,7 @@ use anyhow::anyhow;
 
 use roomcal::calibrate::rig::{calibrate_rig, LidarInput};
 use roomcal::calibrate::{
-    expected_in_rig_lidars, CalibrateOptions, CameraBoard, Detectors, LidarBoard,
+    expected_in_rig_lidars, CalibrateOptions, CameraBoard, CornerStart, Detectors, LidarBoard,
 };
 use roomcal::detect::GreyImage;
 use roomcal::geometry::Se3;
@@ -102,6 +102,9 @@ fn sensor_list(rig: &Rig) -> String {
 pub struct RigDetections {
     pub cameras: Vec<Vec<CameraBoard>>,
     pub lidars: Vec<(Vec<LidarBoard>, Vec<Point>)>,
+    /// The first camera's start from its corners when it was made to find the LiDARs'
+    /// boards ([`expected_in_rig_lidars`]): the calibration's, not made again.
+    pub first_start: Option<CornerStart>,
 }
 
 /// Loads and detects every sensor's data (frames averaged, sweeps accumulated), the
@@ -121,7 +124,7 @@ pub fn detect_all(
         Sensor::Camera(c) => detect_camera(room, rig, c, &inputs.images[c]).map(Loaded::Camera),
         Sensor::Lidar(l) => load_lidar(rig, l, &inputs.clouds[l], angles).map(Loaded::Lidar),
     });
-    let mut out = RigDetections { cameras: Vec::new(), lidars: Vec::new() };
+    let mut out = RigDetections { cameras: Vec::new(), lidars: Vec::new(), first_start: None };
     let mut clouds = Vec::new();
     for loaded in loaded {
         match loaded? {
@@ -132,12 +135,13 @@ pub fn detect_all(
     let first = out.cameras.first().map_or(&[][..], Vec::as_slice);
     let expected = expected_in_rig_lidars(room, rig, first, free_boards);
     let found = roomcal::parallel::map(&clouds, |l, cloud| {
-        let at = expected.as_ref().and_then(|e| e.get(l)).map(Vec::as_slice);
+        let at = expected.as_ref().and_then(|e| e.lidars.get(l)).map(Vec::as_slice);
         detect_lidar(room, rig, l, cloud, at)
     });
     for (boards, cloud) in found.into_iter().zip(clouds) {
         out.lidars.push((boards?, cloud));
     }
+    out.first_start = expected.map(|e| e.first_start);
     Ok(out)
 }
 
@@ -267,6 +271,10 @@ pub fn calibrate(
 ) -> Result<(), Failure> {
     let lidars: Vec<LidarInput<'_>> =
         detections.lidars.iter().map(|(boards, cloud)| LidarInput { boards, cloud }).collect();
+    let options = &CalibrateOptions {
+        corner_start: detections.first_start.clone().or_else(|| options.corner_start.clone()),
+        ..options.clone()
+    };
     let run = calibrate_rig(room, rig, &detections.cameras, &lidars, options);
     let json = serde_json::to_string_pretty(&run.result).expect("results serialise") + "\n";
     let out = outputs.out;

@@ -156,15 +156,18 @@ impl Calibrator for RoomCalibrator {
         let expected = expected_in_rig_lidars(&self.room, rig, first, false);
         let boards: Vec<Vec<LidarBoard>> = (sweeps.iter().enumerate())
             .map(|(l, s)| {
-                let at = expected.as_ref().and_then(|e| e.get(l)).map(Vec::as_slice);
+                let at = expected.as_ref().and_then(|e| e.lidars.get(l)).map(Vec::as_slice);
                 detectors.detect_lidar(s, at)
             })
             .collect();
         detectors.first().release_holes();
         let lidars: Vec<LidarInput<'_>> =
             boards.iter().zip(sweeps).map(|(boards, cloud)| LidarInput { boards, cloud }).collect();
-        let options =
-            CalibrateOptions { current_rig: current.cloned(), ..CalibrateOptions::default() };
+        let options = CalibrateOptions {
+            current_rig: current.cloned(),
+            corner_start: expected.map(|e| e.first_start),
+            ..CalibrateOptions::default()
+        };
         let run = calibrate_rig(&self.room, rig, &cameras, &lidars, &options);
         if let Some(path) = &self.report {
             let sweeps: Vec<&[Point]> = sweeps.iter().map(Vec::as_slice).collect();

@@ -360,6 +360,9 @@ pub struct HoleDetector {
     hist: Vec<u32>,
     /// The other expected boards' centres near the one searched ([`HoleDetector::detect_expected`]).
     rivals: Vec<Vec3>,
+    /// The expected board's x axis while a board is searched where it is expected: the
+    /// coarse search then tries only the yaws near it ([`EXPECTED_YAW_DEG`]).
+    expected_axis: Option<Vec3>,
     rings: Vec<u32>,
     spacings: Vec<f64>,
     residuals: Vec<f64>,
@@ -440,6 +443,7 @@ impl HoleDetector {
             keep: Vec::new(),
             hist: Vec::new(),
             rivals: Vec::new(),
+            expected_axis: None,
             rings: Vec::new(),
             spacings: Vec::new(),
             residuals: Vec::new(),
@@ -694,7 +698,8 @@ impl HoleDetector {
         // taken only when no other optimum comes close (the evidence is unambiguous).
         // The candidates are ranked at their medium-grid poses (5 mm, 0.5° cells); only
         // those near the best are refined on (the fine grid is most of the cost).
-        let candidates = self.coarse();
+        let expected_yaw = self.expected_axis.map(|bx| bx.dot(&ey).atan2(bx.dot(&ex)));
+        let candidates = self.coarse(expected_yaw);
         let mut first_refusal = None;
         let mut fits: heapless::Vec<(i64, Fit), CANDIDATES> = heapless::Vec::new();
         for &(_, coarse) in &candidates {
@@ -1492,15 +1497,20 @@ impl HoleDetector {
     /// by 180° for an asymmetric hole pattern) are tried. Returns the best distinct optima
     /// (best first): a board whose holes leave its pose weak (lines only across one row of
     /// holes, the outline's top and bottom unseen) has several, one a hole spacing from
-    /// another, and the subsample cannot be trusted to rank them.
+    /// another, and the subsample cannot be trusted to rank them. With `expected` (the
+    /// yaw a board is expected at, [`HoleDetector::detect_expected`]) only the yaws within
+    /// [`EXPECTED_YAW_DEG`] of it, either way round, are tried.
     #[inline(never)]
-    fn coarse(&mut self) -> Candidates {
+    fn coarse(&mut self, expected: Option<f64>) -> Candidates {
         let stride = (self.flat.len() / COARSE_POINTS).max(1);
         let (hw, hh) = (self.spec.width / 2.0, self.spec.height / 2.0);
         let cell = self.coarse_mask.step;
         let mut found = Candidates::new();
         for k in 0..self.yaws.len() {
             let yaw = self.yaws[k];
+            if expected.is_some_and(|e| !near_yaw(yaw, e)) {
+                continue;
+            }
             // The points in board-aligned axes (coarse cells); the board centre is then a
             // plain shift.
             self.sample.clear();
@@ -2154,18 +2164,33 @@ impl Mask {
         let cols = (((spec.width + 2.0 * MASK_MARGIN) / step).ceil() as usize).min(MAX_MASK_SIDE);
         let rows = (((spec.height + 2.0 * MASK_MARGIN) / step).ceil() as usize).min(MAX_MASK_SIDE);
         let mut cells = vec![0; cols * rows];
+        let centre = |i: usize, o: f64| o + (i as f64 + 0.5) * step;
+        let (xs, ys) =
+            ((0..cols).map(|c| centre(c, origin[0])), (0..rows).map(|r| centre(r, origin[1])));
+        // The board's cells, then each hole's within its bounding box: a hole test for
+        // every cell and hole cost a rig's daemon 28 M instructions per detector.
+        let on_board = |x: f64, y: f64| x.abs() <= spec.width / 2.0 && y.abs() <= spec.height / 2.0;
+        for (row, y) in ys.enumerate() {
+            for (col, x) in xs.clone().enumerate() {
+                cells[row * cols + col] = i8::from(on_board(x, y));
+            }
+        }
         let r2 = spec.hole_radius * spec.hole_radius;
-        for row in 0..rows {
-            for col in 0..cols {
-                let x = origin[0] + (col as f64 + 0.5) * step;
-                let y = origin[1] + (row as f64 + 0.5) * step;
-                let inside = x.abs() <= spec.width / 2.0 && y.abs() <= spec.height / 2.0;
-                let hole = spec.holes.iter().any(|h| (x - h[0]).powi(2) + (y - h[1]).powi(2) < r2);
-                cells[row * cols + col] = match (inside, hole) {
-                    (true, false) => 1,
-                    (true, true) => -1,
-                    _ => 0,
-                };
+        let cell_of =
+            |v: f64, o: f64, n: usize| (((v - o) / step).floor().max(0.0) as usize).min(n);
+        for h in spec.holes.iter().filter(|_| cols > 0 && rows > 0) {
+            let (r, [hx, hy]) = (spec.hole_radius, *h);
+            let (c0, c1) =
+                (cell_of(hx - r, origin[0], cols), cell_of(hx + r, origin[0], cols - 1) + 1);
+            let (r0, r1) =
+                (cell_of(hy - r, origin[1], rows), cell_of(hy + r, origin[1], rows - 1) + 1);
+            for row in r0..r1.min(rows) {
+                for col in c0..c1.min(cols) {
+                    let (x, y) = (centre(col, origin[0]), centre(row, origin[1]));
+                    if on_board(x, y) && (x - hx).powi(2) + (y - hy).powi(2) < r2 {
+                        cells[row * cols + col] = -1;
+                    }
+                }
             }
         }
         Mask { step, cells, cols, rows, origin }
@@ -2394,6 +2419,18 @@ const COARSE_POINTS: usize = 400;
 /// are distinct optima (m).
 const DISTINCT_M: f64 = 0.05;
 const DISTINCT_YAW: f64 = 5.0 * PI / 180.0;
+/// The coarse yaws tried about an expected board's (degrees either side): its yaw in the
+/// plane is off by the mounting's error about the board's normal (a degree or two for a
+/// nominal mounting; a LiDAR mounted 10° off is still found), and the coarse step is 4°.
+pub const EXPECTED_YAW_DEG: f64 = 14.0;
+
+/// Whether `yaw` lies within [`EXPECTED_YAW_DEG`] of `expected`, either way round (the
+/// expected axis is a direction in the room; which way the detector's axis points along
+/// it is the board's half-turn, which the mask search settles).
+fn near_yaw(yaw: f64, expected: f64) -> bool {
+    let off = (yaw - expected).rem_euclid(PI);
+    off.min(PI - off) <= EXPECTED_YAW_DEG.to_radians()
+}
 
 /// Scored poses (x, y, yaw), best first.
 type Candidates = heapless::Vec<(i64, [f64; 3]), CANDIDATES>;
@@ -2802,6 +2839,46 @@ mod tests {
             holes,
             count: 1,
             checker_offset: [0.0, 0.0],
+        }
+    }
+
+    /// The mask cell by cell from its definition: solid board 1, hole −1, beyond 0.
+    fn mask_by_definition(spec: &BoardSpec, step: f64) -> Vec<i8> {
+        let m = Mask::new(spec, step);
+        let r2 = spec.hole_radius * spec.hole_radius;
+        let mut cells = Vec::new();
+        for row in 0..m.rows {
+            for col in 0..m.cols {
+                let x = m.origin[0] + (col as f64 + 0.5) * step;
+                let y = m.origin[1] + (row as f64 + 0.5) * step;
+                let inside = x.abs() <= spec.width / 2.0 && y.abs() <= spec.height / 2.0;
+                let hole = spec.holes.iter().any(|h| (x - h[0]).powi(2) + (y - h[1]).powi(2) < r2);
+                cells.push(match (inside, hole) {
+                    (true, false) => 1,
+                    (true, true) => -1,
+                    _ => 0,
+                });
+            }
+        }
+        cells
+    }
+
+    /// The mask filled hole by hole is the mask by definition: this board, an asymmetric
+    /// one whose holes overlap its edge and each other, and odd steps.
+    #[test]
+    fn the_mask_holds_the_board_and_its_holes_cell_by_cell() {
+        let mut odd = board();
+        odd.holes.clear();
+        for h in [[-0.58, -0.46], [0.2, 0.1], [0.25, 0.12], [0.61, 0.0], [0.0, 0.55]] {
+            odd.holes.push(h).unwrap();
+        }
+        odd.hole_radius = 0.0731;
+        for spec in [board(), odd] {
+            for step in [0.002, 0.01, 0.0037] {
+                let m = Mask::new(&spec, step);
+                assert_eq!(m.cells, mask_by_definition(&spec, step), "step {step}");
+                assert!(m.cells.contains(&-1) && m.cells.contains(&1));
+            }
         }
     }
 

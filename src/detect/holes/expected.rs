@@ -5,6 +5,11 @@
 //! global detector's own ([`HoleDetector::examine`]): an expectation narrows where to
 //! look, never what counts as a board.
 //!
+//! The mask search tries only the yaws within [`super::EXPECTED_YAW_DEG`] of the expected
+//! board's (either way round): a third of the global search's, which is most of what the
+//! expected search costs (the surveyed fixture's run: 1.337 → 1.248 G instructions, the
+//! same result).
+//!
 //! The expected plane may be off by the mounting's error (a few centimetres and a degree or
 //! two at the board): the board's own plane is the densest band about it within
 //! [`EXPECTED_BAND_M`], then refitted and gathered again until it settles.
@@ -44,7 +49,9 @@ impl HoleDetector {
             self.rivals.extend(expected.iter().map(|e| e.translation).filter(close));
             if let Some(start) = self.densest_band(pose, reach) {
                 if let Some(plane) = self.settled_plane(Region::Ball(centre, reach), start) {
+                    self.expected_axis = Some(pose.rotation.column(0).into_owned());
                     self.examine(plane, &mut placed);
+                    self.expected_axis = None;
                 }
             }
             let near = |b: &LidarBoard| (b.pose.translation - centre).norm() <= reach;
