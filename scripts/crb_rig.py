@@ -114,9 +114,15 @@ class RigModel:
         self.room_to_first = cb.pose(sensors[self.cameras[0]]["room_to_sensor"])
         self.mount0 = [cb.pose(sensors[m]["to_reference"]) for m in self.mounted]
         self.boards0 = [cb.pose(b) for b in room["boards"]]
-        # Per camera: (board index, measured corners) of complete, unoccluded boards.
+        # Per camera: (board index, measured corners) of complete, unoccluded boards: every
+        # corner inside the image (the truth projects a board beyond the view too).
+        def whole(b, camera):
+            corners = np.array(b["corners_px"]).reshape(-1, 2)
+            inside = (corners[:, 0] >= 0) & (corners[:, 0] < camera["width"]) \
+                & (corners[:, 1] >= 0) & (corners[:, 1] < camera["height"])
+            return len(corners) > 0 and b["occluded_corners"] == 0 and inside.all()
         self.seen = [[(i, np.array(b["corners_px"])) for i, b in enumerate(sensors[c]["boards"])
-                      if b["corners_px"] and b["occluded_corners"] == 0] for c in self.cameras]
+                      if whole(b, sensors[c]["camera"])] for c in self.cameras]
         # Per LiDAR: placed boards (index, hole centres, face points and their weights), planes.
         self.placed, self.planes = [], []
         for l in self.lidars:

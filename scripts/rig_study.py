@@ -16,7 +16,15 @@ draws them, RMS px; LiDAR → camera composed from the two extrinsics). σ: the 
 rigs; the Cramér–Rao bound of the camera→camera extrinsic is `scripts/crb_rig.py`'s.
 
     cargo build --release && scripts/rig_study.py [--vehicles 10] [--survey-visits 16] \\
-        [--seed 1] [--frames 1] [--work DIR]
+        [--seed 1] [--frames 1] [--room ROOM] [--boards N] [--ring BOARDS,INNER_FOV,TURN] \\
+        [--work DIR]
+
+`--room ROOM`: another room file (default config/room.toml). `--boards N`: the room's board
+count instead of the file's. `--ring 6,60,8`: a room laid out for the rig's cameras
+(`simulate --ring-boards 6 --inner-fov 60 --ring-turn 8`): the room's boards for the 60°
+camera, six more at the edge of the room camera's view turned 8° left, as the rig's 90°
+camera looks; with `--room config/wide-room.toml`, whose camera (the surveying vehicles')
+is that 90° lens.
 
 `--frames N`: a standing vehicle, N frames per camera (averaged) and N sweeps per LiDAR
 (accumulated), the issue's "standing (10 + 10)" with N = 10 (the visits are simulated with N
@@ -55,15 +63,22 @@ def main():
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--supersample", type=int, default=1)
     ap.add_argument("--frames", type=int, default=1)
+    ap.add_argument("--room", default=ROOM)
+    ap.add_argument("--boards", type=int, default=None)
+    ap.add_argument("--ring", default=None)
     ap.add_argument("--work", default=None)
     args = ap.parse_args()
     work = args.work or tempfile.mkdtemp(prefix="rig-study-")
     sim = os.path.join(work, "room")
     if not os.path.exists(os.path.join(sim, "room-truth.json")):
-        run([ROOMCAL, "simulate", "--room", ROOM, "--rig", RIG, "--out", sim,
+        boards = ["--boards", str(args.boards)] if args.boards else []
+        if args.ring:
+            ring, inner, turn = args.ring.split(",")
+            boards += ["--ring-boards", ring, "--inner-fov", inner, "--ring-turn", turn]
+        run([ROOMCAL, "simulate", "--room", args.room, "--rig", RIG, "--out", sim,
              "--visits", str(args.survey_visits), "--rigs", str(args.vehicles),
              "--seed", str(args.seed), "--supersample", str(args.supersample),
-             "--frames", str(args.frames)])
+             "--frames", str(args.frames)] + boards)
     surveyed = os.path.join(work, "surveyed.toml")
     if not os.path.exists(surveyed):
         cmd = [ROOMCAL, "survey", "--room", os.path.join(sim, "room.toml"), "--out", surveyed]

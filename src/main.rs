@@ -299,6 +299,19 @@ struct SimulateArgs {
     /// every LiDAR NAME-2.pcd, … (`calibrate --rig --image NAME=… --image NAME=…`).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=100))]
     frames: u16,
+    /// A room for a rig whose cameras' fields differ: this many boards more in the outer
+    /// columns of the room camera's view (at most 10), the room's own laid out for a lens
+    /// of --inner-fov degrees (the rig's narrow camera).
+    #[arg(long, requires = "inner_fov")]
+    ring_boards: Option<usize>,
+    /// With --ring-boards: the horizontal field of view (degrees) the room's own boards are
+    /// laid out for.
+    #[arg(long, requires = "ring_boards")]
+    inner_fov: Option<f64>,
+    /// With --ring-boards: the ring's view turned this far left (degrees; negative: right),
+    /// as the rig's widest camera looks beside its narrow one.
+    #[arg(long, requires = "ring_boards", default_value_t = 0.0, allow_hyphen_values = true)]
+    ring_turn: f64,
     /// LiDAR range noise sigma (m).
     #[arg(long, default_value_t = sim::DEFAULT_RANGE_NOISE_M)]
     range_noise: f64,
@@ -438,6 +451,11 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
         },
         rig_seed: args.rig_seed,
         standing_frames: usize::from(args.frames),
+        ring: args.ring_boards.zip(args.inner_fov).map(|(boards, inner_hfov_deg)| sim::Ring {
+            boards,
+            inner_hfov_deg,
+            turn_left_deg: args.ring_turn,
+        }),
         image: sim::ImageNoise {
             supersample: args.supersample,
             blur_px: args.blur,

@@ -50,24 +50,67 @@ pub fn lay_out(
         }
         Some(_) => band_cells(count),
     };
-    let mut placed: Vec<(Se3, [f64; 4])> = Vec::new();
-    for (i, &(cell_col, cell_row)) in cells.iter().enumerate() {
+    let placed = place(spec, camera, (cols, rows), &cells, band_row_px, Vec::new(), rng, fits)?;
+    Ok(placed.into_iter().map(|(pose, _)| pose).collect())
+}
+
+/// `count` more boards beside `existing` (board → camera), in the outer columns of
+/// `camera`'s view: a 4 × 3 grid's left and right middle cells first, then its corners,
+/// then the top and bottom rows' inner cells; none overlapping another in that view. With
+/// `existing` laid out for a narrower lens, a room for a rig whose cameras' fields differ:
+/// the narrow camera sees the inner boards whole, the wide one every board.
+pub fn lay_out_ring(
+    spec: &BoardSpec,
+    camera: &Camera,
+    count: usize,
+    existing: &[Se3],
+    rng: &mut Rng,
+    fits: &dyn Fn(&Se3) -> bool,
+) -> Result<Vec<Se3>, SimError> {
+    const RING: [(usize, usize); 10] =
+        [(0, 1), (3, 1), (0, 0), (3, 0), (0, 2), (3, 2), (1, 0), (2, 0), (1, 2), (2, 2)];
+    if count > RING.len() {
+        return Err(SimError::Layout { count, board: existing.len() + RING.len() });
+    }
+    // Inner boards a little beyond the wider view (none, laid out for a narrower lens)
+    // block nothing there.
+    let inner: Vec<(Se3, [f64; 4])> =
+        existing.iter().filter_map(|p| Some((*p, image_box(spec, camera, p)?))).collect();
+    let kept = inner.len();
+    let placed = place(spec, camera, (4, 3), &RING[..count], None, inner, rng, fits)?;
+    Ok(placed[kept..].iter().map(|(pose, _)| *pose).collect())
+}
+
+/// Places one board in each of `cells` of a `grid` over `camera`'s image, after `placed`
+/// (poses and image boxes), clear of every other; `placed` with the new boards after it.
+#[allow(clippy::too_many_arguments)]
+fn place(
+    spec: &BoardSpec,
+    camera: &Camera,
+    grid: (usize, usize),
+    cells: &[(usize, usize)],
+    band_row_px: Option<f64>,
+    mut placed: Vec<(Se3, [f64; 4])>,
+    rng: &mut Rng,
+    fits: &dyn Fn(&Se3) -> bool,
+) -> Result<Vec<(Se3, [f64; 4])>, SimError> {
+    for &(cell_col, cell_row) in cells {
+        let i = placed.len();
         // The band row's boards aim at the band itself, not at their cell's centre.
         let row_at = band_row_px.filter(|_| cell_row == 1);
         let pose = (0..ATTEMPTS)
             .find_map(|attempt| {
                 let shrink = attempt as f64 / ATTEMPTS as f64;
-                let grid = (cols, rows);
                 let candidate =
                     propose(camera, grid, (cell_col, cell_row), row_at, i, shrink, rng)?;
                 let bbox = image_box(spec, camera, &candidate)?;
                 let clear = placed.iter().all(|(_, other)| !boxes_overlap(&bbox, other));
                 (clear && fits(&candidate)).then_some((candidate, bbox))
             })
-            .ok_or(SimError::Layout { count, board: i })?;
+            .ok_or(SimError::Layout { count: cells.len(), board: i })?;
         placed.push(pose);
     }
-    Ok(placed.into_iter().map(|(pose, _)| pose).collect())
+    Ok(placed)
 }
 
 /// Columns and rows of the layout grid for `count` boards on an image of this aspect.

@@ -66,6 +66,20 @@ pub struct SimOptions {
     /// minus one more of the same room, each with its own sensor noise (and each sweep its
     /// own azimuth phase), as the daemon captures them to average and accumulate.
     pub standing_frames: usize,
+    /// A room for a rig whose cameras' fields differ: the boards laid out for a narrower
+    /// lens, and a ring of more in the outer columns of the room camera's view.
+    pub ring: Option<Ring>,
+}
+
+/// Boards besides the room's in the outer columns of the room camera's view turned left by
+/// `turn_left_deg` ([`layout::lay_out_ring`]); the room's own are then laid out for a lens
+/// of `inner_hfov_deg`: a room for a rig whose narrow camera looks ahead and whose widest
+/// (the room camera's lens) looks that far left of it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ring {
+    pub boards: usize,
+    pub inner_hfov_deg: f64,
+    pub turn_left_deg: f64,
 }
 
 impl Default for SimOptions {
@@ -82,6 +96,7 @@ impl Default for SimOptions {
             layout: Layout::Grid,
             rig_seed: None,
             standing_frames: 1,
+            ring: None,
         }
     }
 }
@@ -109,6 +124,8 @@ pub enum SimError {
     BandWithoutLidar,
     #[error("--visits {0}: a surveyed room is simulated with 1 to {max} visits", max = visits::MAX_VISITS)]
     Visits(usize),
+    #[error("a ring of boards is laid out for a room's vehicles or a rig: give --visits or --rig")]
+    RingWithoutVehicles,
 }
 
 /// The ground truth of one scene (`truth.json`).
@@ -188,6 +205,9 @@ pub(crate) fn with_options_models(room: &Room, options: &SimOptions) -> Room {
 
 /// Simulates one scene of `room`.
 pub fn simulate(room: &Room, options: &SimOptions) -> Result<Scene, SimError> {
+    if options.ring.is_some() {
+        return Err(SimError::RingWithoutVehicles);
+    }
     let mut room = with_options_models(room, options);
     let mut rng = Rng::new(options.seed);
     let camera = true_camera(&room, options)?;

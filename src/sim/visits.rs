@@ -137,6 +137,7 @@ pub fn simulate_visits(
     room.board.count = count_boards as u32;
     let boards_in_room =
         lay_out_room(&room, options, &nominal_camera, &camera_in_vehicle, &mut rng)?;
+    room.board.count = boards_in_room.len() as u32;
     let layout = RoomLayout { boards_in_room, world_seed: rng.next_u64() };
     let truth = layout.truth(
         &room,
@@ -203,6 +204,20 @@ pub(super) fn lay_out_room(
     let mut narrow = *nominal_camera;
     narrow.fx *= LAYOUT_ZOOM;
     narrow.fy *= LAYOUT_ZOOM;
+    // With a ring, the room's own boards are laid out for the narrower lens.
+    let inner = match options.ring {
+        None => narrow,
+        Some(ring) => {
+            if !(10.0..=170.0).contains(&ring.inner_hfov_deg) {
+                return Err(SimError::FieldOfView(ring.inner_hfov_deg));
+            }
+            let half = (ring.inner_hfov_deg / 2.0).to_radians();
+            let fx = narrow.width as f64 / 2.0 / half.tan() * LAYOUT_ZOOM;
+            let mut inner = narrow;
+            (inner.fx, inner.fy) = (fx, fx * narrow.fy / narrow.fx);
+            inner
+        }
+    };
     let lidar_to_camera = camera_in_vehicle.inverse();
     let band_row = match (options.layout, &room.lidar) {
         (Layout::Grid, _) => None,
@@ -210,12 +225,34 @@ pub(super) fn lay_out_room(
         (Layout::Band, Some(lidar)) => {
             let elevations =
                 raycast::beam_elevations(lidar.model).ok_or(SimError::NoBeamTable(lidar.model))?;
-            Some(band_row_px(&narrow, &lidar_to_camera, elevations))
+            Some(band_row_px(&inner, &lidar_to_camera, elevations))
         }
     };
     let fits = |board_to_camera: &Se3| fits_in_room(room, camera_in_vehicle, board_to_camera);
     let count = room.board.count as usize;
-    let poses = layout::lay_out(&room.board, &narrow, count, band_row, &mut rng.fork(2), &fits)?;
+    let mut poses = layout::lay_out(&room.board, &inner, count, band_row, &mut rng.fork(2), &fits)?;
+    if let Some(ring) = options.ring {
+        let spec = &room.board;
+        // To the edge of the room camera's view, turned as the rig's widest camera is (a
+        // vehicle parked off loses a column of them; every one stays in most visits: a
+        // lens narrowed by a tenth failed to fit a lower corner's board into the room).
+        let turn = Se3::from_rvec_t(
+            &Vec3::new(0.0, -ring.turn_left_deg.to_radians(), 0.0),
+            &Vec3::zeros(),
+        );
+        let in_turned: Vec<Se3> = poses.iter().map(|p| turn.inverse().compose(p)).collect();
+        let fits_turned = |p: &Se3| fits(&turn.compose(p));
+        let wide = nominal_camera;
+        let more = layout::lay_out_ring(
+            spec,
+            wide,
+            ring.boards,
+            &in_turned,
+            &mut rng.fork(3),
+            &fits_turned,
+        )?;
+        poses.extend(more.iter().map(|p| turn.compose(p)));
+    }
     Ok(poses.iter().map(|p| camera_in_vehicle.compose(p)).collect())
 }
 
