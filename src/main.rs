@@ -302,8 +302,8 @@ struct SimulateArgs {
     /// A room for a rig whose cameras' fields differ: this many boards more in the outer
     /// columns of the room camera's view (at most 10), the room's own laid out for a lens
     /// of --inner-fov degrees (the rig's narrow camera).
-    #[arg(long, requires = "inner_fov")]
-    ring_boards: Option<usize>,
+    #[arg(long, requires = "inner_fov", value_parser = clap::value_parser!(u8).range(1..=10))]
+    ring_boards: Option<u8>,
     /// With --ring-boards: the horizontal field of view (degrees) the room's own boards are
     /// laid out for.
     #[arg(long, requires = "ring_boards")]
@@ -452,7 +452,7 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
         rig_seed: args.rig_seed,
         standing_frames: usize::from(args.frames),
         ring: args.ring_boards.zip(args.inner_fov).map(|(boards, inner_hfov_deg)| sim::Ring {
-            boards,
+            boards: usize::from(boards),
             inner_hfov_deg,
             turn_left_deg: args.ring_turn,
         }),

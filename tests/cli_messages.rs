@@ -187,3 +187,25 @@ fn report_picture_carries_the_frame_and_a_footer_with_status_legend_and_range_ba
     let near_red = footer.iter().filter(|p| p[0] == 255 && p[1] < 60 && p[2] == 0).count();
     assert!(near_red > 50, "no range bar");
 }
+
+/// A ring of boards needs the lens the room's own are laid out for, at most ten boards, and
+/// vehicles to lay it out around: each refusal is exit 2 naming what is wrong.
+#[test]
+fn simulate_refuses_a_ring_it_cannot_lay_out() {
+    let dir = temp_dir("ring");
+    let out = dir.to_str().unwrap();
+    let room = root().join("config/wide-room.toml");
+    let room = room.to_str().unwrap();
+    let cases: [(&[&str], &str); 3] = [
+        (&["--ring-boards", "4"], "--inner-fov"),
+        (&["--ring-boards", "11", "--inner-fov", "60"], "11 is not in 1..=10"),
+        (&["--ring-boards", "4", "--inner-fov", "60"], "give --visits or --rig"),
+    ];
+    for (extra, says) in cases {
+        let mut args = vec!["simulate", "--room", room, "--out", out];
+        args.extend_from_slice(extra);
+        let (code, stdout, stderr) = roomcal(&args);
+        assert_eq!(code, 2, "{extra:?}: {stdout}{stderr}");
+        assert!(stderr.contains(says), "{extra:?}: {stderr}");
+    }
+}
