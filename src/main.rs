@@ -796,7 +796,8 @@ fn calibrate_rig(
         current_rig,
         without_planes: args.without_planes,
         free_boards: args.free_boards,
-        corner_start: None,
+        // The first camera's start, made to find the LiDARs' boards, is not made again.
+        corner_start: detections.first_start.clone(),
     };
     let outputs = cli::rig::RigOutputs {
         out: &args.out,

@@ -268,7 +268,7 @@ pub(super) fn camera_start<'f>(
 /// tried in order until two of them reach the same lowest minimum. (One start fitting the
 /// corners nearly as well as their noise allows is not enough: on a 90° lens the closed
 /// form's own minimum lay 1.4 % off in focal length and 14 px in cx.)
-pub(super) fn intrinsics_start(
+fn intrinsics_start(
     room: &Room,
     object: &[Vec3],
     boards: &[(u32, &CameraBoard)],

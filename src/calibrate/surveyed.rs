@@ -10,10 +10,10 @@
 //! named, left out, and the room solved again; two such boards reject the run.
 
 use super::association::{associate, lidar_nominal, paired_extrinsic};
-use super::free::{accepted, camera_start, hole_outlier, intrinsics_start, CameraStart};
+use super::free::{accepted, camera_start, hole_outlier, CameraStart};
 use super::identify::{identify, oriented, Identity};
 use super::{
-    median, solver_reason, Calibration, CameraBoard, FindLidarBoards, FrameDetections, LidarBoard,
+    solver_reason, Calibration, CameraBoard, FindLidarBoards, FrameDetections, LidarBoard,
     UsedBoard, MAX_OBSERVATIONS,
 };
 use crate::detect::holes::EXPECTED_REACH_M;
@@ -320,21 +320,16 @@ pub(super) fn identify_from(
     given: Option<&super::CornerStart>,
 ) -> Result<FrameIdentities, String> {
     let spec = &room.board;
-    let object: Vec<Vec3> = (0..spec.corner_count()).map(|i| spec.corner(i)).collect();
-    let holes_board: Vec<Vec3> = (0..spec.holes.len()).map(|h| spec.hole(h)).collect();
     let complete: Vec<usize> = (0..frame.camera.len())
-        .filter(|&i| frame.camera[i].corners.len() == object.len())
+        .filter(|&i| frame.camera[i].corners.len() == spec.corner_count())
         .take(MAX_OBSERVATIONS)
         .collect();
-    let seen: Vec<(u32, &CameraBoard)> = complete.iter().map(|&i| (0, &frame.camera[i])).collect();
-    if seen.is_empty() {
+    if complete.is_empty() {
         return Err("no complete checkerboard was detected in the image".into());
     }
-    let corner_sigma = median(seen.iter().map(|(_, b)| b.sigma_px)).max(0.02);
-    let poses = match given.filter(|g| g.poses.len() == seen.len()) {
-        Some(g) => g.poses.clone(),
-        None => intrinsics_start(room, &object, &seen, corner_sigma)?.1,
-    };
+    // The start's boards are these complete ones, in this order.
+    let start = camera_start(room, core::slice::from_ref(frame), given)?;
+    let (holes_board, poses) = (start.holes_board, start.poses);
     let surveyed: Vec<Se3> = survey.boards.iter().map(|b| b.pose()).collect();
     let (ids, room_to_camera) =
         identify(spec, &surveyed, &poses).map_err(|e| format!("frame 0: {e}"))?;

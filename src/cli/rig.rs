@@ -103,7 +103,8 @@ pub struct RigDetections {
     pub cameras: Vec<Vec<CameraBoard>>,
     pub lidars: Vec<(Vec<LidarBoard>, Vec<Point>)>,
     /// The first camera's start from its corners when it was made to find the LiDARs'
-    /// boards ([`expected_in_rig_lidars`]): the calibration's, not made again.
+    /// boards ([`expected_in_rig_lidars`]): give it to the calibration as
+    /// `CalibrateOptions::corner_start`, which then does not make it again.
     pub first_start: Option<CornerStart>,
 }
 
@@ -271,10 +272,6 @@ pub fn calibrate(
 ) -> Result<(), Failure> {
     let lidars: Vec<LidarInput<'_>> =
         detections.lidars.iter().map(|(boards, cloud)| LidarInput { boards, cloud }).collect();
-    let options = &CalibrateOptions {
-        corner_start: detections.first_start.clone().or_else(|| options.corner_start.clone()),
-        ..options.clone()
-    };
     let run = calibrate_rig(room, rig, &detections.cameras, &lidars, options);
     let json = serde_json::to_string_pretty(&run.result).expect("results serialise") + "\n";
     let out = outputs.out;

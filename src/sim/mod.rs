@@ -380,15 +380,21 @@ fn true_camera(room: &Room, options: &SimOptions) -> Result<Camera, SimError> {
             distortion: d,
         });
     }
-    let hfov = options.hfov_deg.unwrap_or(DEFAULT_HFOV_DEG);
-    if !(10.0..=170.0).contains(&hfov) {
-        return Err(SimError::FieldOfView(hfov));
-    }
+    let hfov = field_of_view(options.hfov_deg.unwrap_or(DEFAULT_HFOV_DEG))?;
     let mut camera = Camera::from_fov(spec.model, spec.width, spec.height, hfov, d);
     camera.fy *= 1.0008;
     camera.cx += 6.5;
     camera.cy -= 4.25;
     Ok(camera)
+}
+
+/// `hfov_deg` when the simulator lays boards out for it (10–170°), else
+/// [`SimError::FieldOfView`].
+pub(crate) fn field_of_view(hfov_deg: f64) -> Result<f64, SimError> {
+    match (10.0..=170.0).contains(&hfov_deg) {
+        true => Ok(hfov_deg),
+        false => Err(SimError::FieldOfView(hfov_deg)),
+    }
 }
 
 /// The true LiDAR → camera motion: the room's nominal mounting, off by a little, as a

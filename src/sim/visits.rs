@@ -208,11 +208,9 @@ pub(super) fn lay_out_room(
     let inner = match options.ring {
         None => narrow,
         Some(ring) => {
-            if !(10.0..=170.0).contains(&ring.inner_hfov_deg) {
-                return Err(SimError::FieldOfView(ring.inner_hfov_deg));
-            }
-            let half = (ring.inner_hfov_deg / 2.0).to_radians();
-            let fx = narrow.width as f64 / 2.0 / half.tan() * LAYOUT_ZOOM;
+            let hfov = super::field_of_view(ring.inner_hfov_deg)?;
+            let (w, h) = (narrow.width, narrow.height);
+            let fx = Camera::from_fov(narrow.model, w, h, hfov, [0.0; 5]).fx * LAYOUT_ZOOM;
             let mut inner = narrow;
             (inner.fx, inner.fy) = (fx, fx * narrow.fy / narrow.fx);
             inner
@@ -242,10 +240,9 @@ pub(super) fn lay_out_room(
         );
         let in_turned: Vec<Se3> = poses.iter().map(|p| turn.inverse().compose(p)).collect();
         let fits_turned = |p: &Se3| fits(&turn.compose(p));
-        let wide = nominal_camera;
         let more = layout::lay_out_ring(
             spec,
-            wide,
+            nominal_camera,
             ring.boards,
             &in_turned,
             &mut rng.fork(3),
