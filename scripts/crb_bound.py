@@ -36,6 +36,17 @@ matched to the truth by position, planes by normal) for rows the solver's σ can
     roomcal simulate --room config/room.toml --visits 2 --seed 1 --out /tmp/v
     scripts/crb_bound.py --room config/room.toml --surveyed /tmp/v/visit-02 [--survey S.toml]
 
+`--survey-visits N` bounds the room as a survey of the same room's visits 1..N would know it,
+jointly: each survey visit's information about every board and plane, its own 21
+parameters (intrinsics, LiDAR→camera, room→camera) marginalised, summed over the visits
+(`survey_information`; board 0 fixes the gauge, which changes no figure here), then added to
+the new vehicle's. Per-board σ as independent priors (`--survey`) cannot say that the
+survey's errors are correlated (its planes turn together against its boards); this can. It
+also prints the survey's own bound in the boards' mean frame, for `roomcal survey`'s σ.
+
+    roomcal simulate --room config/room.toml --visits 17 --seed 1 --out /tmp/v
+    scripts/crb_bound.py --room config/room.toml --surveyed /tmp/v/visit-17 --survey-visits 16
+
 Figures: σ fx as % of fx, σ cx and cy in px, rotation and translation as the worst axis
 (what roomcal reports) and, in brackets, the RMS length of the error vector (what an
 error against the truth is compared with); overlay: the RMS over the image of where the
@@ -71,6 +82,9 @@ def main():
     ap.add_argument("--plane-sigma", type=float, nargs=2, default=[2.0, 0.01], metavar=("MM", "DEG"),
                     help="the realistic survey's plane σ")
     ap.add_argument("--survey", help="a surveyed room file: rows with its σ for every board and plane")
+    ap.add_argument("--survey-visits", type=int, metavar="N",
+                    help="with --surveyed: rows bounded by a survey of the room's visits 1..N "
+                         "(the survey's own joint information, not per-board σ)")
     args = ap.parse_args()
     with open(args.room, "rb") as f:
         board = Board(tomllib.load(f)["board"])
@@ -157,7 +171,8 @@ def report_surveyed(scene, board, args):
     cloud = read_pcd_xyz(os.path.join(scene, "cloud.pcd"))
     print(f"{scene}: corners σ {noise.corner_px:.3f} px, boards {len(placed)}, LiDAR holes on "
           f"{sum(placed)}, holes σ {noise.hole_m * 1000:.1f} mm, range σ {noise.range_m * 100:.1f} cm")
-    print(f"  {'':52s} {'fx %':>6s} {'cx px':>6s} {'cy px':>6s} {'rot °':>6s} {'t mm':>5s}  overlay 3/10/30 m px")
+    print(f"  {'':52s} {'fx %':>6s} {'cx px':>6s} {'cy px':>6s} {'rot ° [RMS]':>14s} {'t mm [RMS]':>12s}  "
+          "overlay 3/10/30 m px")
     survey = load_survey(args.survey, room) if args.survey else None
     realistic = {"boards": [tuple(args.board_sigma)] * len(room["boards"]),
                  "planes": [tuple(args.plane_sigma)] * len(room["planes"])}
@@ -181,6 +196,15 @@ def report_surveyed(scene, board, args):
         s = bound(truth, board, noise, placed) if options is None else \
             room_bound(truth, room, board, noise, placed, cloud, **options)
         print_row(name, s)
+    if args.survey_visits:
+        room_dir = os.path.dirname(os.path.abspath(scene))
+        info = survey_information(room_dir, args.survey_visits, room, board, noise)
+        print(f"  a survey of visits 1–{args.survey_visits}, its own bound in the boards' mean frame: "
+              + survey_summary(info, room))
+        for name, frames, sweeps in (("one frame", 1, 1), ("standing (5 frames + 3 sweeps)", 5, 3),
+                                     ("standing (10 frames + 10 sweeps)", 10, 10)):
+            s = surveyed_by_visits_bound(truth, room, board, noise, placed, cloud, info, frames, sweeps)
+            print_row(f"surveyed from {args.survey_visits} visits (joint), {name}", s)
     if result:
         u, cam = result["uncertainty"], result["camera"]
         print(f"  {'roomcal reported σ':52s} {100 * u['fx'] / cam['fx']:6.3f} {u['cx']:6.2f} {u['cy']:6.2f} "
@@ -188,8 +212,8 @@ def report_surveyed(scene, board, args):
 
 
 def print_row(name, s):
-    print(f"  {name:52s} {s['fx']:6.3f} {s['cx']:6.2f} {s['cy']:6.2f} {s['rot']:6.3f} {s['t']:5.1f}  "
-          + " / ".join(f"{s[f'overlay_{d}']:.2f}" for d in OVERLAY_DEPTHS_M))
+    print(f"  {name:52s} {s['fx']:6.3f} {s['cx']:6.2f} {s['cy']:6.2f} {s['rot']:6.3f} [{s['rot_rms']:.3f}] "
+          f"{s['t']:5.1f} [{s['t_rms']:4.1f}]  " + " / ".join(f"{s[f'overlay_{d}']:.2f}" for d in OVERLAY_DEPTHS_M))
 
 
 def room_bound(truth, room, board, noise, placed, cloud, faces=True, planes=True, priors=None,
@@ -204,6 +228,114 @@ def room_bound(truth, room, board, noise, placed, cloud, faces=True, planes=True
     model = RoomModel(truth, room, board, noise, placed, cloud, faces, planes or priors is not None, priors)
     keep = list(range(model.size))
     return summary(truth, fisher_covariance(model, keep), INTRINSICS)
+
+
+# A "free" prior (mm, deg): boards and planes as unknowns the visit alone measures. Weak
+# enough to add nothing a measurement does, strong enough to keep JᵀJ invertible.
+FREE_PRIOR = (1.0e5, 10.0)
+
+
+def room_information(truth, room, board, noise, placed, cloud, frames=1, sweeps=1):
+    """One visit's Fisher information over [its 21 parameters, every room board (6 each),
+    every room plane (3 each, by the room's plane index)]: the boards and planes are
+    unknowns only the visit's measurements hold (a plane the sweep misses has none)."""
+    noise = noise.changed({"scale_corner": 1 / math.sqrt(frames)})
+    noise.hole_m /= math.sqrt(sweeps)
+    noise.range_m /= math.sqrt(sweeps)
+    free = {"boards": [FREE_PRIOR] * len(room["boards"]), "planes": [FREE_PRIOR] * len(room["planes"])}
+    model = RoomModel(truth, room, board, noise, placed, cloud, True, True, free)
+    jac = numeric_jacobian(model.residuals, np.zeros(model.size))
+    local = jac.T @ jac
+    # Scatter the model's plane slots (only the planes its sweep holds) to the room's.
+    nb, npl = len(room["boards"]), len(room["planes"])
+    index = list(range(INTRINSICS + 12 + 6 * nb))
+    for i, *_ in model.planes:
+        index += [INTRINSICS + 12 + 6 * nb + 3 * i + k for k in range(3)]
+    size = INTRINSICS + 12 + 6 * nb + 3 * npl
+    info = np.zeros((size, size))
+    info[np.ix_(index, index)] = local
+    return info
+
+
+def survey_information(room_dir, visits, room, board, noise):
+    """The information a survey of visits 1..`visits` of a simulated room holds about its
+    boards and planes: each visit's [`room_information`] with the visit's own 21 parameters
+    marginalised (Schur complement), summed. Board 0 is the gauge (its rows are kept; the
+    caller drops them): a rigid motion of the whole room changes no measurement."""
+    total = None
+    own = INTRINSICS + 12
+    for v in range(1, visits + 1):
+        scene = os.path.join(room_dir, f"visit-{v:02}")
+        with open(os.path.join(scene, "truth.json")) as f:
+            truth = json.load(f)
+        cloud = read_pcd_xyz(os.path.join(scene, "cloud.pcd"))
+        info = room_information(truth, room, board, noise, lidar_placed(truth, None), cloud)
+        a, b, c = info[:own, :own], info[:own, own:], info[own:, own:]
+        reduced = c - b.T @ np.linalg.solve(a, b)
+        total = reduced if total is None else total + reduced
+    return total
+
+
+def surveyed_by_visits_bound(truth, room, board, noise, placed, cloud, survey_info, frames, sweeps):
+    """σ of a new vehicle's calibration in a room whose boards and planes are known only as
+    the survey's information `survey_info` says, jointly (their errors correlated as the
+    survey's are), rather than board by board."""
+    info = room_information(truth, room, board, noise, placed, cloud, frames, sweeps)
+    own = INTRINSICS + 12
+    info[own:, own:] += survey_info
+    keep = [k for k in range(len(info)) if not own <= k < own + 6]  # board 0: the gauge
+    cov = np.zeros_like(info)
+    cov[np.ix_(keep, keep)] = np.linalg.inv(info[np.ix_(keep, keep)])
+    return summary(truth, cov, INTRINSICS)
+
+
+def survey_summary(survey_info, room):
+    """RMS over the boards of the survey bound's position (worst axis, mm) and rotation
+    (worst axis, deg) σ, each board's pose taken relative to the boards' mean frame (as
+    `roomcal survey` reports them), and the planes' normal σ (worst axis, deg)."""
+    nb = len(room["boards"])
+    keep = list(range(6, len(survey_info)))
+    cov = np.zeros_like(survey_info)
+    cov[np.ix_(keep, keep)] = np.linalg.inv(survey_info[np.ix_(keep, keep)])
+    boards = [pose(b) for b in room["boards"]]
+
+    def relative(x):
+        moved = [perturb(b, x[6 * i:6 * i + 6]) for i, b in enumerate(boards)]
+        mean = mean_frame(moved)
+        out = []
+        for (r, t), (r0, t0) in zip(moved, relative.truth):
+            rr, tr = mean[0].T @ r, mean[0].T @ (t - mean[1])
+            out += list(rotation_vector(rr @ r0.T)) + list(tr - t0)
+        return np.array(out)
+
+    relative.truth = [(mean_frame(boards)[0].T @ r, mean_frame(boards)[0].T @ (t - mean_frame(boards)[1]))
+                      for r, t in boards]
+    jac = numeric_jacobian(relative, np.zeros(6 * nb))
+    rel = jac @ cov[:6 * nb, :6 * nb] @ jac.T
+    d = np.diag(rel)
+    rot = [math.degrees(math.sqrt(d[6 * i:6 * i + 3].max())) for i in range(nb)]
+    pos = [1000 * math.sqrt(d[6 * i + 3:6 * i + 6].max()) for i in range(nb)]
+    planes = np.diag(cov)[6 * nb:]
+    normals = [math.degrees(math.sqrt(planes[3 * j:3 * j + 2].max())) for j in range(len(planes) // 3)
+               if planes[3 * j] > 0]
+    rms = lambda xs: math.sqrt(sum(x * x for x in xs) / len(xs)) if xs else float("nan")
+    return (f"boards σ {rms(pos):.2f} mm / {rms(rot):.4f}° RMS of the worst axis, "
+            f"plane normals σ {rms(normals):.4f}° ({len(normals)} planes)")
+
+
+def mean_frame(poses):
+    """The boards' mean frame: rotation the projection of the mean rotation matrix onto
+    SO(3) (the Karcher mean to first order), origin the mean of the centres."""
+    u, _, vt = np.linalg.svd(sum(r for r, _ in poses))
+    r = u @ np.diag([1, 1, np.linalg.det(u @ vt)]) @ vt
+    return r, sum(t for _, t in poses) / len(poses)
+
+
+def rotation_vector(r):
+    angle = math.acos(max(-1.0, min(1.0, (np.trace(r) - 1) / 2)))
+    if angle < 1e-12:
+        return np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]]) / 2
+    return angle / (2 * math.sin(angle)) * np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
 
 
 def load_survey(path, room):

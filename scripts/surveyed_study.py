@@ -16,10 +16,12 @@ against √3 × the reported worst-axis σ), its RMS over runs and quantities, a
 errors within 3σ. Beside the solver's σ, the Cramér–Rao bound of the same vehicle
 (`crb_bound.room_bound` with the survey's own σ as priors, the run's corner noise, 3 mm
 holes, the sweep's range noise; `crb_bound.bound` for free boards): their ratio per
-quantity, median over vehicles.
+quantity, median over vehicles. With `--joint-bound`, also over the bound of a room known only
+as a survey of the same visits knows it, jointly (`crb_bound.survey_information`: the survey's
+correlated errors, not per-board σ), and that bound's RMS over the vehicles.
 
     cargo build --release && scripts/surveyed_study.py [--vehicles 10] [--survey-visits 16] \\
-        [--seed 1] [--work DIR]
+        [--seed 1] [--work DIR] [--joint-bound]
 
 Tables in markdown on stdout; every run's figures in DIR/runs.json.
 """
@@ -58,6 +60,9 @@ def main():
                     help="frames per visit to simulate (the standing rows need 5 and 10)")
     ap.add_argument("--work", default=None)
     ap.add_argument("--no-bound", action="store_true", help="skip the Cramér–Rao bound per vehicle")
+    ap.add_argument("--joint-bound", action="store_true",
+                    help="also the bound of a room known only from a survey of the same visits, "
+                         "jointly (crb_bound.survey_information), for the surveyed runs")
     args = ap.parse_args()
     work = args.work or tempfile.mkdtemp(prefix="surveyed-study-")
     sim = os.path.join(work, "room")
@@ -79,6 +84,7 @@ def main():
     with open(os.path.join(sim, "room-truth.json")) as f:
         room_truth = json.load(f)
     priors = crb_bound.load_survey(surveyed, room_truth)
+    survey_info = None
     runs = []
     for v in range(args.survey_visits + 1, visits + 1):
         folder = os.path.join(sim, f"visit-{v:02}")
@@ -94,6 +100,13 @@ def main():
                 if not args.no_bound:
                     r["bound"] = vehicle_bound(truth, room_truth, board, folder, result, priors,
                                                model, n_images, n_clouds)
+                if args.joint_bound and model == "surveyed":
+                    if survey_info is None:
+                        # The survey's visits at this first run's corner noise (the same
+                        # renders), 3 mm holes, the sweeps' range noise.
+                        survey_info = crb_bound.survey_information(
+                            sim, args.survey_visits, room_truth, board, run_noise(result, truth))
+                    r["joint"] = joint_bound(truth, room_truth, board, folder, result, survey_info, n_clouds)
                 runs.append(r)
                 print(f"visit {v} {mode} {model}: " + ", ".join(
                     f"{q} {r[q]:.4g} (σ {r['sigma_' + q]:.3g}" +
@@ -162,11 +175,25 @@ def errors(result, truth):
     return out
 
 
+def run_noise(result, truth):
+    """The noise model of a run: its corner RMS per axis, 3 mm holes, the sweep's ranges."""
+    return crb_bound.Noise(corner_px=result["quality"]["corner_rms_px"] / math.sqrt(2),
+                           hole_m=0.003, range_m=truth["range_noise_m"])
+
+
+def joint_bound(truth, room_truth, board, folder, result, survey_info, n_clouds):
+    """The bound of this run with the room known as the survey's joint information says."""
+    cloud = crb_bound.read_pcd_xyz(os.path.join(folder, "cloud.pcd"))
+    s = crb_bound.surveyed_by_visits_bound(truth, room_truth, board, run_noise(result, truth),
+                                           crb_bound.lidar_placed(truth, result), cloud, survey_info, 1, n_clouds)
+    return {q: s[q] for q in ("fx", "cx", "cy", "rot", "t", "t_rms", "rot_rms")} | \
+        {f"overlay_{d}": s[f"overlay_{d}"] for d in crb_bound.OVERLAY_DEPTHS_M}
+
+
 def vehicle_bound(truth, room_truth, board, folder, result, priors, model, n_images, n_clouds):
     """The Cramér–Rao bound of this vehicle's run (the same measurements and noise model)."""
     placed = crb_bound.lidar_placed(truth, result)
-    noise = crb_bound.Noise(corner_px=result["quality"]["corner_rms_px"] / math.sqrt(2),
-                            hole_m=0.003, range_m=truth["range_noise_m"])
+    noise = run_noise(result, truth)
     # A standing vehicle's frames are averaged into one image, whose corner noise the run's
     # corner RMS already is; its sweeps are accumulated: n times the points and hole rims.
     if model == "free":
@@ -200,6 +227,9 @@ def print_tables(runs, args):
             if all("bound" in r for r in rs):
                 ratio = " ".join(f"{statistics.median(r['sigma_' + q] / r['bound'][q] for r in rs):.2f}"
                                  for q in QUANTITIES)
+            if all("joint" in r for r in rs):
+                ratio += " · joint " + " ".join(
+                    f"{statistics.median(r['sigma_' + q] / r['joint'][q] for r in rs):.2f}" for q in QUANTITIES)
             print(f"| {mode} | {model} | {sum(r['status'] == 'accepted' for r in rs)}/{len(rs)} "
                   f"| {rms('fx'):.3f} ({sig('fx'):.3f}) | {rms('cx'):.2f} ({sig('cx'):.2f}) "
                   f"| {rms('cy'):.2f} ({sig('cy'):.2f}) | {rms('rot'):.3f} ({sig('rot'):.3f}) "
@@ -207,7 +237,16 @@ def print_tables(runs, args):
                   f"| {rms('overlay_3'):.2f} / {rms('overlay_10'):.2f} / {rms('overlay_30'):.2f} "
                   f"| {math.sqrt(statistics.fmean(z * z for z in zs)):.2f} | {within}/{len(zs)} | {ratio} |")
     print("\nfigures: RMS over the vehicles (mean reported σ in brackets); σ/bound: the median over "
-          "vehicles of the reported σ over the Cramér–Rao bound of that run")
+          "vehicles of the reported σ over the Cramér–Rao bound of that run (· joint: over the bound "
+          "with the room known from the survey's visits jointly)")
+    for mode in MODES:
+        rs = [r for r in runs if r["mode"] == mode and "joint" in r]
+        if rs:
+            rms = lambda key: math.sqrt(statistics.fmean(r["joint"][key] ** 2 for r in rs))
+            print(f"\njoint bound, {mode}, RMS over the vehicles: fx {rms('fx'):.3f} %, cx {rms('cx'):.2f} px, "
+                  f"cy {rms('cy'):.2f} px, rot {rms('rot'):.3f}° (RMS length {rms('rot_rms'):.3f}°), "
+                  f"t {rms('t'):.2f} mm (RMS length {rms('t_rms'):.2f} mm), overlay "
+                  + " / ".join(f"{rms(f'overlay_{d}'):.2f}" for d in crb_bound.OVERLAY_DEPTHS_M) + " px")
 
 
 if __name__ == "__main__":

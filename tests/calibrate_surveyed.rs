@@ -12,8 +12,8 @@ use std::path::Path;
 
 use roomcal::calibrate::identify::{identify, Identity};
 use roomcal::calibrate::{
-    calibrate_detecting, calibrate_with_clouds, plane_points, CalibrateOptions, Calibration,
-    CameraBoard, Detectors, FrameDetections, LidarBoard,
+    calibrate_detecting, calibrate_with_clouds, corner_start, plane_points, CalibrateOptions,
+    Calibration, CameraBoard, Detectors, FrameDetections, LidarBoard,
 };
 use roomcal::geometry::se3::so3_exp;
 use roomcal::geometry::{Se3, Vec2, Vec3};
@@ -210,6 +210,30 @@ fn vehicle(seed: u64) -> (Room, RoomTruth, Visit) {
         }
     }
     panic!("seven boards fit on no lens tried");
+}
+
+/// The surveyed solve weighs corners by the noise their own fit shows, not by the σ the
+/// detector claims (about twice the corners' actual error on renders): a start from
+/// corners with 0.025 px of noise reports 0.025 px, whatever σ the detections carry.
+#[test]
+fn a_start_reports_the_noise_its_corners_have_not_the_sigma_they_claim() {
+    let (room, _, visit) = new_vehicle();
+    for (claimed, seed) in [(CORNER_NOISE_PX, 1), (0.1, 2), (0.005, 3)] {
+        let mut frame = detections(&visit, &room, &mut Rng(seed));
+        for board in &mut frame.camera {
+            board.sigma_px = claimed;
+        }
+        let start = corner_start(&room, std::slice::from_ref(&frame)).unwrap();
+        let ratio = start.corner_noise_px / CORNER_NOISE_PX;
+        println!("claimed σ {claimed} px: noise {:.4} px", start.corner_noise_px);
+        // 7 boards × 35 corners leave 439 degrees of freedom: the estimate's own spread is
+        // 3.4 %, so 15 % is 4σ.
+        assert!(
+            (ratio - 1.0).abs() < 0.15,
+            "claimed {claimed}: noise {} px",
+            start.corner_noise_px
+        );
+    }
 }
 
 #[test]

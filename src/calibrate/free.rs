@@ -85,6 +85,7 @@ pub(super) fn solve_all(
         camera,
         poses,
         mut iterations,
+        ..
     } = camera_start(room, frames, options.corner_start.as_ref())?;
 
     let pairs = match &room.lidar {
@@ -206,13 +207,16 @@ const SAME_MINIMUM: f64 = 1e-9;
 
 /// What both models (free boards, surveyed room) start a run from: the board's corner and
 /// hole points, the frames' complete camera boards (frame index, board; at most
-/// [`MAX_OBSERVATIONS`]), their median corner σ (at least 0.02 px), and the intrinsics and
-/// board poses from the corners alone ([`intrinsics_start`]).
+/// [`MAX_OBSERVATIONS`]), their median corner σ (at least 0.02 px), the corners' noise the
+/// start's fit shows, and the intrinsics and board poses from the corners alone
+/// ([`intrinsics_start`]).
 pub(super) struct CameraStart<'f> {
     pub object: Vec<Vec3>,
     pub holes_board: Vec<Vec3>,
     pub boards: Vec<(u32, &'f CameraBoard)>,
     pub corner_sigma: f64,
+    /// [`corner_noise_px`] of the start's fit.
+    pub corner_noise: f64,
     pub camera: Camera,
     pub poses: Vec<Se3>,
     pub iterations: usize,
@@ -227,6 +231,9 @@ pub struct CornerStart {
     pub camera: Camera,
     /// Board → camera of each complete board, in the frames' order.
     pub poses: Vec<Se3>,
+    /// The corners' noise per axis (px) the fit shows ([`corner_noise_px`]; the detector's
+    /// median σ where the fit cannot show it).
+    pub corner_noise_px: f64,
     pub iterations: usize,
 }
 
@@ -234,7 +241,12 @@ pub struct CornerStart {
 /// image holds a complete checkerboard.
 pub fn corner_start(room: &Room, frames: &[FrameDetections]) -> Result<CornerStart, String> {
     let start = camera_start(room, frames, None)?;
-    Ok(CornerStart { camera: start.camera, poses: start.poses, iterations: start.iterations })
+    Ok(CornerStart {
+        camera: start.camera,
+        poses: start.poses,
+        corner_noise_px: start.corner_noise,
+        iterations: start.iterations,
+    })
 }
 
 /// The [`CameraStart`] of `frames`, from `given` when it is these frames' (as many poses
@@ -257,12 +269,46 @@ pub(super) fn camera_start<'f>(
         return Err("no complete checkerboard was detected in any image".into());
     }
     let corner_sigma = median(boards.iter().map(|(_, b)| b.sigma_px)).max(0.02);
-    let (camera, poses, iterations) = match given.filter(|g| g.poses.len() == boards.len()) {
-        Some(g) => (g.camera, g.poses.clone(), g.iterations),
+    let start = match given.filter(|g| g.poses.len() == boards.len()) {
+        Some(g) => g.clone(),
         None => intrinsics_start(room, &object, &boards, corner_sigma)?,
     };
-    Ok(CameraStart { object, holes_board, boards, corner_sigma, camera, poses, iterations })
+    Ok(CameraStart {
+        object,
+        holes_board,
+        boards,
+        corner_sigma,
+        corner_noise: start.corner_noise_px,
+        camera: start.camera,
+        poses: start.poses,
+        iterations: start.iterations,
+    })
 }
+
+/// The corners' noise per axis (px) that a fit leaving `rms_px` (the 2-D RMS over
+/// `corners` corners) with a pose for each of `boards` boards and the 9 intrinsics shows:
+/// the residuals' sum of squares over their degrees of freedom, at least
+/// [`MIN_CORNER_NOISE_PX`]; `None` where the fit has no redundancy to show it.
+///
+/// This, not the detector's σ, is what corners are weighted by where the relative weight of
+/// corners and other information matters (the survey's bundle against the LiDAR, a surveyed
+/// calibration against the survey's priors). The detector's σ are about twice the corners'
+/// actual error (simulated renders, 2026-12-05: it reports 0.031–0.035 px per axis, the
+/// residuals show 0.014–0.016 px, the truth 0.012–0.02 px), which weighed the corners 4–5×
+/// too lightly and made every surveyed σ 1.6–2× its bound.
+pub(super) fn corner_noise_px(rms_px: f64, corners: usize, boards: usize) -> Option<f64> {
+    let residuals = 2 * corners;
+    let parameters = 9 + 6 * boards;
+    if residuals <= parameters || !rms_px.is_finite() {
+        return None;
+    }
+    let sum_of_squares = rms_px * rms_px * corners as f64;
+    Some((sum_of_squares / (residuals - parameters) as f64).sqrt().max(MIN_CORNER_NOISE_PX))
+}
+
+/// The least corner noise (px per axis) a fit is taken to show: below this a fit's
+/// residuals say more about a too-good render than about the corners.
+pub(super) const MIN_CORNER_NOISE_PX: f64 = 0.005;
 
 /// Intrinsics and board poses from the corners alone, from the best of several starts,
 /// tried in order until two of them reach the same lowest minimum. (One start fitting the
@@ -273,7 +319,7 @@ fn intrinsics_start(
     object: &[Vec3],
     boards: &[(u32, &CameraBoard)],
     corner_sigma: f64,
-) -> Result<(Camera, Vec<Se3>, usize), String> {
+) -> Result<CornerStart, String> {
     let mut problem: JointProblem<'_, MAX_OBSERVATIONS> =
         JointProblem::new(corner_sigma, 1.0, Loss::Huber(3.0));
     for (_, board) in boards {
@@ -312,7 +358,16 @@ fn intrinsics_start(
         }
     }
     match best {
-        Some((_, params)) => Ok((params.camera, params.board_poses.to_vec(), iterations)),
+        Some((_, params)) => {
+            let (rms_px, _) = problem.rms_px(&params).map_err(solver_reason)?;
+            Ok(CornerStart {
+                camera: params.camera,
+                poses: params.board_poses.to_vec(),
+                corner_noise_px: corner_noise_px(rms_px, object.len() * boards.len(), boards.len())
+                    .unwrap_or(corner_sigma),
+                iterations,
+            })
+        }
         None => Err(format!(
             "no start for the intrinsics converged ({})",
             last_error.map_or("no seed".into(), solver_reason)

@@ -26,6 +26,7 @@ use crate::lidar::Point;
 use crate::solve::{hole_sigma_px, PlanePoints, SolveError};
 use crate::target::{BoardSpec, Room, SurveySpec, SurveyedBoard, SurveyedPlane, MAX_BOARDS};
 
+use super::free::corner_noise_px;
 use super::{calibrate, CalibrateOptions, FrameDetections};
 use bundle::{BundleBoard, BundleVisit, Sigma, SurveyProblem, SurveyState, VisitState};
 use chain::{chain_boards, half_turn, ChainError};
@@ -44,7 +45,8 @@ pub struct SurveyVisit {
     pub camera: Camera,
     /// LiDAR → camera (`None`: the visit's LiDAR gave no board).
     pub lidar_to_camera: Option<Se3>,
-    /// Corner σ (px): the median of the detector's.
+    /// Corner σ (px): the noise the visit's own corner residuals show
+    /// ([`super::free::corner_noise_px`]), the detector's median σ where they cannot.
     pub corner_sigma_px: f64,
     pub boards: Vec<VisitBoard>,
     /// The room's big planes in the sweep (LiDAR frame).
@@ -147,11 +149,18 @@ pub fn prepare_visit(
     if run.boards.len() < 2 {
         return Err(SurveyError::TooFewBoards { visit: index + 1, boards: run.boards.len() });
     }
-    // The detector's σ, unless the visit's own residuals show more noise (aliasing,
-    // blur): honest σ for the survey need honest measurement σ.
-    let sigmas: Vec<f64> = frame.camera.iter().map(|b| b.sigma_px).collect();
-    let quality = &run.result.quality;
-    let corner_sigma_px = median(&sigmas).max(quality.corner_rms_px / 2f64.sqrt()).max(0.02);
+    // The noise the visit's own corner residuals show, not the detector's σ (about twice
+    // that): honest σ for the survey need honest measurement σ, and the weight of the
+    // corners against the LiDAR's terms sets where the boards end up. With the detector's
+    // σ a 16-visit survey's boards were 0.46 mm / 0.0127° (σ, against a bound of 0.28 mm /
+    // 0.0062°); with the residuals' 0.31 mm / 0.0072°, errors alike (0.19–0.26 mm,
+    // 0.006–0.007°; seed 4, `scripts/crb_bound.py --survey-visits`).
+    let corners: usize = run.boards.iter().map(|b| b.corners.len()).sum();
+    let corner_sigma_px =
+        corner_noise_px(run.result.quality.corner_rms_px, corners, run.boards.len())
+            .unwrap_or_else(|| {
+                median(&frame.camera.iter().map(|b| b.sigma_px).collect::<Vec<_>>())
+            });
     let hole_scale = hole_noise_scale(&run, frame);
     let boards = run
         .boards
