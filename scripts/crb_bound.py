@@ -200,7 +200,7 @@ def report_surveyed(scene, board, args):
         room_dir = os.path.dirname(os.path.abspath(scene))
         info = survey_information(room_dir, args.survey_visits, room, board, noise)
         print(f"  a survey of visits 1–{args.survey_visits}, its own bound in the boards' mean frame: "
-              + survey_summary(info, room))
+              + survey_summary_text(survey_summary(info, room)))
         for name, frames, sweeps in (("one frame", 1, 1), ("standing (5 frames + 3 sweeps)", 5, 3),
                                      ("standing (10 frames + 10 sweeps)", 10, 10)):
             s = surveyed_by_visits_bound(truth, room, board, noise, placed, cloud, info, frames, sweeps)
@@ -262,18 +262,20 @@ def survey_information(room_dir, visits, room, board, noise):
     boards and planes: each visit's [`room_information`] with the visit's own 21 parameters
     marginalised (Schur complement), summed. Board 0 is the gauge (its rows are kept; the
     caller drops them): a rigid motion of the whole room changes no measurement."""
-    total = None
+    return sum(visit_survey_information(os.path.join(room_dir, f"visit-{v:02}"), room, board, noise)
+               for v in range(1, visits + 1))
+
+
+def visit_survey_information(scene, room, board, noise):
+    """One survey visit's share of [`survey_information`]: its information about the room's
+    boards and planes with its own 21 parameters marginalised."""
+    with open(os.path.join(scene, "truth.json")) as f:
+        truth = json.load(f)
+    cloud = read_pcd_xyz(os.path.join(scene, "cloud.pcd"))
+    info = room_information(truth, room, board, noise, lidar_placed(truth, None), cloud)
     own = INTRINSICS + 12
-    for v in range(1, visits + 1):
-        scene = os.path.join(room_dir, f"visit-{v:02}")
-        with open(os.path.join(scene, "truth.json")) as f:
-            truth = json.load(f)
-        cloud = read_pcd_xyz(os.path.join(scene, "cloud.pcd"))
-        info = room_information(truth, room, board, noise, lidar_placed(truth, None), cloud)
-        a, b, c = info[:own, :own], info[:own, own:], info[own:, own:]
-        reduced = c - b.T @ np.linalg.solve(a, b)
-        total = reduced if total is None else total + reduced
-    return total
+    a, b, c = info[:own, :own], info[:own, own:], info[own:, own:]
+    return c - b.T @ np.linalg.solve(a, b)
 
 
 def surveyed_by_visits_bound(truth, room, board, noise, placed, cloud, survey_info, frames, sweeps):
@@ -283,18 +285,20 @@ def surveyed_by_visits_bound(truth, room, board, noise, placed, cloud, survey_in
     info = room_information(truth, room, board, noise, placed, cloud, frames, sweeps)
     own = INTRINSICS + 12
     info[own:, own:] += survey_info
-    keep = [k for k in range(len(info)) if not own <= k < own + 6]  # board 0: the gauge
+    # Board 0 is the gauge; a plane no sweep saw has no information and no part here.
+    keep = [k for k in range(len(info)) if not own <= k < own + 6 and info[k, k] > 0]
     cov = np.zeros_like(info)
     cov[np.ix_(keep, keep)] = np.linalg.inv(info[np.ix_(keep, keep)])
     return summary(truth, cov, INTRINSICS)
 
 
-def survey_summary(survey_info, room):
+def survey_summary(survey_info, room, planes=None):
     """RMS over the boards of the survey bound's position (worst axis, mm) and rotation
     (worst axis, deg) σ, each board's pose taken relative to the boards' mean frame (as
-    `roomcal survey` reports them), and the planes' normal σ (worst axis, deg)."""
+    `roomcal survey` reports them), and the planes' normal σ (worst axis, deg): of the room
+    planes `planes` (indices) when given, else of every plane a sweep holds."""
     nb = len(room["boards"])
-    keep = list(range(6, len(survey_info)))
+    keep = [k for k in range(6, len(survey_info)) if survey_info[k, k] > 0]
     cov = np.zeros_like(survey_info)
     cov[np.ix_(keep, keep)] = np.linalg.inv(survey_info[np.ix_(keep, keep)])
     boards = [pose(b) for b in room["boards"]]
@@ -315,12 +319,16 @@ def survey_summary(survey_info, room):
     d = np.diag(rel)
     rot = [math.degrees(math.sqrt(d[6 * i:6 * i + 3].max())) for i in range(nb)]
     pos = [1000 * math.sqrt(d[6 * i + 3:6 * i + 6].max()) for i in range(nb)]
-    planes = np.diag(cov)[6 * nb:]
-    normals = [math.degrees(math.sqrt(planes[3 * j:3 * j + 2].max())) for j in range(len(planes) // 3)
-               if planes[3 * j] > 0]
+    plane_var = np.diag(cov)[6 * nb:]
+    normals = [math.degrees(math.sqrt(plane_var[3 * j:3 * j + 2].max())) for j in range(len(plane_var) // 3)
+               if plane_var[3 * j] > 0 and (planes is None or j in planes)]
     rms = lambda xs: math.sqrt(sum(x * x for x in xs) / len(xs)) if xs else float("nan")
-    return (f"boards σ {rms(pos):.2f} mm / {rms(rot):.4f}° RMS of the worst axis, "
-            f"plane normals σ {rms(normals):.4f}° ({len(normals)} planes)")
+    return {"pos_mm": rms(pos), "rot_deg": rms(rot), "normal_deg": rms(normals), "planes": len(normals)}
+
+
+def survey_summary_text(s):
+    return (f"boards σ {s['pos_mm']:.2f} mm / {s['rot_deg']:.4f}° RMS of the worst axis, "
+            f"plane normals σ {s['normal_deg']:.4f}° ({s['planes']} planes)")
 
 
 def mean_frame(poses):

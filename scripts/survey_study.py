@@ -12,9 +12,16 @@ command (load, detect, free-board calibration and plane search per visit on ever
 chaining, the bundle), measured here around the process, with its CPU time (user + system)
 beside it: on a shared machine the wall time says more about the other jobs than about us.
 
-    cargo build --release && scripts/survey_study.py [--visits 4 8 16 32] [--seeds 1] [--work DIR]
+    cargo build --release && scripts/survey_study.py [--visits 4 8 16 32] [--seeds 1] [--work DIR] [--bound]
+
+`--bound` adds the survey's own Cramér–Rao bound (`crb_bound.survey_information`: every
+visit's information about the boards and planes, its own parameters marginalised; corners at
+the survey's reported corner RMS per axis, holes 3 mm, the sweeps' range noise) in the same
+mean frame: the RMS over boards of the worst-axis position and rotation σ, and over the planes
+two or more visits' sweeps hold (those the survey keeps) of the normal's.
 """
 import argparse
+import re
 import json
 import math
 import os
@@ -25,6 +32,7 @@ import time
 import resource
 import tomllib
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ROOMCAL = os.environ.get("ROOMCAL_BIN", os.path.join(ROOT, "target", "release", "roomcal"))
 ROOM = os.path.join(ROOT, "config", "room.toml")
@@ -179,7 +187,9 @@ def study(sim_dir, count, work):
     boards = survey["boards"]
     planes = survey.get("planes", [])
     mean = lambda xs: sum(xs) / len(xs) if xs else float("nan")
+    corners = re.search(r"corners ([0-9.]+) px RMS", run.stdout + run.stderr)
     return {
+        "corner_rms_px": float(corners.group(1)) if corners else float("nan"),
         "visits": count,
         "wall_s": wall,
         "cpu_s": cpu,
@@ -201,22 +211,50 @@ def main():
     parser.add_argument("--visits", type=int, nargs="+", default=[4, 8, 16, 32])
     parser.add_argument("--seeds", type=int, nargs="+", default=[1])
     parser.add_argument("--work", default=None)
+    parser.add_argument("--bound", action="store_true", help="add the survey's own Cramér–Rao bound")
     args = parser.parse_args()
     work = args.work or tempfile.mkdtemp(prefix="survey-study-")
-    print("| seed | visits | wall s | CPU s | board pos RMS mm (σ) | board rot RMS ° (σ) | planes | plane offset RMS mm (σ) | plane normal RMS ° (σ) | within 3σ |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    bound_head = " bound σ pos mm / rot ° / normal ° |" if args.bound else ""
+    print("| seed | visits | wall s | CPU s | board pos RMS mm (σ) | board rot RMS ° (σ) | planes | plane offset RMS mm (σ) | plane normal RMS ° (σ) | within 3σ |" + bound_head)
+    print("|---|---|---|---|---|---|---|---|---|---|" + ("---|" if args.bound else ""))
     for seed in args.seeds:
         sim_dir = os.path.join(work, f"room-seed{seed}-{max(args.visits)}")
         if not os.path.exists(os.path.join(sim_dir, "room-truth.json")):
             subprocess.run([ROOMCAL, "simulate", "--room", ROOM, "--out", sim_dir, "--visits",
                             str(max(args.visits)), "--supersample", "1", "--seed", str(seed)],
                            check=True, capture_output=True)
+        infos = []
         for count in args.visits:
             r = study(sim_dir, count, work)
+            bound = ""
+            if args.bound:
+                b = survey_bound(sim_dir, count, r["corner_rms_px"] / math.sqrt(2), infos)
+                bound = f" {b['pos_mm']:.2f} / {b['rot_deg']:.4f} / {b['normal_deg']:.4f} |"
             print(f"| {seed} | {r['visits']} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | {r['pos_mm']:.2f} ({r['pos_sigma_mm']:.2f}) "
                   f"| {r['rot_deg']:.4f} ({r['rot_sigma_deg']:.4f}) | {r['planes']} "
                   f"| {r['plane_mm']:.2f} ({r['plane_sigma_mm']:.2f}) | {r['plane_deg']:.4f} ({r['plane_sigma_deg']:.4f}) "
-                  f"| {r['within_3_sigma']} |", flush=True)
+                  f"| {r['within_3_sigma']} |{bound}", flush=True)
+
+
+def survey_bound(sim_dir, count, corner_px, infos):
+    """The survey bound of visits 1..`count` (`infos`: the visits' information so far, kept
+    between calls; the first call's corner noise stands for every visit)."""
+    import crb_bound  # numpy: only with --bound
+    with open(os.path.join(sim_dir, "room-truth.json")) as f:
+        room = json.load(f)
+    with open(os.path.join(sim_dir, "room.toml"), "rb") as f:
+        board = crb_bound.Board(tomllib.load(f)["board"])
+    while len(infos) < count:
+        scene = os.path.join(sim_dir, f"visit-{len(infos) + 1:02}")
+        with open(os.path.join(scene, "truth.json")) as f:
+            range_m = json.load(f)["range_noise_m"]
+        noise = crb_bound.Noise(corner_px=corner_px, hole_m=0.003, range_m=range_m)
+        infos.append(crb_bound.visit_survey_information(scene, room, board, noise))
+    # The planes two or more of these visits' sweeps hold: those `roomcal survey` keeps.
+    nb = 6 * len(room["boards"])
+    seen = [sum(info[nb + 3 * j, nb + 3 * j] > 0 for info in infos[:count]) for j in range(len(room["planes"]))]
+    planes = [j for j, n in enumerate(seen) if n >= 2]
+    return crb_bound.survey_summary(sum(infos[:count]), room, planes)
 
 
 if __name__ == "__main__":
