@@ -306,6 +306,13 @@ pub(super) fn corner_noise_px(rms_px: f64, corners: usize, boards: usize) -> Opt
     Some((sum_of_squares / (residuals - parameters) as f64).sqrt().max(MIN_CORNER_NOISE_PX))
 }
 
+/// [`corner_noise_px`] of a run's corners (a pose per board counted, as the free-board
+/// model has; the surveyed room's priors hold its boards little against the corners).
+pub(super) fn run_corner_noise_px(run: &Calibration) -> Option<f64> {
+    let corners = run.boards.iter().map(|b| b.corners.len()).sum();
+    corner_noise_px(run.result.quality.corner_rms_px, corners, run.boards.len())
+}
+
 /// The least corner noise (px per axis) a fit is taken to show: below this a fit's
 /// residuals say more about a too-good render than about the corners.
 pub(super) const MIN_CORNER_NOISE_PX: f64 = 0.005;

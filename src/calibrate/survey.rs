@@ -26,7 +26,7 @@ use crate::lidar::Point;
 use crate::solve::{hole_sigma_px, PlanePoints, SolveError};
 use crate::target::{BoardSpec, Room, SurveySpec, SurveyedBoard, SurveyedPlane, MAX_BOARDS};
 
-use super::free::corner_noise_px;
+use super::free::run_corner_noise_px;
 use super::{calibrate, CalibrateOptions, FrameDetections};
 use bundle::{BundleBoard, BundleVisit, Sigma, SurveyProblem, SurveyState, VisitState};
 use chain::{chain_boards, half_turn, ChainError};
@@ -155,12 +155,8 @@ pub fn prepare_visit(
     // σ a 16-visit survey's boards were 0.46 mm / 0.0127° (σ, against a bound of 0.28 mm /
     // 0.0062°); with the residuals' 0.31 mm / 0.0072°, errors alike (0.19–0.26 mm,
     // 0.006–0.007°; seed 4, `scripts/crb_bound.py --survey-visits`).
-    let corners: usize = run.boards.iter().map(|b| b.corners.len()).sum();
-    let corner_sigma_px =
-        corner_noise_px(run.result.quality.corner_rms_px, corners, run.boards.len())
-            .unwrap_or_else(|| {
-                median(&frame.camera.iter().map(|b| b.sigma_px).collect::<Vec<_>>())
-            });
+    let corner_sigma_px = run_corner_noise_px(&run)
+        .unwrap_or_else(|| median(&frame.camera.iter().map(|b| b.sigma_px).collect::<Vec<_>>()));
     let hole_scale = hole_noise_scale(&run, frame);
     let boards = run
         .boards
