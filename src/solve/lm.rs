@@ -118,6 +118,8 @@ pub struct KindWeights {
 impl KindWeights {
     /// Every kind as the problem weights it.
     pub const ALL: Self = KindWeights { corner: 1.0, hole: 1.0, plane: 1.0 };
+    /// Every kind left out (zero for each).
+    pub const NONE: Self = KindWeights { corner: 0.0, hole: 0.0, plane: 0.0 };
     /// One kind alone (the kind of `kind`; its index is ignored).
     pub fn only(kind: ResidualKind) -> Self {
         let mut w = KindWeights { corner: 0.0, hole: 0.0, plane: 0.0 };

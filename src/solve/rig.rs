@@ -39,7 +39,7 @@ use super::init::perturb;
 use super::linalg::max_eigenvalue3;
 use super::problem::{BoardObservation, Loss, Noise, ResidualKind};
 use super::room::{
-    chain, prior_residual, schur_covariance, schur_lm, BlockPrior, SchurProblem, SchurSystem,
+    chain, kinds_covariance, prior_residual, schur_lm, BlockPrior, SchurProblem, SchurSystem,
 };
 use super::{Projector, SolveError, EXT_ROTATION, INTRINSICS};
 use crate::geometry::se3::skew;
@@ -509,7 +509,16 @@ pub fn rig_covariance<
     problem: &RigProblem<'_, C, L, F, B, O, N>,
     params: &RigParams<K, C, L, F, B>,
 ) -> Result<RigCovariance<N>, SolveError> {
-    let matrix = schur_covariance(problem, params)?;
+    let matrix = kinds_covariance(
+        problem,
+        params,
+        |each| {
+            problem.for_each_residual(params, |k, kind, r, js, jb, rows| {
+                each(k, kind, kind.loss(problem.loss), r, js, jb, rows)
+            })
+        },
+        |each| problem.for_each_prior(params, |k, r, j| each(k, r, j)),
+    )?;
     Ok(RigCovariance { layout: RigProblem::<C, L, F, B, O, N>::LAYOUT, matrix })
 }
 
