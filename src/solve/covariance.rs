@@ -175,13 +175,8 @@ impl<const N: usize, const B: usize> InverseBlocks<N, B> {
         is_fixed: impl Fn(usize) -> bool,
         system: SystemBlocks<'_, N>,
     ) -> Result<Self, SolveError> {
-        let mut shared = Cholesky::new(s)?.inverse();
-        for i in (0..N).filter(|&i| is_fixed(i)) {
-            shared.row_mut(i).fill(0.0);
-            shared.column_mut(i).fill(0.0);
-        }
         let mut out = InverseBlocks {
-            shared,
+            shared: shared_inverse(s, is_fixed)?,
             shared_block: [SMatrix::zeros(); B],
             block: [SMatrix::zeros(); B],
             blocks: system.u.len(),
@@ -219,6 +214,19 @@ impl<const N: usize, const B: usize> InverseBlocks<N, B> {
     }
 }
 
+/// `Σ_ss = S⁻¹` of the reduced matrix `s`, its fixed rows and columns zero.
+fn shared_inverse<const N: usize>(
+    s: &SMatrix<f64, N, N>,
+    is_fixed: impl Fn(usize) -> bool,
+) -> Result<SMatrix<f64, N, N>, SolveError> {
+    let mut shared = Cholesky::new(s)?.inverse();
+    for i in (0..N).filter(|&i| is_fixed(i)) {
+        shared.row_mut(i).fill(0.0);
+        shared.column_mut(i).fill(0.0);
+    }
+    Ok(shared)
+}
+
 /// `H⁻¹` of a Schur system read one block at a time: `Σ_ss` kept, each block's `Σ_sb` and
 /// `Σ_bb` made from the system's `W` and `U` when a measurement on it asks (and kept until
 /// one on another block does). [`InverseBlocks`] holds every block's at once, which for a
@@ -237,11 +245,7 @@ impl<'s, const N: usize> StreamedInverse<'s, N> {
         is_fixed: impl Fn(usize) -> bool,
         system: SystemBlocks<'s, N>,
     ) -> Result<Self, SolveError> {
-        let mut shared = Cholesky::new(s)?.inverse();
-        for i in (0..N).filter(|&i| is_fixed(i)) {
-            shared.row_mut(i).fill(0.0);
-            shared.column_mut(i).fill(0.0);
-        }
+        let shared = shared_inverse(s, is_fixed)?;
         for u in system.u {
             Cholesky::new(u)?;
         }
