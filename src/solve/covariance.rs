@@ -215,7 +215,7 @@ impl<const N: usize, const B: usize> InverseBlocks<N, B> {
 }
 
 /// `Σ_ss = S⁻¹` of the reduced matrix `s`, its fixed rows and columns zero.
-fn shared_inverse<const N: usize>(
+pub(crate) fn shared_inverse<const N: usize>(
     s: &SMatrix<f64, N, N>,
     is_fixed: impl Fn(usize) -> bool,
 ) -> Result<SMatrix<f64, N, N>, SolveError> {
@@ -225,6 +225,103 @@ fn shared_inverse<const N: usize>(
         shared.column_mut(i).fill(0.0);
     }
     Ok(shared)
+}
+
+/// The shared columns a measurement's Jacobian `js` touches.
+fn touched<const N: usize>(js: &SMatrix<f64, 2, N>) -> impl Iterator<Item = usize> + '_ {
+    (0..N).filter(|&i| js[(0, i)] != 0.0 || js[(1, i)] != 0.0)
+}
+
+/// `H⁻¹ M H⁻¹` over the shared parameters, `M` gathered one measurement at a time: `V`
+/// whole, `W` and `U` of the block being read only (their part of the product added when
+/// the next measurement is on another block: it is linear in them, so a block read twice
+/// is added twice, rightly).
+pub(crate) struct Sandwich<const N: usize> {
+    v: SMatrix<f64, N, N>,
+    current: Option<(usize, SMatrix<f64, N, 6>, SMatrix<f64, 6, 6>)>,
+    out: SMatrix<f64, N, N>,
+}
+
+impl<const N: usize> Sandwich<N> {
+    pub(crate) fn new() -> Self {
+        Sandwich { v: SMatrix::zeros(), current: None, out: SMatrix::zeros() }
+    }
+
+    /// One measurement on block `k` with weight `weight` (`js`, `jb`: its Jacobians).
+    pub(crate) fn add(
+        &mut self,
+        inverse: &mut StreamedInverse<'_, N>,
+        k: usize,
+        weight: f64,
+        js: &SMatrix<f64, 2, N>,
+        jb: &SMatrix<f64, 2, 6>,
+    ) {
+        self.select(inverse, k);
+        let (v, Some((_, w, u))) = (&mut self.v, self.current.as_mut()) else {
+            return;
+        };
+        u.gemm_tr(weight, jb, jb, 1.0);
+        let mut columns = [0usize; N];
+        let mut n = 0;
+        for a in touched(js) {
+            columns[n] = a;
+            n += 1;
+        }
+        let columns = &columns[..n];
+        for &a in columns {
+            let (a0, a1) = (weight * js[(0, a)], weight * js[(1, a)]);
+            for c in 0..6 {
+                w[(a, c)] += a0 * jb[(0, c)] + a1 * jb[(1, c)];
+            }
+            for &b in columns {
+                v[(a, b)] += a0 * js[(0, b)] + a1 * js[(1, b)];
+            }
+        }
+    }
+
+    /// A whitened prior on block `k` (`j`: its Jacobian).
+    pub(crate) fn add_prior(
+        &mut self,
+        inverse: &mut StreamedInverse<'_, N>,
+        k: usize,
+        j: &SMatrix<f64, 6, 6>,
+    ) {
+        self.select(inverse, k);
+        if let Some((_, _, u)) = self.current.as_mut() {
+            u.gemm_tr(1.0, j, j, 1.0);
+        }
+    }
+
+    /// The product. (In place and in a frame of its own, as [`Self::flush`].)
+    #[inline(never)]
+    pub(crate) fn finish(mut self, inverse: &mut StreamedInverse<'_, N>) -> SMatrix<f64, N, N> {
+        self.flush(inverse);
+        let left = inverse.shared * self.v;
+        self.out.gemm(1.0, &left, &inverse.shared, 1.0);
+        self.out
+    }
+
+    /// Makes block `k` the one added to, the previous block's part added first.
+    fn select(&mut self, inverse: &mut StreamedInverse<'_, N>, k: usize) {
+        if self.current.as_ref().is_none_or(|(at, _, _)| *at != k) {
+            self.flush(inverse);
+            self.current = Some((k, SMatrix::zeros(), SMatrix::zeros()));
+        }
+    }
+
+    /// Adds `Σ_ss W Σ_sbᵀ + (…)ᵀ + Σ_sb U Σ_sbᵀ` of the block being read, in place: it
+    /// runs inside the measurements' stream, where N×N temporaries would be that much more
+    /// stack at its deepest.
+    #[inline(never)]
+    fn flush(&mut self, inverse: &mut StreamedInverse<'_, N>) {
+        if let Some((k, w, u)) = self.current.take() {
+            let (shared_block, _) = inverse.block(k);
+            let cross = inverse.shared * w;
+            self.out.gemm(1.0, &cross, &shared_block.transpose(), 1.0);
+            self.out.gemm(1.0, &shared_block, &cross.transpose(), 1.0);
+            self.out.gemm(1.0, &(shared_block * u), &shared_block.transpose(), 1.0);
+        }
+    }
 }
 
 /// `H⁻¹` of a Schur system read one block at a time: `Σ_ss` kept, each block's `Σ_sb` and
@@ -238,14 +335,12 @@ pub(crate) struct StreamedInverse<'s, const N: usize> {
 }
 
 impl<'s, const N: usize> StreamedInverse<'s, N> {
-    /// From the undamped reduced matrix `s` (fixed rows already unit) and the system; an
-    /// error when a block's `U` is not positive definite.
+    /// From `Σ_ss` ([`shared_inverse`]) and the system; an error when a block's `U` is not
+    /// positive definite.
     pub(crate) fn new(
-        s: &SMatrix<f64, N, N>,
-        is_fixed: impl Fn(usize) -> bool,
+        shared: SMatrix<f64, N, N>,
         system: SystemBlocks<'s, N>,
     ) -> Result<Self, SolveError> {
-        let shared = shared_inverse(s, is_fixed)?;
         for u in system.u {
             Cholesky::new(u)?;
         }
@@ -254,27 +349,24 @@ impl<'s, const N: usize> StreamedInverse<'s, N> {
 
     /// `tr(J H⁻¹ Jᵀ)` of one measurement on block `k` (`js`, `jb`: its Jacobians in the
     /// shared parameters and the block): its share of the parameters the data determine.
-    pub(crate) fn leverage<const R: usize>(
+    /// Only the shared columns `js` touches are read (a rig's measurement: 27 of 84).
+    pub(crate) fn leverage(
         &mut self,
         k: usize,
-        js: &SMatrix<f64, R, N>,
-        jb: &SMatrix<f64, R, 6>,
+        js: &SMatrix<f64, 2, N>,
+        jb: &SMatrix<f64, 2, 6>,
     ) -> f64 {
         let (shared_block, block) = self.block(k);
-        let image = js * self.shared + jb * shared_block.transpose();
+        let mut image = jb * shared_block.transpose();
+        for a in touched(js) {
+            let (j0, j1) = (js[(0, a)], js[(1, a)]);
+            for c in 0..N {
+                let shared = self.shared[(a, c)];
+                image[(0, c)] += j0 * shared;
+                image[(1, c)] += j1 * shared;
+            }
+        }
         image.dot(js) + (js * shared_block + jb * block).dot(jb)
-    }
-
-    /// `J H⁻¹` restricted to the shared parameters, of one measurement on block `k`: how
-    /// its residual moves them (`H⁻¹ M H⁻¹` over them is the sum of `gᵀ W g`).
-    pub(crate) fn image<const R: usize>(
-        &mut self,
-        k: usize,
-        js: &SMatrix<f64, R, N>,
-        jb: &SMatrix<f64, R, 6>,
-    ) -> SMatrix<f64, R, N> {
-        let (shared_block, _) = self.block(k);
-        js * self.shared + jb * shared_block.transpose()
     }
 
     /// Block `k`'s `Σ_sb = −Σ_ss W U⁻¹` and `Σ_bb = U⁻¹ − U⁻¹ Wᵀ Σ_sb`.

@@ -21,7 +21,9 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use super::covariance::{StreamedInverse, SystemBlocks, MIN_KIND_REDUNDANCY};
+use super::covariance::{
+    shared_inverse, Sandwich, StreamedInverse, SystemBlocks, MIN_KIND_REDUNDANCY,
+};
 use super::init::perturb;
 use super::linalg::Cholesky;
 use super::lm::KindWeights;
@@ -662,8 +664,7 @@ where
         return Err(SolveError::TooFewPoints { needed: free + 1, got: ne.residuals });
     }
     let pooled = 2.0 * ne.cost / (ne.residuals - free) as f64;
-    let (s, _) = ne.reduce(0.0, &fixed)?;
-    let mut inverse = StreamedInverse::new(&s, |i| fixed[i], ne.system())?;
+    let mut inverse = StreamedInverse::new(reduced_inverse(&ne, &fixed)?, ne.system())?;
     // Per kind: rows, robust cost ½Σρ and the parameters it determines, tr(H⁻¹Hₖ).
     let (mut rows, mut cost, mut determined) =
         (KindWeights::NONE, KindWeights::NONE, KindWeights::NONE);
@@ -684,17 +685,24 @@ where
             pooled
         };
     }
-    let mut out = SMatrix::<f64, N, N>::zeros();
+    let mut sandwich = Sandwich::new();
     measurements(&mut |k, kind, loss, r, js, jb, _| {
         let (_, weight) = loss.eval(r.norm_squared());
-        let g = inverse.image(k, js, jb);
-        out.gemm_tr(weight * factors.of(kind), &g, &g, 1.0);
+        sandwich.add(&mut inverse, k, weight * factors.of(kind), js, jb);
     })?;
-    priors(&mut |k, _, j| {
-        let g = inverse.image(k, &SMatrix::<f64, 6, N>::zeros(), j);
-        out.gemm_tr(1.0, &g, &g, 1.0);
-    });
-    Ok(out)
+    priors(&mut |k, _, j| sandwich.add_prior(&mut inverse, k, j));
+    Ok(sandwich.finish(&mut inverse))
+}
+
+/// `Σ_ss` of `ne` with the `fixed` parameters' rows and columns zero (a function of its
+/// own: the reduced matrix and its factor are off the stack when it returns).
+#[inline(never)]
+fn reduced_inverse<const N: usize, const B: usize>(
+    ne: &SchurSystem<N, B>,
+    fixed: &[bool; N],
+) -> Result<SMatrix<f64, N, N>, SolveError> {
+    let (s, _) = ne.reduce(0.0, fixed)?;
+    shared_inverse(&s, |i| fixed[i])
 }
 
 /// What [`kinds_covariance`] is handed for each measurement: block, kind, loss, whitened
