@@ -216,15 +216,22 @@ def print_row(name, s):
           f"{s['t']:5.1f} [{s['t_rms']:4.1f}]  " + " / ".join(f"{s[f'overlay_{d}']:.2f}" for d in OVERLAY_DEPTHS_M))
 
 
+def standing(noise, frames, sweeps):
+    """The noise of a standing vehicle: its frames average the corners, its sweeps the
+    LiDAR's holes and ranges."""
+    noise = noise.changed({"scale_corner": 1 / math.sqrt(frames)})
+    noise.hole_m /= math.sqrt(sweeps)
+    noise.range_m /= math.sqrt(sweeps)
+    return noise
+
+
 def room_bound(truth, room, board, noise, placed, cloud, faces=True, planes=True, priors=None,
                frames=1, sweeps=1):
     """σ of the main parameters of the surveyed-room model at the truth. `priors` (per room
     board and plane: (σ mm, σ deg), `None` for one the survey lacks) makes boards and planes
     unknowns held by their survey σ; without it they are exact (`planes` says whether the
     planes' points count at all). A standing vehicle's frames and sweeps divide the noise."""
-    noise = noise.changed({"scale_corner": 1 / math.sqrt(frames)})
-    noise.hole_m /= math.sqrt(sweeps)
-    noise.range_m /= math.sqrt(sweeps)
+    noise = standing(noise, frames, sweeps)
     model = RoomModel(truth, room, board, noise, placed, cloud, faces, planes or priors is not None, priors)
     keep = list(range(model.size))
     return summary(truth, fisher_covariance(model, keep), INTRINSICS)
@@ -239,9 +246,7 @@ def room_information(truth, room, board, noise, placed, cloud, frames=1, sweeps=
     """One visit's Fisher information over [its 21 parameters, every room board (6 each),
     every room plane (3 each, by the room's plane index)]: the boards and planes are
     unknowns only the visit's measurements hold (a plane the sweep misses has none)."""
-    noise = noise.changed({"scale_corner": 1 / math.sqrt(frames)})
-    noise.hole_m /= math.sqrt(sweeps)
-    noise.range_m /= math.sqrt(sweeps)
+    noise = standing(noise, frames, sweeps)
     free = {"boards": [FREE_PRIOR] * len(room["boards"]), "planes": [FREE_PRIOR] * len(room["planes"])}
     model = RoomModel(truth, room, board, noise, placed, cloud, True, True, free)
     jac = numeric_jacobian(model.residuals, np.zeros(model.size))
@@ -303,17 +308,17 @@ def survey_summary(survey_info, room, planes=None):
     cov[np.ix_(keep, keep)] = np.linalg.inv(survey_info[np.ix_(keep, keep)])
     boards = [pose(b) for b in room["boards"]]
 
-    def relative(x):
-        moved = [perturb(b, x[6 * i:6 * i + 6]) for i, b in enumerate(boards)]
-        mean = mean_frame(moved)
-        out = []
-        for (r, t), (r0, t0) in zip(moved, relative.truth):
-            rr, tr = mean[0].T @ r, mean[0].T @ (t - mean[1])
-            out += list(rotation_vector(rr @ r0.T)) + list(tr - t0)
-        return np.array(out)
+    def in_mean_frame(poses):
+        mr, mt = mean_frame(poses)
+        return [(mr.T @ r, mr.T @ (t - mt)) for r, t in poses]
 
-    relative.truth = [(mean_frame(boards)[0].T @ r, mean_frame(boards)[0].T @ (t - mean_frame(boards)[1]))
-                      for r, t in boards]
+    truth = in_mean_frame(boards)
+
+    def relative(x):
+        moved = in_mean_frame([perturb(b, x[6 * i:6 * i + 6]) for i, b in enumerate(boards)])
+        return np.concatenate([np.concatenate([rotation_vector(r @ r0.T), t - t0])
+                               for (r, t), (r0, t0) in zip(moved, truth)])
+
     jac = numeric_jacobian(relative, np.zeros(6 * nb))
     rel = jac @ cov[:6 * nb, :6 * nb] @ jac.T
     d = np.diag(rel)

@@ -90,6 +90,9 @@ def main():
         folder = os.path.join(sim, f"visit-{v:02}")
         with open(os.path.join(folder, "truth.json")) as f:
             truth = json.load(f)
+        # The bounds read the first sweep's points on the room's planes: read it once.
+        bounds = not args.no_bound or args.joint_bound
+        cloud = crb_bound.read_pcd_xyz(os.path.join(folder, "cloud.pcd")) if bounds else None
         for mode, (n_images, n_clouds) in MODES.items():
             if max(n_images, n_clouds) > frames:
                 continue  # not simulated (--frames)
@@ -98,7 +101,7 @@ def main():
                 r = {"visit": v, "mode": mode, "model": model, "status": result["status"],
                      **errors(result, truth)}
                 if not args.no_bound:
-                    r["bound"] = vehicle_bound(truth, room_truth, board, folder, result, priors,
+                    r["bound"] = vehicle_bound(truth, room_truth, board, cloud, result, priors,
                                                model, n_images, n_clouds)
                 if args.joint_bound and model == "surveyed":
                     if survey_info is None:
@@ -106,7 +109,7 @@ def main():
                         # renders), 3 mm holes, the sweeps' range noise.
                         survey_info = crb_bound.survey_information(
                             sim, args.survey_visits, room_truth, board, run_noise(result, truth))
-                    r["joint"] = joint_bound(truth, room_truth, board, folder, result, survey_info, n_clouds)
+                    r["joint"] = joint_bound(truth, room_truth, board, cloud, result, survey_info, n_clouds)
                 runs.append(r)
                 print(f"visit {v} {mode} {model}: " + ", ".join(
                     f"{q} {r[q]:.4g} (σ {r['sigma_' + q]:.3g}" +
@@ -181,27 +184,23 @@ def run_noise(result, truth):
                            hole_m=0.003, range_m=truth["range_noise_m"])
 
 
-def joint_bound(truth, room_truth, board, folder, result, survey_info, n_clouds):
+def joint_bound(truth, room_truth, board, cloud, result, survey_info, n_clouds):
     """The bound of this run with the room known as the survey's joint information says."""
-    cloud = crb_bound.read_pcd_xyz(os.path.join(folder, "cloud.pcd"))
     s = crb_bound.surveyed_by_visits_bound(truth, room_truth, board, run_noise(result, truth),
                                            crb_bound.lidar_placed(truth, result), cloud, survey_info, 1, n_clouds)
     return {q: s[q] for q in ("fx", "cx", "cy", "rot", "t", "t_rms", "rot_rms")} | \
         {f"overlay_{d}": s[f"overlay_{d}"] for d in crb_bound.OVERLAY_DEPTHS_M}
 
 
-def vehicle_bound(truth, room_truth, board, folder, result, priors, model, n_images, n_clouds):
+def vehicle_bound(truth, room_truth, board, cloud, result, priors, model, n_images, n_clouds):
     """The Cramér–Rao bound of this vehicle's run (the same measurements and noise model)."""
     placed = crb_bound.lidar_placed(truth, result)
     noise = run_noise(result, truth)
     # A standing vehicle's frames are averaged into one image, whose corner noise the run's
     # corner RMS already is; its sweeps are accumulated: n times the points and hole rims.
     if model == "free":
-        noise.hole_m /= math.sqrt(n_clouds)
-        noise.range_m /= math.sqrt(n_clouds)
-        s = crb_bound.bound(truth, board, noise, placed)
+        s = crb_bound.bound(truth, board, crb_bound.standing(noise, 1, n_clouds), placed)
     else:
-        cloud = crb_bound.read_pcd_xyz(os.path.join(folder, "cloud.pcd"))
         s = crb_bound.room_bound(truth, room_truth, board, noise, placed, cloud, priors=priors,
                                  frames=1, sweeps=n_clouds)
     return {"fx": s["fx"], "cx": s["cx"], "cy": s["cy"], "rot": s["rot"], "t": s["t"],

@@ -82,10 +82,7 @@ pub(super) fn solve_all(
         holes_board,
         boards: camera_boards,
         corner_sigma,
-        camera,
-        poses,
-        mut iterations,
-        ..
+        start: CornerStart { camera, poses, mut iterations, .. },
     } = camera_start(room, frames, options.corner_start.as_ref())?;
 
     let pairs = match &room.lidar {
@@ -207,19 +204,14 @@ const SAME_MINIMUM: f64 = 1e-9;
 
 /// What both models (free boards, surveyed room) start a run from: the board's corner and
 /// hole points, the frames' complete camera boards (frame index, board; at most
-/// [`MAX_OBSERVATIONS`]), their median corner σ (at least 0.02 px), the corners' noise the
-/// start's fit shows, and the intrinsics and board poses from the corners alone
-/// ([`intrinsics_start`]).
+/// [`MAX_OBSERVATIONS`]), their median corner σ (at least 0.02 px), and the intrinsics,
+/// board poses and corner noise from the corners alone ([`intrinsics_start`]).
 pub(super) struct CameraStart<'f> {
     pub object: Vec<Vec3>,
     pub holes_board: Vec<Vec3>,
     pub boards: Vec<(u32, &'f CameraBoard)>,
     pub corner_sigma: f64,
-    /// [`corner_noise_px`] of the start's fit.
-    pub corner_noise: f64,
-    pub camera: Camera,
-    pub poses: Vec<Se3>,
-    pub iterations: usize,
+    pub start: CornerStart,
 }
 
 /// A camera's intrinsics and board poses from its corners alone ([`intrinsics_start`]),
@@ -240,13 +232,7 @@ pub struct CornerStart {
 /// The [`CornerStart`] of `frames` in `room` (its camera and board); an error when no
 /// image holds a complete checkerboard.
 pub fn corner_start(room: &Room, frames: &[FrameDetections]) -> Result<CornerStart, String> {
-    let start = camera_start(room, frames, None)?;
-    Ok(CornerStart {
-        camera: start.camera,
-        poses: start.poses,
-        corner_noise_px: start.corner_noise,
-        iterations: start.iterations,
-    })
+    Ok(camera_start(room, frames, None)?.start)
 }
 
 /// The [`CameraStart`] of `frames`, from `given` when it is these frames' (as many poses
@@ -273,16 +259,7 @@ pub(super) fn camera_start<'f>(
         Some(g) => g.clone(),
         None => intrinsics_start(room, &object, &boards, corner_sigma)?,
     };
-    Ok(CameraStart {
-        object,
-        holes_board,
-        boards,
-        corner_sigma,
-        corner_noise: start.corner_noise_px,
-        camera: start.camera,
-        poses: start.poses,
-        iterations: start.iterations,
-    })
+    Ok(CameraStart { object, holes_board, boards, corner_sigma, start })
 }
 
 /// The corners' noise per axis (px) that a fit leaving `rms_px` (the 2-D RMS over

@@ -10,7 +10,7 @@
 //! named, left out, and the room solved again; two such boards reject the run.
 
 use super::association::{associate, lidar_nominal, paired_extrinsic};
-use super::free::{accepted, camera_start, hole_outlier, CameraStart};
+use super::free::{accepted, camera_start, hole_outlier, CameraStart, CornerStart};
 use super::identify::{identify, oriented, Identity};
 use super::{
     solver_reason, Calibration, CameraBoard, FindLidarBoards, FrameDetections, LidarBoard,
@@ -58,10 +58,7 @@ pub(super) fn solve_surveyed(
         object,
         holes_board,
         boards: seen,
-        corner_noise,
-        camera,
-        poses,
-        mut iterations,
+        start: CornerStart { camera, poses, corner_noise_px: corner_noise, mut iterations },
         ..
     } = camera_start(room, frames, given)?;
     let surveyed: Vec<Se3> = survey.boards.iter().map(|b| b.pose()).collect();
@@ -333,8 +330,8 @@ pub(super) fn identify_from(
         return Err("no complete checkerboard was detected in the image".into());
     }
     // The start's boards are these complete ones, in this order.
-    let start = camera_start(room, core::slice::from_ref(frame), given)?;
-    let (holes_board, poses) = (start.holes_board, start.poses);
+    let CameraStart { holes_board, start: CornerStart { poses, .. }, .. } =
+        camera_start(room, core::slice::from_ref(frame), given)?;
     let surveyed: Vec<Se3> = survey.boards.iter().map(|b| b.pose()).collect();
     let (ids, room_to_camera) =
         identify(spec, &surveyed, &poses).map_err(|e| format!("frame 0: {e}"))?;

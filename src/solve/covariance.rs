@@ -14,7 +14,7 @@
 
 use nalgebra::SMatrix;
 
-use super::linalg::{max_eigenvalue3, Cholesky};
+use super::linalg::{max_eigenvalue3, Cholesky, Touched};
 use super::lm::{KindWeights, NormalEquations};
 use super::problem::{JointParams, JointProblem, ParamMask, ResidualKind};
 use super::{Projector, SolveError, EXT_ROTATION, EXT_TRANSLATION, INTRINSICS, SHARED};
@@ -130,16 +130,25 @@ pub(crate) fn kind_variances<const N: usize, const B: usize, E: KindSystem<N>>(
     let mut factors = KindWeights::ALL;
     for kind in [ResidualKind::Corner(0), ResidualKind::Hole(0), ResidualKind::Plane(0)] {
         let part = equations(KindWeights::only(kind))?;
-        let redundancy = part.rows() as f64 - inverse.trace_with(part.system());
-        *factors.of_mut(kind) = if part.rows() == 0 {
-            1.0
-        } else if redundancy >= MIN_KIND_REDUNDANCY {
-            2.0 * part.cost() / redundancy
-        } else {
-            pooled
-        };
+        let determined = inverse.trace_with(part.system());
+        *factors.of_mut(kind) =
+            variance_factor(part.rows() as f64, part.cost(), determined, pooled);
     }
     Ok(factors)
+}
+
+/// One residual kind's variance factor `2·costₖ / rₖ` from its `rows`, robust cost `½Σρ`
+/// and the parameters it `determined` (`tr(H⁻¹Hₖ)`; `rₖ = rows − determined`): the `pooled`
+/// factor where `rₖ` is below [`MIN_KIND_REDUNDANCY`], 1 for an absent kind.
+pub(crate) fn variance_factor(rows: f64, cost: f64, determined: f64, pooled: f64) -> f64 {
+    let redundancy = rows - determined;
+    if rows == 0.0 {
+        1.0
+    } else if redundancy >= MIN_KIND_REDUNDANCY {
+        2.0 * cost / redundancy
+    } else {
+        pooled
+    }
 }
 
 /// Normal equations of some residuals, as [`kind_variances`] reads them: scalar residuals,
@@ -227,11 +236,6 @@ pub(crate) fn shared_inverse<const N: usize>(
     Ok(shared)
 }
 
-/// The shared columns a measurement's Jacobian `js` touches.
-fn touched<const N: usize>(js: &SMatrix<f64, 2, N>) -> impl Iterator<Item = usize> + '_ {
-    (0..N).filter(|&i| js[(0, i)] != 0.0 || js[(1, i)] != 0.0)
-}
-
 /// `H⁻¹ M H⁻¹` over the shared parameters, `M` gathered one measurement at a time: `V`
 /// whole, `W` and `U` of the block being read only (their part of the product added when
 /// the next measurement is on another block: it is linear in them, so a block read twice
@@ -261,22 +265,7 @@ impl<const N: usize> Sandwich<N> {
             return;
         };
         u.gemm_tr(weight, jb, jb, 1.0);
-        let mut columns = [0usize; N];
-        let mut n = 0;
-        for a in touched(js) {
-            columns[n] = a;
-            n += 1;
-        }
-        let columns = &columns[..n];
-        for &a in columns {
-            let (a0, a1) = (weight * js[(0, a)], weight * js[(1, a)]);
-            for c in 0..6 {
-                w[(a, c)] += a0 * jb[(0, c)] + a1 * jb[(1, c)];
-            }
-            for &b in columns {
-                v[(a, b)] += a0 * js[(0, b)] + a1 * js[(1, b)];
-            }
-        }
+        Touched::of(js).add_products((v, w), weight, js, jb);
     }
 
     /// A whitened prior on block `k` (`j`: its Jacobian).
@@ -358,7 +347,7 @@ impl<'s, const N: usize> StreamedInverse<'s, N> {
     ) -> f64 {
         let (shared_block, block) = self.block(k);
         let mut image = jb * shared_block.transpose();
-        for a in touched(js) {
+        for &a in Touched::of(js).columns() {
             let (j0, j1) = (js[(0, a)], js[(1, a)]);
             for c in 0..N {
                 let shared = self.shared[(a, c)];

@@ -1,6 +1,7 @@
 //! Small dense linear algebra on fixed-size matrices (no heap): a Cholesky (LLᵀ)
 //! factorisation with an explicit failure on matrices that are not positive definite,
-//! solves and inverses from it, and the nearest rotation to a 3×3 matrix.
+//! solves and inverses from it, the nearest rotation to a 3×3 matrix, and the weighted
+//! products of a measurement's Jacobian over the columns it touches.
 
 use nalgebra::{SMatrix, SVector};
 
@@ -127,4 +128,47 @@ pub fn nearest_rotation(m: &Mat3) -> Option<Mat3> {
 pub fn max_eigenvalue3(m: &Mat3) -> f64 {
     let e = nalgebra::SymmetricEigen::new(*m);
     e.eigenvalues.iter().copied().fold(f64::NEG_INFINITY, f64::max)
+}
+
+/// The columns of a measurement's 2-row Jacobian `js` that are not zero: a rig's measurement
+/// touches a few of its shared parameters (one camera's intrinsics, a mounting or two, its
+/// frame: 27 of the joint solve's 84), and only those need accumulating.
+pub struct Touched<const N: usize> {
+    columns: [usize; N],
+    count: usize,
+}
+
+impl<const N: usize> Touched<N> {
+    pub fn of(js: &SMatrix<f64, 2, N>) -> Self {
+        let mut columns = [0usize; N];
+        let mut count = 0;
+        for i in (0..N).filter(|&i| js[(0, i)] != 0.0 || js[(1, i)] != 0.0) {
+            columns[count] = i;
+            count += 1;
+        }
+        Touched { columns, count }
+    }
+
+    pub fn columns(&self) -> &[usize] {
+        &self.columns[..self.count]
+    }
+
+    /// `v += weight · jsᵀ js` and `w += weight · jsᵀ jb`, over the touched columns only.
+    pub fn add_products(
+        &self,
+        (v, w): (&mut SMatrix<f64, N, N>, &mut SMatrix<f64, N, 6>),
+        weight: f64,
+        js: &SMatrix<f64, 2, N>,
+        jb: &SMatrix<f64, 2, 6>,
+    ) {
+        for &a in self.columns() {
+            let (a0, a1) = (weight * js[(0, a)], weight * js[(1, a)]);
+            for &b in self.columns() {
+                v[(a, b)] += a0 * js[(0, b)] + a1 * js[(1, b)];
+            }
+            for c in 0..6 {
+                w[(a, c)] += a0 * jb[(0, c)] + a1 * jb[(1, c)];
+            }
+        }
+    }
 }

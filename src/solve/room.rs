@@ -21,11 +21,9 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use super::covariance::{
-    shared_inverse, Sandwich, StreamedInverse, SystemBlocks, MIN_KIND_REDUNDANCY,
-};
+use super::covariance::{shared_inverse, variance_factor, Sandwich, StreamedInverse, SystemBlocks};
 use super::init::perturb;
-use super::linalg::Cholesky;
+use super::linalg::{Cholesky, Touched};
 use super::lm::KindWeights;
 use super::problem::{BoardObservation, JointParams, JointProblem, Loss, ResidualKind};
 use super::{Projector, SolveError, EXT_ROTATION, EXT_TRANSLATION, INTRINSICS, SHARED};
@@ -406,30 +404,18 @@ impl<const N: usize, const B: usize> SchurSystem<N, B> {
         self.residuals += rows;
         self.u[k].gemm_tr(weight, jb, jb, 1.0);
         self.g_block[k].gemv_tr(weight, jb, r, 1.0);
-        // A rig's measurement touches a few of its shared parameters (one camera's
-        // intrinsics, a mounting or two, its frame: 27 of the joint solve's 84): only
-        // those columns are accumulated. The dense products were a tenth of a rig's run.
-        let mut touched = [0usize; N];
-        let mut n = 0;
-        for i in (0..N).filter(|&i| js[(0, i)] != 0.0 || js[(1, i)] != 0.0) {
-            touched[n] = i;
-            n += 1;
-        }
-        if 2 * n > N {
+        // Only the columns a measurement touches are accumulated ([`Touched`]): the dense
+        // products were a tenth of a rig's run.
+        let touched = Touched::of(js);
+        if 2 * touched.columns().len() > N {
             self.w[k].gemm_tr(weight, js, jb, 1.0);
             self.v.gemm_tr(weight, js, js, 1.0);
             self.g_shared.gemv_tr(weight, js, r, 1.0);
             return;
         }
-        let touched = &touched[..n];
-        for &a in touched {
+        touched.add_products((&mut self.v, &mut self.w[k]), weight, js, jb);
+        for &a in touched.columns() {
             let (a0, a1) = (weight * js[(0, a)], weight * js[(1, a)]);
-            for &b in touched {
-                self.v[(a, b)] += a0 * js[(0, b)] + a1 * js[(1, b)];
-            }
-            for c in 0..6 {
-                self.w[k][(a, c)] += a0 * jb[(0, c)] + a1 * jb[(1, c)];
-            }
             self.g_shared[a] += a0 * r[0] + a1 * r[1];
         }
     }
@@ -635,9 +621,8 @@ pub fn room_covariance<C: Projector + Clone, const B: usize>(
 }
 
 /// The covariance of a Schur problem's `N` shared parameters at `params` with each
-/// measurement kind scaled by its own variance factor (as `covariance::kind_variances`
-/// defines it)
-/// and the priors as they are: `H⁻¹ (Σₖ fₖ Hₖ + H_p) H⁻¹`, `H` as the solve weighed it.
+/// measurement kind scaled by its own variance factor ([`variance_factor`]) and the priors
+/// as they are: `H⁻¹ (Σₖ fₖ Hₖ + H_p) H⁻¹`, `H` as the solve weighed it.
 /// One pooled factor would let the kind that fits best (corners, weighed by the detector's
 /// σ, fit 0.2× their variance) shrink every other kind's σ, and the kind that fits worst
 /// inflate the corners'.
@@ -676,14 +661,8 @@ where
     })?;
     let mut factors = KindWeights::ALL;
     for kind in [ResidualKind::Corner(0), ResidualKind::Hole(0), ResidualKind::Plane(0)] {
-        let redundancy = rows.of(kind) - determined.of(kind);
-        *factors.of_mut(kind) = if rows.of(kind) == 0.0 {
-            1.0
-        } else if redundancy >= MIN_KIND_REDUNDANCY {
-            2.0 * cost.of(kind) / redundancy
-        } else {
-            pooled
-        };
+        *factors.of_mut(kind) =
+            variance_factor(rows.of(kind), cost.of(kind), determined.of(kind), pooled);
     }
     let mut sandwich = Sandwich::new();
     measurements(&mut |k, kind, loss, r, js, jb, _| {
