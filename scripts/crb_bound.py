@@ -42,7 +42,11 @@ parameters (intrinsics, LiDAR→camera, room→camera) marginalised, summed over
 (`survey_information`; board 0 fixes the gauge, which changes no figure here), then added to
 the new vehicle's. Per-board σ as independent priors (`--survey`) cannot say that the
 survey's errors are correlated (its planes turn together against its boards); this can. It
-also prints the survey's own bound in the boards' mean frame, for `roomcal survey`'s σ.
+also prints the survey's own bound in the boards' mean frame, for `roomcal survey`'s σ. With
+`--survey` too, each joint row is followed by what a calibration holding every board and plane
+by the file's own σ (independent priors, as `roomcal calibrate` does) should show when the
+survey's errors are those of its joint bound (`per_block_prior_errors`, a sandwich covariance,
+not a bound): the price of writing the survey as per-board σ.
 
     roomcal simulate --room config/room.toml --visits 17 --seed 1 --out /tmp/v
     scripts/crb_bound.py --room config/room.toml --surveyed /tmp/v/visit-17 --survey-visits 16
@@ -205,6 +209,10 @@ def report_surveyed(scene, board, args):
                                      ("standing (10 frames + 10 sweeps)", 10, 10)):
             s = surveyed_by_visits_bound(truth, room, board, noise, placed, cloud, info, frames, sweeps)
             print_row(f"surveyed from {args.survey_visits} visits (joint), {name}", s)
+            if survey:
+                # Not a bound: what per-board σ make of the same survey's correlated errors.
+                s = per_block_prior_errors(truth, room, board, noise, placed, cloud, info, survey, frames, sweeps)
+                print_row(f"  expected with the file's per-board σ as priors", s)
     if result:
         u, cam = result["uncertainty"], result["camera"]
         print(f"  {'roomcal reported σ':52s} {100 * u['fx'] / cam['fx']:6.3f} {u['cx']:6.2f} {u['cy']:6.2f} "
@@ -263,12 +271,13 @@ def room_information(truth, room, board, noise, placed, cloud, frames=1, sweeps=
 
 
 def survey_information(room_dir, visits, room, board, noise):
-    """The information a survey of visits 1..`visits` of a simulated room holds about its
-    boards and planes: each visit's [`room_information`] with the visit's own 21 parameters
+    """The information a survey of a simulated room's `visits` (their numbers; an int n
+    means visits 1..n) holds about its boards and planes: each visit's [`room_information`] with the visit's own 21 parameters
     marginalised (Schur complement), summed. Board 0 is the gauge (its rows are kept; the
     caller drops them): a rigid motion of the whole room changes no measurement."""
+    numbers = range(1, visits + 1) if isinstance(visits, int) else visits
     return sum(visit_survey_information(os.path.join(room_dir, f"visit-{v:02}"), room, board, noise)
-               for v in range(1, visits + 1))
+               for v in numbers)
 
 
 def visit_survey_information(scene, room, board, noise):
@@ -294,6 +303,37 @@ def surveyed_by_visits_bound(truth, room, board, noise, placed, cloud, survey_in
     keep = [k for k in range(len(info)) if not own <= k < own + 6 and info[k, k] > 0]
     cov = np.zeros_like(info)
     cov[np.ix_(keep, keep)] = np.linalg.inv(info[np.ix_(keep, keep)])
+    return summary(truth, cov, INTRINSICS)
+
+
+def per_block_prior_errors(truth, room, board, noise, placed, cloud, survey_info, priors, frames, sweeps):
+    """The errors to expect of a new vehicle's calibration that holds each board and plane
+    by its own σ (`priors`, as a `[survey]` table gives them and `roomcal calibrate` uses
+    them: independent, isotropic) when the survey's errors are those of its joint
+    information `survey_info` (correlated: its planes turn together against its boards).
+    Not a bound: the covariance of that estimator, `A⁻¹ (V + P C P) A⁻¹` with `V` the
+    vehicle's information, `P` the priors', `C` the survey's covariance (board 0 its gauge:
+    a rigid motion of the whole room moves no vehicle parameter) and `A = V + P`."""
+    info = room_information(truth, room, board, noise, placed, cloud, frames, sweeps)
+    own = INTRINSICS + 12
+    weights = []
+    for sigma in priors["boards"]:
+        mm, deg = sigma if sigma is not None else FREE_PRIOR
+        weights += [math.radians(deg) ** -2] * 3 + [(mm / 1000) ** -2] * 3
+    for sigma in priors["planes"]:
+        mm, deg = sigma if sigma is not None else FREE_PRIOR
+        weights += [math.radians(deg) ** -2] * 2 + [(mm / 1000) ** -2]
+    prior = np.zeros_like(info)
+    prior[own:, own:] = np.diag(weights)
+    seen = [k for k in range(6, len(survey_info)) if survey_info[k, k] > 0]
+    survey_cov = np.zeros_like(survey_info)
+    survey_cov[np.ix_(seen, seen)] = np.linalg.inv(survey_info[np.ix_(seen, seen)])
+    spread = np.zeros_like(info)
+    spread[own:, own:] = survey_cov
+    # Every parameter is held by its prior at least (a plane the survey lacks by the free
+    # one), so A is invertible; one the survey did not see has no error from it.
+    a_inv = np.linalg.inv(info + prior)
+    cov = a_inv @ (info + prior @ spread @ prior) @ a_inv
     return summary(truth, cov, INTRINSICS)
 
 

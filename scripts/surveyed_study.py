@@ -18,10 +18,18 @@ errors within 3σ. Beside the solver's σ, the Cramér–Rao bound of the same v
 holes, the sweep's range noise; `crb_bound.bound` for free boards): their ratio per
 quantity, median over vehicles. With `--joint-bound`, also over the bound of a room known only
 as a survey of the same visits knows it, jointly (`crb_bound.survey_information`: the survey's
-correlated errors, not per-board σ), and that bound's RMS over the vehicles.
+correlated errors, not per-board σ), and that bound's RMS over the vehicles; beside it the
+errors a calibration that holds the room by per-board σ (as it does) should show against such a
+survey (`crb_bound.per_block_prior_errors`).
+
+One survey is one draw of the room's errors, and every vehicle calibrated in it shares that
+draw: `--surveys K` makes K independent surveys of the same room (the first from visits
+1..N, the others from visits after the vehicles', simulated one frame each in DIR/room-surveys)
+and calibrates every vehicle in each; the table pools them, and a second table gives each
+survey's own RMS.
 
     cargo build --release && scripts/surveyed_study.py [--vehicles 10] [--survey-visits 16] \\
-        [--seed 1] [--work DIR] [--joint-bound]
+        [--seed 1] [--work DIR] [--joint-bound] [--surveys K]
 
 Tables in markdown on stdout; every run's figures in DIR/runs.json.
 """
@@ -63,62 +71,91 @@ def main():
     ap.add_argument("--joint-bound", action="store_true",
                     help="also the bound of a room known only from a survey of the same visits, "
                          "jointly (crb_bound.survey_information), for the surveyed runs")
+    ap.add_argument("--surveys", type=int, default=1,
+                    help="independent surveys of the same room, each from its own --survey-visits "
+                         "visits; every vehicle is calibrated against each (the survey's own error "
+                         "is shared by every vehicle calibrated against it: one survey is one draw)")
     args = ap.parse_args()
     work = args.work or tempfile.mkdtemp(prefix="surveyed-study-")
     sim = os.path.join(work, "room")
     visits = args.survey_visits + args.vehicles
     frames = args.frames
-    if not os.path.exists(os.path.join(sim, "room-truth.json")):
-        run([ROOMCAL, "simulate", "--room", ROOM, "--out", sim, "--visits", str(visits), "--frames", str(frames),
-             "--seed", str(args.seed), "--boards", str(args.boards), "--lidar", "pandar64", "--fov", str(args.fov),
-             "--layout", args.layout, "--supersample", str(args.supersample)])
-    surveyed = os.path.join(work, "surveyed.toml")
-    if not os.path.exists(surveyed):
-        cmd = [ROOMCAL, "survey", "--room", os.path.join(sim, "room.toml"), "--out", surveyed]
-        for v in range(1, args.survey_visits + 1):
-            folder = os.path.join(sim, f"visit-{v:02}")
-            cmd += ["--visit", os.path.join(folder, "image.png"), os.path.join(folder, "cloud.pcd")]
-        run(cmd)
+    simulate(sim, visits, frames, args)
+    surveys = [survey(work, sim, 1, range(1, args.survey_visits + 1))]
+    if args.surveys > 1:
+        # Further surveys from visits after the vehicles' (one frame each is all a survey
+        # reads): the same seed draws the same room and the same first frames.
+        more = os.path.join(work, "room-surveys")
+        simulate(more, visits + (args.surveys - 1) * args.survey_visits, 1, args)
+        for j in range(2, args.surveys + 1):
+            first = visits + (j - 2) * args.survey_visits + 1
+            surveys.append(survey(work, more, j, range(first, first + args.survey_visits)))
     with open(os.path.join(sim, "room.toml"), "rb") as f:
         board = crb_bound.Board(tomllib.load(f)["board"])
     with open(os.path.join(sim, "room-truth.json")) as f:
         room_truth = json.load(f)
-    priors = crb_bound.load_survey(surveyed, room_truth)
-    survey_info = None
     runs = []
-    for v in range(args.survey_visits + 1, visits + 1):
-        folder = os.path.join(sim, f"visit-{v:02}")
-        with open(os.path.join(folder, "truth.json")) as f:
-            truth = json.load(f)
-        # The bounds read the first sweep's points on the room's planes: read it once.
-        bounds = not args.no_bound or args.joint_bound
-        cloud = crb_bound.read_pcd_xyz(os.path.join(folder, "cloud.pcd")) if bounds else None
-        for mode, (n_images, n_clouds) in MODES.items():
-            if max(n_images, n_clouds) > frames:
-                continue  # not simulated (--frames)
-            for model in ("surveyed", "free"):
-                result = calibrate(folder, surveyed, n_images, n_clouds, model == "free", work, v)
-                r = {"visit": v, "mode": mode, "model": model, "status": result["status"],
-                     **errors(result, truth)}
-                if not args.no_bound:
-                    r["bound"] = vehicle_bound(truth, room_truth, board, cloud, result, priors,
-                                               model, n_images, n_clouds)
-                if args.joint_bound and model == "surveyed":
-                    if survey_info is None:
-                        # The survey's visits at this first run's corner noise (the same
-                        # renders), 3 mm holes, the sweeps' range noise.
-                        survey_info = crb_bound.survey_information(
-                            sim, args.survey_visits, room_truth, board, run_noise(result, truth))
-                    r["joint"] = joint_bound(truth, room_truth, board, cloud, result, survey_info, n_clouds)
-                runs.append(r)
-                print(f"visit {v} {mode} {model}: " + ", ".join(
-                    f"{q} {r[q]:.4g} (σ {r['sigma_' + q]:.3g}" +
-                    (f", bound {r['bound'][q]:.3g})" if "bound" in r else ")") for q in QUANTITIES) +
-                    f", overlay {r['overlay_3']:.2f}/{r['overlay_10']:.2f}/{r['overlay_30']:.2f} px",
-                    file=sys.stderr, flush=True)
+    for j, (surveyed, survey_dir, survey_visits) in enumerate(surveys, start=1):
+        priors = crb_bound.load_survey(surveyed, room_truth)
+        survey_info = None
+        for v in range(args.survey_visits + 1, visits + 1):
+            folder = os.path.join(sim, f"visit-{v:02}")
+            with open(os.path.join(folder, "truth.json")) as f:
+                truth = json.load(f)
+            # The bounds read the first sweep's points on the room's planes: read it once.
+            bounds = not args.no_bound or args.joint_bound
+            cloud = crb_bound.read_pcd_xyz(os.path.join(folder, "cloud.pcd")) if bounds else None
+            for mode, (n_images, n_clouds) in MODES.items():
+                if max(n_images, n_clouds) > frames:
+                    continue  # not simulated (--frames)
+                for model in ("surveyed", "free"):
+                    if model == "free" and j > 1:
+                        continue  # free boards ignore the survey: once is enough
+                    result = calibrate(folder, surveyed, n_images, n_clouds, model == "free", work, v, j)
+                    r = {"survey": j, "visit": v, "mode": mode, "model": model, "status": result["status"],
+                         **errors(result, truth)}
+                    if not args.no_bound:
+                        r["bound"] = vehicle_bound(truth, room_truth, board, cloud, result, priors,
+                                                   model, n_images, n_clouds)
+                    if args.joint_bound and model == "surveyed":
+                        if survey_info is None:
+                            # The survey's visits at this first run's corner noise (the same
+                            # renders), 3 mm holes, the sweeps' range noise.
+                            survey_info = crb_bound.survey_information(
+                                survey_dir, survey_visits, room_truth, board, run_noise(result, truth))
+                        r["joint"] = joint_bound(truth, room_truth, board, cloud, result, survey_info, n_clouds)
+                        r["per_block"] = per_block_errors(truth, room_truth, board, cloud, result, survey_info,
+                                                          priors, n_clouds)
+                    runs.append(r)
+                    print(f"survey {j} visit {v} {mode} {model}: " + ", ".join(
+                        f"{q} {r[q]:.4g} (σ {r['sigma_' + q]:.3g}" +
+                        (f", bound {r['bound'][q]:.3g})" if "bound" in r else ")") for q in QUANTITIES) +
+                        f", overlay {r['overlay_3']:.2f}/{r['overlay_10']:.2f}/{r['overlay_30']:.2f} px",
+                        file=sys.stderr, flush=True)
     with open(os.path.join(work, "runs.json"), "w") as f:
         json.dump(runs, f, indent=1)
     print_tables(runs, args)
+
+
+def simulate(sim, visits, frames, args):
+    """The study's room and its visits (kept when already there)."""
+    if not os.path.exists(os.path.join(sim, "room-truth.json")):
+        run([ROOMCAL, "simulate", "--room", ROOM, "--out", sim, "--visits", str(visits), "--frames", str(frames),
+             "--seed", str(args.seed), "--boards", str(args.boards), "--lidar", "pandar64", "--fov", str(args.fov),
+             "--layout", args.layout, "--supersample", str(args.supersample)])
+
+
+def survey(work, sim, j, numbers):
+    """Survey `j` of the room, from the visits `numbers` of `sim` (kept when already there):
+    (its room file, the folder and numbers of its visits)."""
+    surveyed = os.path.join(work, "surveyed.toml" if j == 1 else f"surveyed-{j}.toml")
+    if not os.path.exists(surveyed):
+        cmd = [ROOMCAL, "survey", "--room", os.path.join(sim, "room.toml"), "--out", surveyed]
+        for v in numbers:
+            folder = os.path.join(sim, f"visit-{v:02}")
+            cmd += ["--visit", os.path.join(folder, "image.png"), os.path.join(folder, "cloud.pcd")]
+        run(cmd)
+    return surveyed, sim, numbers
 
 
 def run(cmd):
@@ -127,10 +164,11 @@ def run(cmd):
         sys.exit(f"{' '.join(cmd[:3])} … failed ({done.returncode}): {done.stderr.strip()}")
 
 
-def calibrate(folder, surveyed, n_images, n_clouds, free, work, visit):
-    """`roomcal calibrate` of one visit's first frames; the result file's contents (a
-    rejected run's too: exit 3 still writes it)."""
-    name = f"result-{visit:02}-{n_images}x{n_clouds}-{'free' if free else 'surveyed'}.json"
+def calibrate(folder, surveyed, n_images, n_clouds, free, work, visit, survey_number=1):
+    """`roomcal calibrate` of one visit's first frames against survey `survey_number`; the
+    result file's contents (a rejected run's too: exit 3 still writes it)."""
+    which = "free" if free else "surveyed" if survey_number == 1 else f"surveyed{survey_number}"
+    name = f"result-{visit:02}-{n_images}x{n_clouds}-{which}.json"
     out = os.path.join(work, name)
     image = lambda k: os.path.join(folder, "image.png" if k == 1 else f"image-{k}.png")
     cloud = lambda k: os.path.join(folder, "cloud.pcd" if k == 1 else f"cloud-{k}.pcd")
@@ -192,6 +230,16 @@ def joint_bound(truth, room_truth, board, cloud, result, survey_info, n_clouds):
         {f"overlay_{d}": s[f"overlay_{d}"] for d in crb_bound.OVERLAY_DEPTHS_M}
 
 
+def per_block_errors(truth, room_truth, board, cloud, result, survey_info, priors, n_clouds):
+    """The errors this run should show, its room held by per-board σ against a survey whose
+    errors are its joint bound's (`crb_bound.per_block_prior_errors`)."""
+    s = crb_bound.per_block_prior_errors(truth, room_truth, board, run_noise(result, truth),
+                                         crb_bound.lidar_placed(truth, result), cloud, survey_info, priors, 1,
+                                         n_clouds)
+    return {q: s[q] for q in ("fx", "cx", "cy", "rot", "t", "t_rms", "rot_rms")} | \
+        {f"overlay_{d}": s[f"overlay_{d}"] for d in crb_bound.OVERLAY_DEPTHS_M}
+
+
 def vehicle_bound(truth, room_truth, board, cloud, result, priors, model, n_images, n_clouds):
     """The Cramér–Rao bound of this vehicle's run (the same measurements and noise model)."""
     placed = crb_bound.lidar_placed(truth, result)
@@ -208,7 +256,8 @@ def vehicle_bound(truth, room_truth, board, cloud, result, priors, model, n_imag
 
 
 def print_tables(runs, args):
-    print(f"\n{args.vehicles} new vehicles, room surveyed from {args.survey_visits} visits "
+    surveys = f"{args.surveys} independent surveys" if args.surveys > 1 else "room surveyed"
+    print(f"\n{args.vehicles} new vehicles, {surveys} from {args.survey_visits} visits "
           f"(seed {args.seed}, {args.boards} boards, {args.fov}° lens, supersample {args.supersample})\n")
     print("| run | model | accepted | fx % | cx px | cy px | rot ° | t mm | overlay 3/10/30 m px |"
           " error/σ RMS | within 3σ | σ/bound (fx cx cy rot t) |")
@@ -235,17 +284,36 @@ def print_tables(runs, args):
                   f"| {rms('t'):.2f} ({sig('t'):.2f}) "
                   f"| {rms('overlay_3'):.2f} / {rms('overlay_10'):.2f} / {rms('overlay_30'):.2f} "
                   f"| {math.sqrt(statistics.fmean(z * z for z in zs)):.2f} | {within}/{len(zs)} | {ratio} |")
-    print("\nfigures: RMS over the vehicles (mean reported σ in brackets); σ/bound: the median over "
+    print("\nfigures: RMS over the vehicles" + (" and surveys" if args.surveys > 1 else "") +
+          " (mean reported σ in brackets); σ/bound: the median over "
           "vehicles of the reported σ over the Cramér–Rao bound of that run (· joint: over the bound "
           "with the room known from the survey's visits jointly)")
+    if args.surveys > 1:
+        print_per_survey(runs)
     for mode in MODES:
-        rs = [r for r in runs if r["mode"] == mode and "joint" in r]
-        if rs:
-            rms = lambda key: math.sqrt(statistics.fmean(r["joint"][key] ** 2 for r in rs))
-            print(f"\njoint bound, {mode}, RMS over the vehicles: fx {rms('fx'):.3f} %, cx {rms('cx'):.2f} px, "
-                  f"cy {rms('cy'):.2f} px, rot {rms('rot'):.3f}° (RMS length {rms('rot_rms'):.3f}°), "
-                  f"t {rms('t'):.2f} mm (RMS length {rms('t_rms'):.2f} mm), overlay "
-                  + " / ".join(f"{rms(f'overlay_{d}'):.2f}" for d in crb_bound.OVERLAY_DEPTHS_M) + " px")
+        for key, what in (("joint", "joint bound"),
+                          ("per_block", "expected of per-board priors against the survey's joint errors")):
+            rs = [r for r in runs if r["mode"] == mode and key in r]
+            if rs:
+                rms = lambda q: math.sqrt(statistics.fmean(r[key][q] ** 2 for r in rs))
+                print(f"\n{what}, {mode}, RMS over the vehicles: fx {rms('fx'):.3f} %, cx {rms('cx'):.2f} px, "
+                      f"cy {rms('cy'):.2f} px, rot {rms('rot'):.3f}° (RMS length {rms('rot_rms'):.3f}°), "
+                      f"t {rms('t'):.2f} mm (RMS length {rms('t_rms'):.2f} mm), overlay "
+                      + " / ".join(f"{rms(f'overlay_{d}'):.2f}" for d in crb_bound.OVERLAY_DEPTHS_M) + " px")
+
+
+def print_per_survey(runs):
+    """The surveyed runs survey by survey: how much of the error one survey's draw shares."""
+    print("\n| survey | run | fx % | cx px | cy px | rot ° | t mm | overlay 3/10/30 m px |")
+    print("|---|---|---|---|---|---|---|---|")
+    for j in sorted({r["survey"] for r in runs}):
+        for mode in MODES:
+            rs = [r for r in runs if r["survey"] == j and r["mode"] == mode and r["model"] == "surveyed"]
+            if rs:
+                rms = lambda key: math.sqrt(statistics.fmean(r[key] ** 2 for r in rs))
+                print(f"| {j} | {mode} | {rms('fx'):.3f} | {rms('cx'):.2f} | {rms('cy'):.2f} | {rms('rot'):.3f} "
+                      f"| {rms('t'):.2f} | {rms('overlay_3'):.2f} / {rms('overlay_10'):.2f} / "
+                      f"{rms('overlay_30'):.2f} |")
 
 
 if __name__ == "__main__":

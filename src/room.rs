@@ -35,7 +35,29 @@ pub fn parse(text: &str, path: &Path) -> Result<Room, RoomFileError> {
     Ok(room)
 }
 
-/// The room file as TOML (for fixtures and the simulator's output).
+/// The room file as TOML (for fixtures and the simulator's output). A survey's covariance
+/// is written one row per line, right under `[survey]`: the pretty writer's one number per
+/// line would make it most of the file.
 pub fn to_toml(room: &Room) -> String {
-    toml::to_string_pretty(room).expect("a room always serialises to TOML")
+    let Some(covariance) = room.survey.as_ref().map(|s| &s.covariance).filter(|c| !c.is_empty())
+    else {
+        return toml::to_string_pretty(room).expect("a room always serialises to TOML");
+    };
+    let mut bare = room.clone();
+    if let Some(survey) = bare.survey.as_mut() {
+        survey.covariance.clear();
+    }
+    let text = toml::to_string_pretty(&bare).expect("a room always serialises to TOML");
+    let rows: Vec<String> = covariance
+        .iter()
+        .map(|row| {
+            let numbers: Vec<String> = row.iter().map(|x| format!("{x:e}")).collect();
+            format!("    [{}],", numbers.join(", "))
+        })
+        .collect();
+    let table = format!(
+        "[survey]\n# the joint covariance, lower triangle by rows (see DESIGN.md)\ncovariance = [\n{}\n]\n",
+        rows.join("\n")
+    );
+    text.replacen("[survey]\n", &table, 1)
 }

@@ -229,7 +229,26 @@ pub struct SurveySpec {
     /// The room's big planes, any number up to [`MAX_SURVEY_PLANES`].
     #[serde(default)]
     pub planes: heapless::Vec<SurveyedPlane, MAX_SURVEY_PLANES>,
+    /// The survey's joint covariance (optional): the lower triangle by rows, row `i`
+    /// holding `i + 1` numbers, over every board's `[δω δt]` in `boards` order (6: rad and
+    /// m in the room frame, `R ← exp(δω) R`, `t ← t + δt`), then every plane's `[δω δd]` in
+    /// `planes` order (4: the normal turned `n ← exp(δω) n`, `δω` across it, rad; the
+    /// offset at the frame's origin, m); relative to the boards' mean frame, as the σ are.
+    /// The σ say how well each board and plane is known; this also says how their errors
+    /// go together (the planes turn as one against the boards), which a calibration holding
+    /// each by its own σ cannot know. Read only with `std` (the solver's calibration).
+    #[cfg(feature = "std")]
+    #[serde(default, skip_serializing_if = "std::vec::Vec::is_empty")]
+    pub covariance: std::vec::Vec<std::vec::Vec<f64>>,
+    /// Without `std` the covariance is accepted and ignored.
+    #[cfg(not(feature = "std"))]
+    #[serde(default, skip_serializing)]
+    pub covariance: serde::de::IgnoredAny,
 }
+
+/// Parameters per surveyed board and per surveyed plane in [`SurveySpec::covariance`].
+pub const COVARIANCE_PER_BOARD: usize = 6;
+pub const COVARIANCE_PER_PLANE: usize = 4;
 
 /// One board of a survey: board → room, `p_room = rotation · p_board + translation`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -297,6 +316,9 @@ pub enum RoomError {
     SurveyNormal { index: usize, length: f64 },
     /// A surveyed σ is negative.
     SurveyNegativeSigma { key: &'static str, index: usize },
+    /// `survey.covariance` is not the lower triangle of a covariance over every surveyed
+    /// board and plane (`row` the first wrong row; `what` says how).
+    SurveyCovariance { row: usize, what: &'static str },
 }
 
 /// Which entry of a list- or matrix-valued key a number is.
@@ -460,6 +482,9 @@ impl fmt::Display for RoomError {
             ),
             RoomError::SurveyNegativeSigma { key, index } => {
                 write!(f, "`{key}` of entry {index} must not be negative")
+            }
+            RoomError::SurveyCovariance { row, what } => {
+                write!(f, "`survey.covariance` row {row}: {what}")
             }
         }
     }
@@ -743,6 +768,43 @@ impl SurveySpec {
             if (length - 1.0).abs() > NORMAL_TOLERANCE {
                 return Err(RoomError::SurveyNormal { index, length });
             }
+        }
+        #[cfg(feature = "std")]
+        self.validate_covariance()?;
+        Ok(())
+    }
+
+    /// Size of [`Self::covariance`]: 6 per board, 4 per plane.
+    pub fn covariance_size(&self) -> usize {
+        COVARIANCE_PER_BOARD * self.boards.len() + COVARIANCE_PER_PLANE * self.planes.len()
+    }
+
+    /// An empty covariance, or one row per parameter, row `i` of `i + 1` finite numbers
+    /// with a non-negative diagonal.
+    #[cfg(feature = "std")]
+    fn validate_covariance(&self) -> Result<(), RoomError> {
+        if self.covariance.is_empty() {
+            return Ok(());
+        }
+        let size = self.covariance_size();
+        if self.covariance.len() != size {
+            let row = self.covariance.len().min(size);
+            return Err(RoomError::SurveyCovariance {
+                row,
+                what: "rows ≠ 6 per board + 4 per plane",
+            });
+        }
+        for (row, values) in self.covariance.iter().enumerate() {
+            let what = if values.len() != row + 1 {
+                "row i must hold i + 1 numbers (the lower triangle)"
+            } else if !values.iter().all(|v| v.is_finite()) {
+                "a number is not finite"
+            } else if values[row] < 0.0 {
+                "a variance (the diagonal) is negative"
+            } else {
+                continue;
+            };
+            return Err(RoomError::SurveyCovariance { row, what });
         }
         Ok(())
     }

@@ -98,7 +98,55 @@ fn survey(truth: &RoomTruth, noise: Option<(&mut Rng, f64, f64, f64, f64)>) -> S
             break;
         }
     }
-    SurveySpec { visits: 16, frame: heapless::String::try_from("sim").unwrap(), boards, planes }
+    SurveySpec {
+        visits: 16,
+        frame: heapless::String::try_from("sim").unwrap(),
+        boards,
+        planes,
+        covariance: Default::default(),
+    }
+}
+
+/// `spec.covariance` of its own σ, every board and plane independent (a turn about a
+/// plane's own normal has no variance); and, when `common_deg > 0`, every plane turned
+/// together about the room's axes by that σ on top (one rotation for all of them).
+fn with_covariance(mut spec: SurveySpec, common_deg: f64) -> SurveySpec {
+    let n = spec.covariance_size();
+    let mut c = nalgebra::DMatrix::<f64>::zeros(n, n);
+    for (b, board) in spec.boards.iter().enumerate() {
+        for i in 0..3 {
+            c[(6 * b + i, 6 * b + i)] = board.sigma_deg.to_radians().powi(2);
+            c[(6 * b + 3 + i, 6 * b + 3 + i)] = board.sigma_m.powi(2);
+        }
+    }
+    let at = 6 * spec.boards.len();
+    let across = |normal: [f64; 3]| {
+        let n = Vec3::from(normal);
+        nalgebra::Matrix3::identity() - n * n.transpose()
+    };
+    for (p, plane) in spec.planes.iter().enumerate() {
+        let a = at + 4 * p;
+        let turn = across(plane.normal) * plane.sigma_deg.to_radians().powi(2);
+        for i in 0..3 {
+            for j in 0..3 {
+                c[(a + i, a + j)] += turn[(i, j)];
+            }
+        }
+        c[(a + 3, a + 3)] = plane.sigma_m.powi(2);
+        for (q, other) in spec.planes.iter().enumerate() {
+            // Cov(P_p u, P_q u) = P_p σ² P_q for the common rotation u.
+            let common =
+                across(plane.normal) * across(other.normal) * common_deg.to_radians().powi(2);
+            let b = at + 4 * q;
+            for i in 0..3 {
+                for j in 0..3 {
+                    c[(a + i, b + j)] += common[(i, j)];
+                }
+            }
+        }
+    }
+    spec.covariance = (0..n).map(|i| (0..=i).map(|j| c[(i, j)]).collect()).collect();
+    spec
 }
 
 /// Perfect detectors with the stated noise; the LiDAR's holes of placeable boards.
@@ -285,6 +333,54 @@ fn a_new_vehicle_in_the_surveyed_room_beats_free_boards() {
     assert!(s.rotation_deg < f.rotation_deg && s.translation_m < f.translation_m);
 }
 
+/// A survey whose planes all turned together (the error a survey's planes share: each
+/// visit's LiDAR places them, and its orientation against the boards is what a visit
+/// knows least). Its covariance says so; its per-plane σ cannot. Held by the covariance,
+/// the run finds the one turn in its own sweep and leaves the extrinsic's rotation less
+/// pulled than when each plane is held by its own σ, and reports σ that cover the error.
+#[test]
+fn a_survey_covariance_holds_the_planes_common_turn_as_one() {
+    let (mut room, truth, visit) = new_vehicle();
+    let mut rng = Rng(5);
+    let frame = detections(&visit, &room, &mut rng);
+    let cloud = visit.scene.cloud.clone().unwrap();
+    let turn = so3_exp(&Vec3::new(0.03, -0.02, 0.015).map(f64::to_radians));
+    let mut spec = survey(&truth, None);
+    for b in spec.boards.iter_mut() {
+        (b.sigma_m, b.sigma_deg) = (0.0002, 0.003);
+    }
+    for p in spec.planes.iter_mut() {
+        p.normal = (turn * Vec3::from(p.normal)).into();
+        // Independent σ of 0.005°, 0.5 mm, and the common turn's 0.03° per axis on top.
+        (p.sigma_m, p.sigma_deg) = (0.0005, (0.005f64.powi(2) + 0.03f64.powi(2)).sqrt());
+    }
+    room.survey = Some(spec.clone());
+    let apart = run(&room, &frame, &cloud, false);
+    let mut joint_spec = spec;
+    for p in joint_spec.planes.iter_mut() {
+        p.sigma_deg = 0.005;
+    }
+    joint_spec = with_covariance(joint_spec, 0.03);
+    for (p, q) in joint_spec.planes.iter_mut().zip(&room.survey.as_ref().unwrap().planes) {
+        p.sigma_deg = q.sigma_deg; // the file's σ are the marginals, as `roomcal survey` writes
+    }
+    room.survey = Some(joint_spec);
+    let together = run(&room, &frame, &cloud, false);
+    for (what, r) in [("planes apart", &apart), ("planes as one", &together)] {
+        assert_eq!(r.result.status, Status::Accepted, "{what}: {:?}", r.result.reason);
+        let e = errors(r, &visit);
+        line(what, &e, r);
+        within_3_sigma(&e, r, what);
+    }
+    let (a, t) = (errors(&apart, &visit), errors(&together, &visit));
+    assert!(
+        t.rot_deg < a.rot_deg,
+        "rotation {:.4}° held as one, {:.4}° apart",
+        t.rot_deg,
+        a.rot_deg
+    );
+}
+
 #[test]
 fn a_moved_board_is_named_and_left_out() {
     let (mut room, truth, visit) = new_vehicle();
@@ -313,10 +409,16 @@ fn a_moved_board_is_named_and_left_out() {
             },
         ),
     ];
-    for (what, moved) in cases {
+    // With the survey's covariance too: the run that names the board is the per-block one
+    // before the joint solve.
+    for ((what, moved), joint) in cases.iter().flat_map(|c| [(c, false), (c, true)]) {
+        let (what, moved) = (*what, *moved);
         let mut spec = survey(&truth, None);
         for b in spec.boards.iter_mut() {
             (b.sigma_m, b.sigma_deg) = (0.0005, 0.01);
+        }
+        if joint {
+            spec = with_covariance(spec, 0.0);
         }
         let b = &mut spec.boards[2];
         let pose = b.pose();
@@ -329,6 +431,7 @@ fn a_moved_board_is_named_and_left_out() {
         (b.rotation, b.translation) = (e.rotation, e.translation);
         room.survey = Some(spec);
         let run = run(&room, &frame, &cloud, false);
+        let what = &format!("{what}{}", if joint { " (survey covariance)" } else { "" });
         println!(
             "{what}: status {:?} reason {:?} notes {:?}",
             run.result.status, run.result.reason, run.notes

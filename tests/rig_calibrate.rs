@@ -76,7 +76,13 @@ fn exact_survey(truth: &RoomTruth) -> SurveySpec {
             sigma_deg: 0.0,
         })
         .collect();
-    SurveySpec { visits: 16, frame: heapless::String::try_from("sim").unwrap(), boards, planes }
+    SurveySpec {
+        visits: 16,
+        frame: heapless::String::try_from("sim").unwrap(),
+        boards,
+        planes,
+        covariance: Default::default(),
+    }
 }
 
 /// Per camera its complete, unoccluded boards; per LiDAR the boards with at least two

@@ -1,6 +1,9 @@
 //! The surveyed-room problem (`solve::room`): its analytic Jacobians against central
 //! differences, its solve recovering a perturbed start on exact data, and no heap
-//! allocation inside the solve and the covariance (counting allocator).
+//! allocation inside the solve and the covariance (counting allocator). The same for the
+//! room moved by the survey's modes (`solve::room_modes`): its condensed equations against
+//! the numeric gradient and Hessian of its cost, and its solution equal to the per-block
+//! priors' when every mode moves one axis of one block by that block's σ.
 
 #[path = "common/counting_alloc.rs"]
 mod counting_alloc;
@@ -12,6 +15,10 @@ use roomcal::geometry::{Camera, CameraModel, Se3, Vec2, Vec3};
 use roomcal::solve::room::{
     apply_room_step, plane_frame, room_covariance, solve_room, BlockPrior, RoomParams, RoomProblem,
     ROOM_SHARED,
+};
+use roomcal::solve::room::{SchurProblem, SchurSystem};
+use roomcal::solve::room_modes::{
+    modes_covariance, solve_modes, ModeBasis, ModesParams, ModesProblem, MAX_MODES, MODES_SHARED,
 };
 use roomcal::solve::{BoardObservation, Loss, PlanePoints};
 
@@ -255,4 +262,159 @@ fn solve_recovers_the_truth_without_heap_allocation() {
     assert!((params.room_to_camera.translation - s.room_to_camera.translation).norm() < 1e-5);
     let cov: SMatrix<f64, ROOM_SHARED, ROOM_SHARED> = cov.unwrap();
     assert!((0..ROOM_SHARED).all(|i| cov[(i, i)] >= 0.0));
+}
+
+/// Modes that each move one axis of one block by that block's prior σ: the joint prior
+/// of a survey whose errors are independent, block by block.
+fn independent_modes(p: &RoomProblem<'_, B>) -> (SVector<f64, MAX_MODES>, Vec<ModeBasis>) {
+    let mut sigma = SVector::<f64, MAX_MODES>::zeros();
+    let mut basis = vec![ModeBasis::zeros(); p.priors().len()];
+    for (k, prior) in p.priors().iter().enumerate() {
+        for axis in 0..6 {
+            let mode = 6 * k + axis;
+            sigma[mode] = if axis < 3 { prior.sigma_rad } else { prior.sigma_m };
+            basis[k][(axis, mode)] = 1.0;
+        }
+    }
+    (sigma, basis)
+}
+
+/// Modes that move every block at once (a dense, deterministic basis).
+fn correlated_modes(p: &RoomProblem<'_, B>) -> (SVector<f64, MAX_MODES>, Vec<ModeBasis>) {
+    let sigma =
+        SVector::<f64, MAX_MODES>::from_fn(|i, _| if i < 20 { 1.0 + 0.1 * i as f64 } else { 0.0 });
+    let basis = (0..p.priors().len())
+        .map(|k| ModeBasis::from_fn(|r, c| 1e-3 * ((1 + k * 7 + r * 13 + c * 29) as f64).sin()))
+        .collect();
+    (sigma, basis)
+}
+
+/// `params ⊕ h eᵢ` over the modes problem's shared parameters.
+fn stepped(
+    problem: &ModesProblem<'_, '_, B>,
+    params: &ModesParams<Camera, B>,
+    i: usize,
+    h: f64,
+) -> ModesParams<Camera, B> {
+    let mut step = SVector::<f64, MODES_SHARED>::zeros();
+    step[i] = h;
+    problem.apply(params, &step, &[])
+}
+
+/// The step of every shared parameter for central differences: pixels for fx..cy; the
+/// modes move blocks by 10⁻³ of their amplitude.
+fn step_of(i: usize) -> f64 {
+    if i < 4 {
+        1e-3
+    } else if i < 9 {
+        1e-6
+    } else if i < ROOM_SHARED {
+        1e-7
+    } else {
+        1e-4
+    }
+}
+
+#[test]
+fn condensed_modes_equations_are_the_gradient_and_hessian_of_their_cost() {
+    let s = scene();
+    let p = problem(&s);
+    let (sigma, basis) = correlated_modes(&p);
+    let modes = ModesProblem::new(&p, sigma, &basis).unwrap();
+    let truth = ModesParams {
+        room: p.params_at_priors(s.camera, s.extrinsic, s.room_to_camera),
+        amplitudes: SVector::zeros(),
+    };
+    let skip = |i: usize| (4 + s.camera.num_params()..9).contains(&i) || i >= ROOM_SHARED + 20;
+    // The gradient, away from the truth (residuals and amplitudes not zero).
+    let mut away = stepped(&modes, &truth, ROOM_SHARED + 3, 0.5);
+    away.room.camera.cx += 2.0;
+    away.room.lidar_to_camera.translation.y += 0.01;
+    let ne: SchurSystem<MODES_SHARED, 0> = modes.normal_equations(&away).unwrap();
+    for i in (0..MODES_SHARED).filter(|&i| !skip(i)) {
+        let h = step_of(i);
+        let cost = |sign: f64| modes.cost(&stepped(&modes, &away, i, sign * h)).unwrap();
+        let numeric = (cost(1.0) - cost(-1.0)) / (2.0 * h);
+        let scale = numeric.abs().max(ne.g_shared[i].abs()).max(1.0);
+        assert!(
+            (numeric - ne.g_shared[i]).abs() / scale < 1e-5,
+            "∂cost/∂x{i}: {numeric} vs {}",
+            ne.g_shared[i]
+        );
+    }
+    // The Hessian at the truth (exact data: Gauss–Newton is exact there).
+    let at_truth: SchurSystem<MODES_SHARED, 0> = modes.normal_equations(&truth).unwrap();
+    let mut worst: f64 = 0.0;
+    for i in (0..MODES_SHARED).filter(|&i| !skip(i)) {
+        let h = step_of(i);
+        let gradient = |sign: f64| {
+            let ne: SchurSystem<MODES_SHARED, 0> =
+                modes.normal_equations(&stepped(&modes, &truth, i, sign * h)).unwrap();
+            ne.g_shared
+        };
+        let column = (gradient(1.0) - gradient(-1.0)) / (2.0 * h);
+        for r in (0..MODES_SHARED).filter(|&r| !skip(r)) {
+            let scale = column[r].abs().max(at_truth.v[(r, i)].abs()).max(1.0);
+            worst = worst.max((column[r] - at_truth.v[(r, i)]).abs() / scale);
+        }
+    }
+    assert!(worst < 1e-3, "worst relative Hessian error {worst:e}");
+}
+
+#[test]
+fn independent_modes_solve_as_the_blocks_own_priors_without_heap_allocation() {
+    let s = scene();
+    // Noisy corners, so that the priors matter: a fixed pattern of ±0.3 px.
+    let noisy: Vec<Vec<Vec2>> = s
+        .corners
+        .iter()
+        .enumerate()
+        .map(|(b, cs)| {
+            cs.iter()
+                .enumerate()
+                .map(|(i, c)| {
+                    c + 0.3
+                        * Vec2::new(
+                            ((b * 31 + i * 7) as f64).sin(),
+                            ((b * 17 + i * 11) as f64).cos(),
+                        )
+                })
+                .collect()
+        })
+        .collect();
+    let scene_noisy = Scene { corners: noisy, ..s };
+    let p_noisy = problem(&scene_noisy);
+    let mut blocks = perturbed(&scene_noisy, &p_noisy);
+    solve_room(&p_noisy, &mut blocks, 50).unwrap();
+    let blocks_cov = room_covariance(&p_noisy, &blocks).unwrap();
+    let (sigma, basis) = independent_modes(&p_noisy);
+    let modes = ModesProblem::new(&p_noisy, sigma, &basis).unwrap();
+    let mut params =
+        ModesParams { room: perturbed(&scene_noisy, &p_noisy), amplitudes: SVector::zeros() };
+    // The start's block 1 is off its prior: in the modes problem that is where the prior is.
+    params.room.blocks[1] = p_noisy.priors()[1].pose;
+    let ((iterations, cov), count) = count_allocations(|| {
+        let iterations = solve_modes(&modes, &mut params, 50);
+        let cov = modes_covariance(&modes, &params);
+        (iterations, cov)
+    });
+    assert_eq!(count, 0, "the modes solve and covariance allocated {count} times");
+    assert!(iterations.unwrap() > 1);
+    let cov = cov.unwrap();
+    let got = &params.room;
+    assert!(
+        (got.camera.fx - blocks.camera.fx).abs() < 1e-6 * blocks.camera.fx,
+        "fx {} vs {}",
+        got.camera.fx,
+        blocks.camera.fx
+    );
+    assert!((got.lidar_to_camera.translation - blocks.lidar_to_camera.translation).norm() < 1e-7);
+    assert!((got.room_to_camera.translation - blocks.room_to_camera.translation).norm() < 1e-7);
+    for (a, b) in got.blocks.iter().zip(&blocks.blocks) {
+        assert!((a.translation - b.translation).norm() < 1e-7);
+    }
+    for i in 0..ROOM_SHARED {
+        let (x, y) = (cov[(i, i)], blocks_cov[(i, i)]);
+        assert!((x - y).abs() <= 1e-4 * y.max(1e-30), "σ² of parameter {i}: {x:e} vs {y:e}");
+    }
 }

@@ -27,6 +27,7 @@ mod free;
 pub use free::{corner_start, CornerStart};
 mod gate;
 pub mod identify;
+mod modes;
 pub mod rig;
 pub mod survey;
 mod surveyed;

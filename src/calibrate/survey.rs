@@ -77,9 +77,10 @@ pub struct Survey {
     /// Visits that saw each room board and each plane.
     pub board_visits: Vec<usize>,
     pub plane_visits: Vec<usize>,
-    /// Each plane's covariance in the boards' mean frame (`[turn (2); offset]`, see
-    /// [`gauge::mean_frame_sigmas`]): its offset σ moves with the frame's origin.
-    pub plane_covariances: Vec<Mat3>,
+    /// The covariance of every board and plane in the boards' mean frame
+    /// ([`gauge::mean_frame_covariance`]): a plane's offset σ moves with the frame's
+    /// origin, and the file's `survey.covariance` is this in the file's frame.
+    pub covariance: nalgebra::DMatrix<f64>,
     /// `labels[v][i]`: the room board of visit `v`'s board `i`.
     pub labels: Vec<Vec<chain::ChainedBoard>>,
     pub report: bundle::BundleReport,
@@ -271,9 +272,8 @@ pub fn survey(room: &Room, visits: &[SurveyVisit]) -> Result<Survey, SurveyError
     let report = bundle::solve(&problem, &mut state, MAX_ITERATIONS)?;
     let mut workspace = bundle::Workspace::new(&problem);
     workspace.build(&problem, &state)?;
-    let covariance = workspace.global_covariance()?;
-    let (board_sigma, plane_sigma, plane_covariances) =
-        gauge::mean_frame_sigmas(&state, &covariance);
+    let covariance = gauge::mean_frame_covariance(&state, &workspace.global_covariance()?);
+    let (board_sigma, plane_sigma) = gauge::mean_frame_sigmas(state.boards.len(), &covariance);
     let corner_rms_px = problem.corner_rms_px(&state)?;
     let state = gauge::in_mean_frame(&state);
     let names: Vec<&str> = room_planes.planes.iter().map(|p| p.name.as_str()).collect();
@@ -283,7 +283,7 @@ pub fn survey(room: &Room, visits: &[SurveyVisit]) -> Result<Survey, SurveyError
         state,
         board_visits,
         plane_visits: room_planes.planes.iter().map(|p| p.visits).collect(),
-        plane_covariances,
+        covariance,
         labels: chained.labels,
         report,
         corner_rms_px,
@@ -321,14 +321,17 @@ impl Survey {
             board.rotation = rows(&pose.rotation);
             board.translation = pose.translation.into();
         }
-        for (plane, block) in spec.planes.iter_mut().zip(&self.plane_covariances) {
+        let boards = spec.boards.len();
+        for (p, plane) in spec.planes.iter_mut().enumerate() {
             // n · p_room = d with p_room = G p_new: (R_Gᵀ n) · p_new = d − n · t_G.
             let n = Vec3::from(plane.normal);
             let mean_frame = bundle::RoomPlane { normal: n, offset: plane.offset };
-            plane.sigma_m = gauge::plane_offset_sigma_at(&mean_frame, block, &g.translation);
+            let block = gauge::plane_block(boards, &self.covariance, p);
+            plane.sigma_m = gauge::plane_offset_sigma_at(&mean_frame, &block, &g.translation);
             plane.normal = (g.rotation.transpose() * n).into();
             plane.offset -= n.dot(&g.translation);
         }
+        spec.covariance = gauge::file_covariance(&self.state, &self.covariance, &g);
         spec
     }
 }
@@ -458,6 +461,7 @@ fn survey_spec(
         frame: heapless::String::new(),
         boards: heapless::Vec::new(),
         planes: heapless::Vec::new(),
+        covariance: Vec::new(),
     };
     let _ = spec.frame.push_str(&FRAME[..FRAME.len().min(crate::target::MAX_SURVEY_TEXT)]);
     for (pose, sigma) in state.boards.iter().zip(board_sigma) {

@@ -12,6 +12,7 @@
 use super::association::{associate, lidar_nominal, paired_extrinsic};
 use super::free::{accepted, camera_start, hole_outlier, CameraStart, CornerStart};
 use super::identify::{identify, oriented, Identity};
+use super::modes::{SurveyEntry, SurveyModes};
 use super::{
     solver_reason, Calibration, CameraBoard, FindLidarBoards, FrameDetections, LidarBoard,
     UsedBoard, MAX_OBSERVATIONS,
@@ -24,7 +25,11 @@ use crate::geometry::{Camera, Se3, Vec3};
 use crate::lidar::Point;
 use crate::result::Extrinsic;
 use crate::solve::room::{
-    plane_frame, room_covariance, solve_room, BlockPrior, RoomParams, RoomProblem, ROOM_SHARED,
+    plane_frame, room_covariance, solve_room, BlockPrior, RoomParams, RoomProblem, RoomReport,
+    SchurProblem, ROOM_SHARED,
+};
+use crate::solve::room_modes::{
+    modes_covariance, solve_modes, ModeBasis, ModesParams, ModesProblem,
 };
 use crate::solve::{
     covariance::SharedCovariance, hole_sigma_px, BoardObservation, JointParams, Loss, ParamMask,
@@ -161,7 +166,18 @@ pub(super) fn solve_surveyed(
             // room it moved the overlay at 10 m from 0.44 to 0.64 px RMS and the rotation
             // from 0.016 to 0.020° (`scripts/surveyed_study.py`, 2026-12-02). The σ are
             // still each kind's own (`room_covariance`).
-            let sigma = room_covariance(&problem, &p).map_err(solver_reason)?;
+            let (p, report, sigma) = match SurveyModes::of(survey) {
+                Some(modes) => {
+                    let basis = modes.basis(survey, &blocks);
+                    let (p, joint, sigma) = jointly(&problem, &modes, &basis, &p)?;
+                    iterations += joint.iterations;
+                    (p, joint, sigma)
+                }
+                None => {
+                    let sigma = room_covariance(&problem, &p).map_err(solver_reason)?;
+                    (p, report, sigma)
+                }
+            };
             let mut run = calibration(
                 room,
                 &problem,
@@ -464,11 +480,11 @@ fn add_observations<'a>(
     keep: &[usize],
     planes: &[(usize, PlanePoints)],
     fx: f64,
-) -> Result<Vec<Option<usize>>, String> {
-    let mut blocks: Vec<Option<usize>> = Vec::new();
+) -> Result<Vec<SurveyEntry>, String> {
+    let mut blocks: Vec<SurveyEntry> = Vec::new();
     for &i in keep {
         let (_, board, k, pose) = &identified[i];
-        let block = match blocks.iter().position(|b| *b == Some(*k)) {
+        let block = match blocks.iter().position(|b| *b == SurveyEntry::Board(*k)) {
             Some(b) => b,
             None => {
                 let s = &survey.boards[*k];
@@ -477,7 +493,7 @@ fn add_observations<'a>(
                     sigma_m: s.sigma_m,
                     sigma_rad: s.sigma_deg.to_radians(),
                 };
-                blocks.push(Some(*k));
+                blocks.push(SurveyEntry::Board(*k));
                 problem.add_block(prior).map_err(solver_reason)?
             }
         };
@@ -504,7 +520,7 @@ fn add_observations<'a>(
             sigma_rad: s.sigma_deg.to_radians(),
         };
         let block = problem.add_block(prior).map_err(solver_reason)?;
-        blocks.push(None);
+        blocks.push(SurveyEntry::Plane(*index));
         let observation = BoardObservation { plane: Some(*points), ..BoardObservation::default() };
         problem.add_observation(block, observation).map_err(solver_reason)?;
     }
@@ -564,16 +580,51 @@ pub(super) fn room_planes(
 
 /// The board block farthest outside its survey σ, if any is beyond [`MOVED_BOARD_CHI2`]:
 /// (survey index, χ²).
+/// The room solved again held by the survey's joint covariance ([`SurveyModes`]) from the
+/// per-block solution `start` (its intrinsics, extrinsic and room pose; the blocks back at
+/// the survey, where the modes' prior is centred): the solution, what the solve did, and
+/// the covariance of the shared parameters. The per-block solve before it named any board
+/// that moved; the modes cannot (a moved board would pull the whole room).
+fn jointly(
+    problem: &Problem<'_>,
+    modes: &SurveyModes,
+    basis: &[ModeBasis],
+    start: &Params,
+) -> Result<(Params, RoomReport, nalgebra::SMatrix<f64, ROOM_SHARED, ROOM_SHARED>), String> {
+    let joint = ModesProblem::new(problem, modes.sigma, basis).map_err(solver_reason)?;
+    let mut params = ModesParams {
+        room: problem.params_at_priors(start.camera, start.lidar_to_camera, start.room_to_camera),
+        amplitudes: nalgebra::SVector::zeros(),
+    };
+    let initial_cost = joint.cost(&params).map_err(solver_reason)?;
+    let iterations = solve_modes(&joint, &mut params, 100).map_err(solver_reason)?;
+    let sigma = modes_covariance(&joint, &params).map_err(solver_reason)?;
+    let (corner_rms_px, hole_rms_px) = problem.rms_px(&params.room).map_err(solver_reason)?;
+    let used = (0..modes.sigma.len()).filter(|&i| modes.sigma[i] > 0.0).count();
+    let report = RoomReport {
+        iterations,
+        initial_cost,
+        final_cost: joint.cost(&params).map_err(solver_reason)?,
+        residuals: problem.residual_count() - 6 * problem.priors().len() + used,
+        corner_rms_px,
+        hole_rms_px,
+    };
+    Ok((params.room, report, sigma))
+}
+
 fn worst_moved(
     problem: &Problem<'_>,
     params: &Params,
-    blocks: &[Option<usize>],
+    blocks: &[SurveyEntry],
 ) -> Result<Option<(usize, f64)>, String> {
     let costs = problem.block_costs(params).map_err(solver_reason)?;
     Ok(costs
         .iter()
         .zip(blocks)
-        .filter_map(|((_, prior), board)| board.map(|b| (b, 2.0 * prior)))
+        .filter_map(|((_, prior), entry)| match entry {
+            SurveyEntry::Board(b) => Some((*b, 2.0 * prior)),
+            SurveyEntry::Plane(_) => None,
+        })
         .filter(|(_, chi2)| *chi2 > MOVED_BOARD_CHI2)
         .max_by(|a, b| a.1.total_cmp(&b.1)))
 }
@@ -584,7 +635,7 @@ fn calibration(
     room: &Room,
     problem: &Problem<'_>,
     params: &Params,
-    report: &crate::solve::room::RoomReport,
+    report: &RoomReport,
     sigma: &nalgebra::SMatrix<f64, ROOM_SHARED, ROOM_SHARED>,
     identified: &[(u32, CameraBoard, usize, Se3)],
     pairs: &[Option<super::association::Pair>],

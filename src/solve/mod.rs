@@ -61,6 +61,7 @@ pub mod lm;
 pub mod problem;
 pub mod rig;
 pub mod room;
+pub mod room_modes;
 
 use core::fmt;
 

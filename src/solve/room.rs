@@ -220,10 +220,37 @@ impl<'a, const B: usize> RoomProblem<'a, B> {
         })
     }
 
+    /// The normal equations of the measurements alone (no prior), `prior_rows` scalar
+    /// prior residuals counted for whoever adds them.
+    pub fn measurement_equations<C: Projector + Clone>(
+        &self,
+        params: &RoomParams<C, B>,
+        prior_rows: usize,
+    ) -> Result<RoomNormalEquations<B>, SolveError> {
+        let mut ne = SchurSystem::new(self.priors.len(), prior_rows);
+        self.for_each_residual(params, |k, kind, r, js, jb, rows| {
+            ne.add(k, self.inner.loss_for(kind), r, js, jb, rows);
+        })?;
+        Ok(ne)
+    }
+
+    /// Robust cost of the measurements alone, as the free-board problem counts them.
+    pub fn measurement_cost<C: Projector + Clone>(
+        &self,
+        params: &RoomParams<C, B>,
+    ) -> Result<f64, SolveError> {
+        self.check(params)?;
+        self.inner.cost(&self.joint_params(params))
+    }
+
+    /// The loss a measurement kind is weighed with.
+    pub fn loss_for(&self, kind: ResidualKind) -> Loss {
+        self.inner.loss_for(kind)
+    }
+
     /// Robust cost: measurements as the free-board problem counts them, plus ½|prior|².
     pub fn cost<C: Projector + Clone>(&self, params: &RoomParams<C, B>) -> Result<f64, SolveError> {
-        self.check(params)?;
-        let mut cost = self.inner.cost(&self.joint_params(params))?;
+        let mut cost = self.measurement_cost(params)?;
         self.for_each_prior(params, |_, r, _| cost += 0.5 * r.norm_squared());
         if cost.is_finite() {
             Ok(cost)
@@ -276,7 +303,7 @@ impl<'a, const B: usize> RoomProblem<'a, B> {
     }
 
     /// Shared parameters nothing moves: unused intrinsics; the extrinsic without LiDAR.
-    fn structural_mask<C: Projector>(&self, camera: &C) -> [bool; ROOM_SHARED] {
+    pub(crate) fn structural_mask<C: Projector>(&self, camera: &C) -> [bool; ROOM_SHARED] {
         let mut fixed = [false; ROOM_SHARED];
         for f in fixed.iter_mut().take(INTRINSICS).skip(camera.num_params().min(INTRINSICS)) {
             *f = true;
@@ -556,10 +583,7 @@ impl<C: Projector + Clone, const B: usize> SchurProblem<RoomParams<C, B>, ROOM_S
         &self,
         params: &RoomParams<C, B>,
     ) -> Result<RoomNormalEquations<B>, SolveError> {
-        let mut ne = SchurSystem::new(self.priors.len(), 6 * self.priors.len());
-        self.for_each_residual(params, |k, kind, r, js, jb, rows| {
-            ne.add(k, self.inner.loss_for(kind), r, js, jb, rows);
-        })?;
+        let mut ne = self.measurement_equations(params, 6 * self.priors.len())?;
         self.for_each_prior(params, |k, r, j| ne.add_prior(k, r, j));
         ne.finite()
     }

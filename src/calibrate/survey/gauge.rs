@@ -66,35 +66,73 @@ pub fn in_mean_frame(state: &SurveyState) -> SurveyState {
     }
 }
 
-/// σ of every board and plane in the boards' mean frame from `cov`, the covariance of the
-/// bundle's global parameters at `state` (board-0 gauge: boards 1.. then planes), and each
-/// plane's covariance block there (`[turn (2, in its tangent basis); offset]`, for
-/// [`plane_offset_sigma_at`]). A plane's offset σ is that of its offset at the frame's
-/// origin.
-pub fn mean_frame_sigmas(
-    state: &SurveyState,
-    cov: &DMatrix<f64>,
-) -> (Vec<Sigma>, Vec<Sigma>, Vec<Mat3>) {
+/// The covariance of every board and plane in the boards' mean frame from `cov`, the
+/// covariance of the bundle's global parameters at `state` (board-0 gauge: boards 1.. then
+/// planes): rows `[δω δt]` per board (all of them), then `[turn (2, in its tangent basis);
+/// offset]` per plane, a plane's offset at the frame's origin.
+pub fn mean_frame_covariance(state: &SurveyState, cov: &DMatrix<f64>) -> DMatrix<f64> {
     let l = mean_frame_jacobian(state);
-    let full = &l * cov * l.transpose();
+    &l * cov * l.transpose()
+}
+
+/// σ of every board and plane from their [`mean_frame_covariance`] `full`.
+pub fn mean_frame_sigmas(boards: usize, full: &DMatrix<f64>) -> (Vec<Sigma>, Vec<Sigma>) {
     let block3 = |at: usize| Mat3::from_fn(|i, j| full[(at + i, at + j)]);
-    let boards = (0..state.boards.len())
+    let board_sigmas = (0..boards)
         .map(|b| Sigma {
             m: max_eigenvalue3(&block3(6 * b + 3)).max(0.0).sqrt(),
             deg: max_eigenvalue3(&block3(6 * b)).max(0.0).sqrt().to_degrees(),
         })
         .collect();
-    let at0 = 6 * state.boards.len();
-    let blocks: Vec<Mat3> = (0..state.planes.len()).map(|p| block3(at0 + 3 * p)).collect();
-    let planes = blocks
-        .iter()
-        .map(|block| {
+    let planes = (full.nrows() - 6 * boards) / 3;
+    let plane_sigmas = (0..planes)
+        .map(|p| {
+            let block = plane_block(boards, full, p);
             let turn = nalgebra::Matrix2::from_fn(|i, j| block[(i, j)]);
             let worst = nalgebra::SymmetricEigen::new(turn).eigenvalues.max();
             Sigma { m: block[(2, 2)].max(0.0).sqrt(), deg: worst.max(0.0).sqrt().to_degrees() }
         })
         .collect();
-    (boards, planes, blocks)
+    (board_sigmas, plane_sigmas)
+}
+
+/// Plane `p`'s `[turn; offset]` block of a [`mean_frame_covariance`] over `boards` boards.
+pub fn plane_block(boards: usize, full: &DMatrix<f64>, p: usize) -> Mat3 {
+    let at = 6 * boards + 3 * p;
+    Mat3::from_fn(|i, j| full[(at + i, at + j)])
+}
+
+/// The room file's `survey.covariance` (lower triangle by rows) from the
+/// [`mean_frame_covariance`] `full` of `state` (in the mean frame), the file's frame being
+/// `p_mean = g · p_file`: each board's `[δω δt]` turned into the file's frame, each plane's
+/// turn written as the rotation vector `B δφ` in the file's frame and its offset taken at
+/// the file's origin (`δd + (B δφ)·(o × n)`, as [`plane_offset_sigma_at`]).
+pub fn file_covariance(state: &SurveyState, full: &DMatrix<f64>, g: &Se3) -> Vec<Vec<f64>> {
+    let (nb, np) = (state.boards.len(), state.planes.len());
+    let to_file = g.rotation.transpose();
+    let mut t = DMatrix::<f64>::zeros(6 * nb + 4 * np, 6 * nb + 3 * np);
+    for b in 0..nb {
+        t.fixed_view_mut::<3, 3>(6 * b, 6 * b).copy_from(&to_file);
+        t.fixed_view_mut::<3, 3>(6 * b + 3, 6 * b + 3).copy_from(&to_file);
+    }
+    for (p, plane) in state.planes.iter().enumerate() {
+        let (row, col) = (6 * nb + 4 * p, 6 * nb + 3 * p);
+        let basis = tangent_basis(&plane.normal);
+        t.fixed_view_mut::<3, 2>(row, col).copy_from(&(to_file * basis));
+        let lever = basis.transpose() * g.translation.cross(&plane.normal);
+        t[(row + 3, col)] = lever.x;
+        t[(row + 3, col + 1)] = lever.y;
+        t[(row + 3, col + 2)] = 1.0;
+    }
+    let file = &t * full * t.transpose();
+    let entry = |i: usize, j: usize| significant(0.5 * (file[(i, j)] + file[(j, i)]));
+    (0..file.nrows()).map(|i| (0..=i).map(|j| entry(i, j)).collect()).collect()
+}
+
+/// `x` to 9 significant digits: the file stays a third of its size at full precision, and
+/// the rounding (10⁻⁹ of each entry) is far below what any σ is known to.
+fn significant(x: f64) -> f64 {
+    format!("{x:.8e}").parse().unwrap_or(x)
 }
 
 /// σ of a plane's offset taken at `origin` instead of its frame's origin (same frame): the
