@@ -29,8 +29,10 @@ pub(super) struct SurveyModes {
     vectors: DMatrix<f64>,
 }
 
-/// Eigenvalues below this fraction of the largest are the covariance's null directions.
-const NULL_FRACTION: f64 = 1e-12;
+/// Eigenvalues below this fraction of the largest are the covariance's null directions
+/// (rounding leaves them 10⁻¹¹ of the largest; the smallest real one of a 16-visit survey
+/// is 10⁻⁶ of it).
+const NULL_FRACTION: f64 = 1e-9;
 
 impl SurveyModes {
     /// The modes of `survey.covariance`; `None` without one (or with nothing in it).

@@ -26,7 +26,6 @@
 use nalgebra::{SMatrix, SVector};
 
 use super::covariance::{shared_inverse, variance_factor};
-use super::lm::KindWeights;
 use super::problem::ResidualKind;
 use super::room::{
     apply_room_step, schur_lm, RoomParams, RoomProblem, SchurProblem, SchurSystem, ROOM_SHARED,
@@ -91,12 +90,12 @@ impl<'p, 'a, const B: usize> ModesProblem<'p, 'a, B> {
         (0..MAX_MODES).filter(|&i| self.sigma[i] > 0.0)
     }
 
-    /// The room's equations condensed onto the shared parameters and amplitudes, with the
-    /// modes' prior (see the module doc).
-    fn condense<C>(
+    /// The room's equations condensed onto the shared parameters and amplitudes (see the
+    /// module doc), with the modes' prior at `amplitudes` when given.
+    fn condense(
         &self,
         room: &SchurSystem<ROOM_SHARED, B>,
-        params: &ModesParams<C, B>,
+        amplitudes: Option<&SVector<f64, MAX_MODES>>,
     ) -> SchurSystem<MODES_SHARED, 0> {
         let mut out = SchurSystem::<MODES_SHARED, 0>::new(0, room.residuals);
         out.cost = room.cost;
@@ -114,27 +113,15 @@ impl<'p, 'a, const B: usize> ModesProblem<'p, 'a, B> {
             let mut g = out.g_shared.fixed_rows_mut::<MAX_MODES>(ROOM_SHARED);
             g += basis.transpose() * room.g_block[k];
         }
+        let Some(amplitudes) = amplitudes else { return out };
         for i in self.used() {
             let weight = self.sigma[i].powi(-2);
             out.v[(ROOM_SHARED + i, ROOM_SHARED + i)] += weight;
-            out.g_shared[ROOM_SHARED + i] += weight * params.amplitudes[i];
+            out.g_shared[ROOM_SHARED + i] += weight * amplitudes[i];
             out.residuals += 1;
         }
-        out.cost += self.prior_cost(&params.amplitudes);
+        out.cost += self.prior_cost(amplitudes);
         out
-    }
-
-    /// The full Jacobian row pair of one measurement on block `k`: `[∂r/∂shared | ∂r/∂block · V_k]`.
-    fn full_jacobian(
-        &self,
-        k: usize,
-        js: &SMatrix<f64, 2, ROOM_SHARED>,
-        jb: &SMatrix<f64, 2, 6>,
-    ) -> SMatrix<f64, 2, MODES_SHARED> {
-        let mut j = SMatrix::<f64, 2, MODES_SHARED>::zeros();
-        j.fixed_view_mut::<2, ROOM_SHARED>(0, 0).copy_from(js);
-        j.fixed_view_mut::<2, MAX_MODES>(0, ROOM_SHARED).copy_from(&(jb * self.basis[k]));
-        j
     }
 }
 
@@ -146,7 +133,7 @@ impl<C: Projector + Clone, const B: usize> SchurProblem<ModesParams<C, B>, MODES
         params: &ModesParams<C, B>,
     ) -> Result<SchurSystem<MODES_SHARED, 0>, SolveError> {
         let room = self.room.measurement_equations(&params.room, 0)?;
-        self.condense(&room, params).finite()
+        self.condense(&room, Some(&params.amplitudes)).finite()
     }
 
     fn cost(&self, params: &ModesParams<C, B>) -> Result<f64, SolveError> {
@@ -198,7 +185,9 @@ pub fn solve_modes<C: Projector + Clone, const B: usize>(
 /// Covariance of the 21 shared parameters at `params` (normally the solution), every
 /// mode marginalised: `H⁻¹ (Σₖ fₖ Hₖ + H_p) H⁻¹` with each measurement kind scaled by its
 /// own variance factor ([`variance_factor`]) as the per-block room covariance is, and the
-/// modes' prior as it is. Fixed parameters have zero rows and columns.
+/// modes' prior as it is. Each kind's `Hₖ` is accumulated block by block as the solve's
+/// equations are and condensed onto the modes, so a measurement costs what it costs the
+/// solve. Fixed parameters have zero rows and columns.
 pub fn modes_covariance<C: Projector + Clone, const B: usize>(
     problem: &ModesProblem<'_, '_, B>,
     params: &ModesParams<C, B>,
@@ -211,30 +200,40 @@ pub fn modes_covariance<C: Projector + Clone, const B: usize>(
     }
     let pooled = 2.0 * ne.cost / (ne.residuals - free) as f64;
     let inverse = inverse_of(&ne, &fixed)?;
-    let (mut rows, mut cost, mut determined) =
-        (KindWeights::NONE, KindWeights::NONE, KindWeights::NONE);
-    problem.room.for_each_residual(&params.room, |k, kind, r, js, jb, n| {
-        let (rho, weight) = problem.room.loss_for(kind).eval(r.norm_squared());
-        let j = problem.full_jacobian(k, js, jb);
-        *rows.of_mut(kind) += n as f64;
-        *cost.of_mut(kind) += 0.5 * rho;
-        *determined.of_mut(kind) += weight * (j * inverse * j.transpose()).trace();
-    })?;
-    let mut factors = KindWeights::ALL;
-    for kind in [ResidualKind::Corner(0), ResidualKind::Hole(0), ResidualKind::Plane(0)] {
-        *factors.of_mut(kind) =
-            variance_factor(rows.of(kind), cost.of(kind), determined.of(kind), pooled);
-    }
+    let kinds = kind_systems(problem, &params.room)?;
     let mut middle = SMatrix::<f64, MODES_SHARED, MODES_SHARED>::zeros();
-    problem.room.for_each_residual(&params.room, |k, kind, r, js, jb, _| {
-        let (_, weight) = problem.room.loss_for(kind).eval(r.norm_squared());
-        let j = problem.full_jacobian(k, js, jb);
-        middle.gemm_tr(weight * factors.of(kind), &j, &j, 1.0);
-    })?;
+    for system in &kinds {
+        let part = problem.condense(system, None);
+        // tr(H⁻¹ Hₖ): both symmetric, so the sum of their elementwise products.
+        let determined = inverse.dot(&part.v);
+        let factor = variance_factor(system.residuals as f64, system.cost, determined, pooled);
+        middle.zip_apply(&part.v, |m, h| *m += factor * h);
+    }
     for i in problem.used() {
         middle[(ROOM_SHARED + i, ROOM_SHARED + i)] += problem.sigma[i].powi(-2);
     }
     Ok(sandwiched_shared(&inverse, &middle))
+}
+
+/// The room's measurement equations split by kind (corners, holes, planes), each with its
+/// rows and robust cost, in one pass over the measurements.
+#[inline(never)]
+fn kind_systems<C: Projector + Clone, const B: usize>(
+    problem: &ModesProblem<'_, '_, B>,
+    room: &RoomParams<C, B>,
+) -> Result<[SchurSystem<ROOM_SHARED, B>; 3], SolveError> {
+    let blocks = problem.room.priors().len();
+    let mut kinds: [SchurSystem<ROOM_SHARED, B>; 3] =
+        core::array::from_fn(|_| SchurSystem::new(blocks, 0));
+    problem.room.for_each_residual(room, |k, kind, r, js, jb, rows| {
+        let at = match kind {
+            ResidualKind::Corner(_) => 0,
+            ResidualKind::Hole(_) => 1,
+            ResidualKind::Plane(_) => 2,
+        };
+        kinds[at].add(k, problem.room.loss_for(kind), r, js, jb, rows);
+    })?;
+    Ok(kinds)
 }
 
 /// `H⁻¹` of the condensed equations with the fixed parameters' rows and columns zero.
