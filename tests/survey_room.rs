@@ -1,6 +1,7 @@
 //! The room file's `[survey]` table (DESIGN.md, "Surveyed rooms"): parsed, validated with
 //! errors naming the key and the entry, written back by `to_toml` unchanged; room files
-//! without it are unchanged.
+//! without it are unchanged. Its optional joint covariance (`survey.covariance`, the lower
+//! triangle by rows over 6 parameters per board and 4 per plane) likewise.
 
 use std::path::Path;
 
@@ -63,6 +64,67 @@ fn survey_mistakes_name_the_key_and_the_entry() {
         (text.replacen("[0.0, 0.0, 1.0]]\ntranslation = [-1.5", "[0.0, 0.0, -1.0]]\ntranslation = [-1.7", 1), &["survey.boards[1].rotation", "orthonormal"]),
         (text.replacen("[[survey.boards]]", "", 1).replacen("rotation = [[1, -0, 0.0], [0, 1, 0.0], [0.0, 0.0, 1.0]]\ntranslation = [-3, 0.25, 4.5]\nsigma_m = 0.0003\nsigma_deg = 0.005\n", "", 1), &["survey.boards", "5 entries", "6 boards"]),
         (text.replace("sigma_deg = 0.02\n", "sigma_deg = 0.02\nweight = 1\n"), &["weight"]),
+    ];
+    for (bad, words) in cases {
+        let message = error_of(&bad);
+        for w in words {
+            assert!(message.contains(w), "`{w}` missing from: {message}");
+        }
+    }
+}
+
+/// [`surveyed`] with a covariance: `row(i)` gives row `i` (6 boards, 2 planes: 44 rows).
+fn with_covariance(row: impl Fn(usize) -> String) -> String {
+    let text = surveyed();
+    let rows: Vec<String> = (0..44).map(row).collect();
+    text.replacen(
+        "frame = \"board 0, floor-levelled\"\n",
+        &format!("frame = \"board 0, floor-levelled\"\ncovariance = [\n{}\n]\n", rows.join(",\n")),
+        1,
+    )
+}
+
+/// Row `i` of a valid covariance: 10⁻⁸ on the diagonal, small correlations beside it.
+fn good_row(i: usize) -> String {
+    let numbers: Vec<String> = (0..=i)
+        .map(|j| {
+            if j == i {
+                "1e-8".to_string()
+            } else {
+                format!("{:e}", 1e-10 * ((i + j) % 3) as f64)
+            }
+        })
+        .collect();
+    format!("[{}]", numbers.join(", "))
+}
+
+#[test]
+fn a_survey_covariance_parses_and_round_trips_through_to_toml() {
+    let room = parse(&with_covariance(good_row), Path::new("room.toml")).unwrap();
+    let covariance = &room.survey.as_ref().unwrap().covariance;
+    assert_eq!(covariance.len(), 44);
+    assert_eq!(covariance[43].len(), 44);
+    assert_eq!(covariance[5][5], 1e-8);
+    let text = to_toml(&room);
+    assert!(text.contains("[survey]\n# the joint covariance"), "written under [survey]: {text}");
+    let again = parse(&text, Path::new("again.toml")).unwrap();
+    assert_eq!(again, room, "to_toml loses or changes something of the covariance");
+}
+
+#[test]
+fn covariance_mistakes_name_the_row() {
+    let short = |i: usize| if i == 7 { "[1e-8]".to_string() } else { good_row(i) };
+    let nan = |i: usize| if i == 9 { good_row(9).replace("1e-8", "nan") } else { good_row(i) };
+    let negative =
+        |i: usize| if i == 12 { good_row(12).replace("1e-8", "-1e-8") } else { good_row(i) };
+    let cases: [(String, &[&str]); 4] = [
+        (with_covariance(short), &["survey.covariance", "row 7", "i + 1 numbers"]),
+        (with_covariance(nan), &["survey.covariance", "row 9", "not finite"]),
+        (with_covariance(negative), &["survey.covariance", "row 12", "negative"]),
+        (
+            with_covariance(good_row).replacen("[1e-8],\n", "", 1),
+            &["survey.covariance", "6 per board + 4 per plane"],
+        ),
     ];
     for (bad, words) in cases {
         let message = error_of(&bad);

@@ -18,8 +18,9 @@
 //!
 //! In a surveyed room (`[survey]`, unless `free_boards`) steps 2–3 are `surveyed.rs`: the
 //! boards identified against the survey (`identify.rs`) and the room solved as one rigid
-//! target (`solve::room`). Files: `detectors.rs`, `association.rs`, `free.rs` (the
-//! free-board model), `identify.rs`, `surveyed.rs`, `gate.rs`.
+//! target (`solve::room`), then held by the survey's joint covariance when the room file
+//! has one (`modes.rs`, `solve::room_modes`). Files: `detectors.rs`, `association.rs`,
+//! `free.rs` (the free-board model), `identify.rs`, `surveyed.rs`, `modes.rs`, `gate.rs`.
 
 mod association;
 mod detectors;

@@ -7,7 +7,10 @@
 //! standing vehicle) and every seen board and plane within its survey σ.
 //!
 //! A board whose solved pose lies far outside its survey σ (moved, knocked over) is
-//! named, left out, and the room solved again; two such boards reject the run.
+//! named, left out, and the room solved again; two such boards reject the run. When the
+//! survey has its joint covariance the room is then solved once more, every block moved
+//! by the covariance's modes ([`super::modes`], [`crate::solve::room_modes`]): the result
+//! and its σ are that solve's.
 
 use super::association::{associate, lidar_nominal, paired_extrinsic};
 use super::free::{accepted, camera_start, hole_outlier, CameraStart, CornerStart};
