@@ -82,7 +82,7 @@ impl<'p, 'a, const B: usize> ModesProblem<'p, 'a, B> {
 
     /// The modes' prior cost `½ Σ (aᵢ/σᵢ)²`.
     fn prior_cost(&self, amplitudes: &SVector<f64, MAX_MODES>) -> f64 {
-        self.used().map(|i| 0.5 * (amplitudes[i] / self.sigma[i]).powi(2)).sum()
+        self.used().map(|i| 0.5 * squared(amplitudes[i] / self.sigma[i])).sum()
     }
 
     /// The mode slots in use.
@@ -115,7 +115,7 @@ impl<'p, 'a, const B: usize> ModesProblem<'p, 'a, B> {
         }
         let Some(amplitudes) = amplitudes else { return out };
         for i in self.used() {
-            let weight = self.sigma[i].powi(-2);
+            let weight = 1.0 / squared(self.sigma[i]);
             out.v[(ROOM_SHARED + i, ROOM_SHARED + i)] += weight;
             out.g_shared[ROOM_SHARED + i] += weight * amplitudes[i];
             out.residuals += 1;
@@ -210,7 +210,7 @@ pub fn modes_covariance<C: Projector + Clone, const B: usize>(
         middle.zip_apply(&part.v, |m, h| *m += factor * h);
     }
     for i in problem.used() {
-        middle[(ROOM_SHARED + i, ROOM_SHARED + i)] += problem.sigma[i].powi(-2);
+        middle[(ROOM_SHARED + i, ROOM_SHARED + i)] += 1.0 / squared(problem.sigma[i]);
     }
     Ok(sandwiched_shared(&inverse, &middle))
 }
@@ -234,6 +234,11 @@ fn kind_systems<C: Projector + Clone, const B: usize>(
         kinds[at].add(k, problem.room.loss_for(kind), r, js, jb, rows);
     })?;
     Ok(kinds)
+}
+
+/// `x²` (`f64::powi` needs `std`; this module does not).
+fn squared(x: f64) -> f64 {
+    x * x
 }
 
 /// `H⁻¹` of the condensed equations with the fixed parameters' rows and columns zero.
