@@ -381,6 +381,48 @@ fn a_survey_covariance_holds_the_planes_common_turn_as_one() {
     );
 }
 
+/// A covariance that says nothing sensible (hand-edited: variances of 10²⁰⁰ beside 10⁻³⁰⁰,
+/// every entry valid on its own) loses no run: the result is finite and accepted, from the
+/// joint solve or, when that cannot use it, from the per-block one with a note saying so.
+#[test]
+fn a_wild_survey_covariance_loses_no_run() {
+    let (mut room, truth, visit) = new_vehicle();
+    let mut rng = Rng(9);
+    let frame = detections(&visit, &room, &mut rng);
+    let cloud = visit.scene.cloud.clone().unwrap();
+    let mut spec = survey(&truth, Some((&mut Rng(13), 0.0005, 0.01, 0.002, 0.01)));
+    for b in spec.boards.iter_mut() {
+        (b.sigma_m, b.sigma_deg) = (0.0005, 0.01);
+    }
+    for p in spec.planes.iter_mut() {
+        (p.sigma_m, p.sigma_deg) = (0.002, 0.01);
+    }
+    let n = spec.covariance_size();
+    spec.covariance = (0..n)
+        .map(|i| {
+            (0..=i)
+                .map(|j| {
+                    if i != j {
+                        0.0
+                    } else if i % 2 == 0 {
+                        1e200
+                    } else {
+                        1e-300
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    room.survey = Some(spec);
+    let run = run(&room, &frame, &cloud, false);
+    println!("status {:?} reason {:?} notes {:?}", run.result.status, run.result.reason, run.notes);
+    assert_eq!(run.result.status, Status::Accepted, "{:?}", run.result.reason);
+    let e = errors(&run, &visit);
+    line("wild covariance", &e, &run);
+    assert!(e.t_mm.is_finite() && e.rot_deg.is_finite() && run.camera.fx.is_finite());
+    assert!(run.result.uncertainty.translation_m.is_finite());
+}
+
 #[test]
 fn a_moved_board_is_named_and_left_out() {
     let (mut room, truth, visit) = new_vehicle();

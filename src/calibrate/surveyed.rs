@@ -169,10 +169,20 @@ pub(super) fn solve_surveyed(
             // room it moved the overlay at 10 m from 0.44 to 0.64 px RMS and the rotation
             // from 0.016 to 0.020° (`scripts/surveyed_study.py`, 2026-12-02). The σ are
             // still each kind's own (`room_covariance`).
-            let (p, report, sigma) = match SurveyModes::of(survey) {
-                Some(modes) => {
-                    let basis = modes.basis(survey, &blocks);
-                    let (p, joint, sigma) = jointly(&problem, &modes, &basis, &p)?;
+            // Held by the survey's joint covariance when it has one. A covariance the solve
+            // cannot use (a hand-edited file, σ far beyond any measurement) leaves the
+            // per-block solution, said in the notes: the run is not lost to it.
+            let mut joint_note = None;
+            let joint = SurveyModes::of(survey).and_then(|modes| {
+                let basis = modes.basis(survey, &blocks);
+                jointly(&problem, &modes, &basis, &p)
+                    .map_err(|reason| {
+                        joint_note = Some(format!("the survey's covariance was not used ({reason}); each board and plane is held by its own σ"));
+                    })
+                    .ok()
+            });
+            let (p, report, sigma) = match joint {
+                Some((p, joint, sigma)) => {
                     iterations += joint.iterations;
                     (p, joint, sigma)
                 }
@@ -207,6 +217,7 @@ pub(super) fn solve_surveyed(
             }
             run.notes.extend(misplaced.take());
             run.notes.extend(unmatched);
+            run.notes.extend(joint_note);
             return Ok(run);
         }
         if let Some(i) = unpair {
