@@ -35,6 +35,13 @@ pub fn parse(text: &str, path: &Path) -> Result<Room, RoomFileError> {
     Ok(room)
 }
 
+/// What the room file says of `survey.covariance` above it (`target::SurveySpec::covariance`
+/// has the whole definition; DESIGN.md's `[survey]` does not hold the key).
+const COVARIANCE_COMMENT: &str =
+    "# the joint covariance, lower triangle by rows: every board's [δω δt] \
+(rad, m; room frame) in [[survey.boards]] order,\n# then every plane's [δω δd] (the normal's turn, \
+rad; the offset at the origin, m) in [[survey.planes]] order; the boards' mean frame as the σ\n";
+
 /// The room file as TOML (for fixtures and the simulator's output). A survey's covariance
 /// is written one row per line, right under `[survey]`: the pretty writer's one number per
 /// line would make it most of the file.
@@ -55,9 +62,6 @@ pub fn to_toml(room: &Room) -> String {
             format!("    [{}],", numbers.join(", "))
         })
         .collect();
-    let table = format!(
-        "[survey]\n# the joint covariance, lower triangle by rows (see DESIGN.md)\ncovariance = [\n{}\n]\n",
-        rows.join("\n")
-    );
+    let table = format!("[survey]\n{COVARIANCE_COMMENT}covariance = [\n{}\n]\n", rows.join("\n"));
     text.replacen("[survey]\n", &table, 1)
 }

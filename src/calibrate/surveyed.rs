@@ -592,8 +592,6 @@ pub(super) fn room_planes(
         .collect()
 }
 
-/// The board block farthest outside its survey σ, if any is beyond [`MOVED_BOARD_CHI2`]:
-/// (survey index, χ²).
 /// The room solved again held by the survey's joint covariance ([`SurveyModes`]) from the
 /// per-block solution `start` (its intrinsics, extrinsic and room pose; the blocks back at
 /// the survey, where the modes' prior is centred): the solution, what the solve did, and
@@ -614,18 +612,19 @@ fn jointly(
     let iterations = solve_modes(&joint, &mut params, 100).map_err(solver_reason)?;
     let sigma = modes_covariance(&joint, &params).map_err(solver_reason)?;
     let (corner_rms_px, hole_rms_px) = problem.rms_px(&params.room).map_err(solver_reason)?;
-    let used = (0..modes.sigma.len()).filter(|&i| modes.sigma[i] > 0.0).count();
     let report = RoomReport {
         iterations,
         initial_cost,
         final_cost: joint.cost(&params).map_err(solver_reason)?,
-        residuals: problem.residual_count() - 6 * problem.priors().len() + used,
+        residuals: problem.residual_count() - 6 * problem.priors().len() + joint.mode_count(),
         corner_rms_px,
         hole_rms_px,
     };
     Ok((params.room, report, sigma))
 }
 
+/// The board block farthest outside its survey σ, if any is beyond [`MOVED_BOARD_CHI2`]:
+/// (survey index, χ²).
 fn worst_moved(
     problem: &Problem<'_>,
     params: &Params,

@@ -637,7 +637,7 @@ pub fn room_covariance<C: Projector + Clone, const B: usize>(
         params,
         |each| {
             problem.for_each_residual(params, |k, kind, r, js, jb, rows| {
-                each(k, kind, problem.inner.loss_for(kind), r, js, jb, rows)
+                each(k, kind, problem.loss_for(kind), r, js, jb, rows)
             })
         },
         |each| problem.for_each_prior(params, |k, r, j| each(k, r, j)),
@@ -668,11 +668,7 @@ where
 {
     let ne = problem.normal_equations(params)?;
     let fixed = ne.mask(&problem.structural_mask(params));
-    let free = fixed.iter().filter(|f| !**f).count() + 6 * ne.blocks;
-    if ne.residuals <= free {
-        return Err(SolveError::TooFewPoints { needed: free + 1, got: ne.residuals });
-    }
-    let pooled = 2.0 * ne.cost / (ne.residuals - free) as f64;
+    let pooled = pooled_variance(&ne, &fixed)?;
     let mut inverse = StreamedInverse::new(reduced_inverse(&ne, &fixed)?, ne.system())?;
     // Per kind: rows, robust cost ½Σρ and the parameters it determines, tr(H⁻¹Hₖ).
     let (mut rows, mut cost, mut determined) =
@@ -697,10 +693,23 @@ where
     Ok(sandwich.finish(&mut inverse))
 }
 
+/// The residual variance `2·cost/dof` of `ne` (its free parameters those not `fixed` and
+/// 6 per block); an error when the measurements do not outnumber them.
+pub(crate) fn pooled_variance<const N: usize, const B: usize>(
+    ne: &SchurSystem<N, B>,
+    fixed: &[bool; N],
+) -> Result<f64, SolveError> {
+    let free = fixed.iter().filter(|f| !**f).count() + 6 * ne.blocks;
+    if ne.residuals <= free {
+        return Err(SolveError::TooFewPoints { needed: free + 1, got: ne.residuals });
+    }
+    Ok(2.0 * ne.cost / (ne.residuals - free) as f64)
+}
+
 /// `Σ_ss` of `ne` with the `fixed` parameters' rows and columns zero (a function of its
 /// own: the reduced matrix and its factor are off the stack when it returns).
 #[inline(never)]
-fn reduced_inverse<const N: usize, const B: usize>(
+pub(crate) fn reduced_inverse<const N: usize, const B: usize>(
     ne: &SchurSystem<N, B>,
     fixed: &[bool; N],
 ) -> Result<SMatrix<f64, N, N>, SolveError> {

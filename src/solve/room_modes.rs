@@ -25,10 +25,11 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use super::covariance::{shared_inverse, variance_factor};
+use super::covariance::variance_factor;
 use super::problem::ResidualKind;
 use super::room::{
-    apply_room_step, schur_lm, RoomParams, RoomProblem, SchurProblem, SchurSystem, ROOM_SHARED,
+    apply_room_step, pooled_variance, reduced_inverse, schur_lm, RoomParams, RoomProblem,
+    SchurProblem, SchurSystem, ROOM_SHARED,
 };
 use super::{Projector, SolveError};
 
@@ -88,6 +89,11 @@ impl<'p, 'a, const B: usize> ModesProblem<'p, 'a, B> {
     /// The mode slots in use.
     fn used(&self) -> impl Iterator<Item = usize> + '_ {
         (0..MAX_MODES).filter(|&i| self.sigma[i] > 0.0)
+    }
+
+    /// How many modes move the room (each one prior row).
+    pub fn mode_count(&self) -> usize {
+        self.used().count()
     }
 
     /// The room's equations condensed onto the shared parameters and amplitudes (see the
@@ -194,12 +200,8 @@ pub fn modes_covariance<C: Projector + Clone, const B: usize>(
 ) -> Result<SMatrix<f64, ROOM_SHARED, ROOM_SHARED>, SolveError> {
     let ne = problem.normal_equations(params)?;
     let fixed = ne.mask(&problem.structural_mask(params));
-    let free = fixed.iter().filter(|f| !**f).count();
-    if ne.residuals <= free {
-        return Err(SolveError::TooFewPoints { needed: free + 1, got: ne.residuals });
-    }
-    let pooled = 2.0 * ne.cost / (ne.residuals - free) as f64;
-    let inverse = inverse_of(&ne, &fixed)?;
+    let pooled = pooled_variance(&ne, &fixed)?;
+    let inverse = reduced_inverse(&ne, &fixed)?;
     let kinds = kind_systems(problem, &params.room)?;
     let mut middle = SMatrix::<f64, MODES_SHARED, MODES_SHARED>::zeros();
     for system in &kinds {
@@ -239,16 +241,6 @@ fn kind_systems<C: Projector + Clone, const B: usize>(
 /// `x²` (`f64::powi` needs `std`; this module does not).
 fn squared(x: f64) -> f64 {
     x * x
-}
-
-/// `H⁻¹` of the condensed equations with the fixed parameters' rows and columns zero.
-#[inline(never)]
-fn inverse_of(
-    ne: &SchurSystem<MODES_SHARED, 0>,
-    fixed: &[bool; MODES_SHARED],
-) -> Result<SMatrix<f64, MODES_SHARED, MODES_SHARED>, SolveError> {
-    let (s, _) = ne.reduce(0.0, fixed)?;
-    shared_inverse(&s, |i| fixed[i])
 }
 
 /// The shared 21×21 corner of `H⁻¹ M H⁻¹`.
