@@ -765,6 +765,10 @@ def rodrigues(w):
 
 
 def project(k, pts):
+    """Pixels of camera-frame points through intrinsics `k`: fx fy cx cy and the radtan
+    k1 k2 p1 p2 k3, or (8 numbers) the fisheye (equidistant) k1..k4."""
+    if len(k) == 8:
+        return project_fisheye(k, pts)
     fx, fy, cx, cy, k1, k2, p1, p2, k3 = k
     a, b = pts[:, 0] / pts[:, 2], pts[:, 1] / pts[:, 2]
     r2 = a * a + b * b
@@ -772,6 +776,19 @@ def project(k, pts):
     u = a * radial + 2 * p1 * a * b + p2 * (r2 + 2 * a * a)
     v = b * radial + p1 * (r2 + 2 * b * b) + 2 * p2 * a * b
     return np.stack([fx * u + cx, fy * v + cy], 1)
+
+
+def project_fisheye(k, pts):
+    """The fisheye model: θ the angle off the axis, θd = θ (1 + k1 θ² + k2 θ⁴ + k3 θ⁶ + k4 θ⁸)
+    along the point's azimuth (OpenCV's fisheye, as roomcal's `fisheye`)."""
+    fx, fy, cx, cy, k1, k2, k3, k4 = k
+    a, b = pts[:, 0] / pts[:, 2], pts[:, 1] / pts[:, 2]
+    r = np.sqrt(a * a + b * b)
+    theta = np.arctan(r)
+    t2 = theta * theta
+    theta_d = theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+    scale = np.where(r > 1e-12, theta_d / np.maximum(r, 1e-12), 1.0)
+    return np.stack([fx * a * scale + cx, fy * b * scale + cy], 1)
 
 
 def incidence_cosine(board_pose, lidar):

@@ -333,6 +333,27 @@ fn a_new_vehicle_in_the_surveyed_room_beats_free_boards() {
     assert!(s.rotation_deg < f.rotation_deg && s.translation_m < f.translation_m);
 }
 
+/// In a room with a LiDAR, a surveyed run whose LiDAR places nothing (no board, no
+/// surveyed plane: a sweep that saw none of them) is rejected naming the LiDAR, as a
+/// free-board run is: accepted as intrinsics only it would put a calibration without the
+/// extrinsic in force.
+#[test]
+fn a_surveyed_run_whose_lidar_places_nothing_is_rejected() {
+    let (mut room, truth, visit) = new_vehicle();
+    room.survey = Some(survey(&truth, None));
+    let mut frame = detections(&visit, &room, &mut Rng(7));
+    frame.lidar.clear();
+    let nothing = run(&room, &frame, &[], false);
+    assert_eq!(nothing.result.status, Status::Rejected);
+    let reason = nothing.result.reason.unwrap();
+    assert!(reason.contains("the LiDAR was not calibrated"), "{reason}");
+    // Without a LiDAR in the room the same images are an intrinsics-only run, accepted.
+    room.lidar = None;
+    let camera_only = run(&room, &frame, &[], false);
+    assert_eq!(camera_only.result.status, Status::Accepted, "{:?}", camera_only.result.reason);
+    assert!(camera_only.result.lidar_to_camera.is_none());
+}
+
 /// A survey whose planes all turned together (the error a survey's planes share: each
 /// visit's LiDAR places them, and its orientation against the boards is what a visit
 /// knows least). Its covariance says so; its per-plane σ cannot. Held by the covariance,

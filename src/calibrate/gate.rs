@@ -28,7 +28,16 @@ pub(super) fn gate(
     corners_fit(q, r.quality.corner_rms_px)?;
     covers(q, coverage(&run.camera, &run.boards))?;
     intrinsics_certain(q, &r.camera, &r.uncertainty)?;
-    if run.lidar_to_camera.is_some() {
+    if room.lidar.is_some() {
+        // As the free-board solve refuses a run whose LiDAR pairs no board: accepted as
+        // intrinsics only, it would put a calibration without the extrinsic in force.
+        check(run.lidar_to_camera.is_some(), || {
+            format!(
+                "the LiDAR was not calibrated: no board or surveyed plane placed it (the room has a \
+                 LiDAR; at least {} boards seen by both sensors needed)",
+                q.min_lidar_boards
+            )
+        })?;
         let lidar_boards = run.boards.iter().filter(|b| !b.holes_lidar.is_empty()).count();
         check(lidar_boards >= q.min_lidar_boards as usize, || {
             format!(
