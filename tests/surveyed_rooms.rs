@@ -11,6 +11,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use roomcal::result::{CalibrationResult, Status};
+use roomcal::sim::Truth;
 
 const BIN: &str = env!("CARGO_BIN_EXE_roomcal");
 const SURVEY_VISITS: usize = 6;
@@ -98,7 +99,7 @@ fn check(room: &OtherRoom) {
     assert!(code == Some(0) || code == Some(3), "calibrate: {code:?} {}", stderr(&calibrate));
     let result: CalibrationResult =
         serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
-    let truth: serde_json::Value =
+    let truth: Truth =
         serde_json::from_str(&std::fs::read_to_string(vehicle.join("truth.json")).unwrap())
             .unwrap();
     if result.status != Status::Accepted {
@@ -119,31 +120,16 @@ fn check(room: &OtherRoom) {
 
 /// (quantity, |error|, σ it is held to): fx, cx, cy in px; rotation in degrees and
 /// translation in metres as norms over three axes, against √3 × the worst-axis σ.
-fn errors(result: &CalibrationResult, truth: &serde_json::Value) -> Vec<(&'static str, f64, f64)> {
-    let number = |v: &serde_json::Value| v.as_f64().expect("a number in truth.json");
-    let camera = &truth["camera"];
+fn errors(result: &CalibrationResult, truth: &Truth) -> Vec<(&'static str, f64, f64)> {
     let u = &result.uncertainty;
     let extrinsic = result.lidar_to_camera.as_ref().expect("an accepted run places the LiDAR");
-    let true_extrinsic = &truth["lidar_to_camera"];
-    let matrix = |v: &serde_json::Value| -> [[f64; 3]; 3] {
-        std::array::from_fn(|i| std::array::from_fn(|j| number(&v[i][j])))
-    };
-    let t = matrix(&true_extrinsic["rotation"]);
-    let r = extrinsic.rotation;
-    // trace(R Tᵀ) = 1 + 2 cos(angle)
-    let trace: f64 =
-        (0..3).flat_map(|i| (0..3).map(move |j| (i, j))).map(|(i, j)| r[i][j] * t[i][j]).sum();
-    let angle = ((trace - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees();
-    let shift: f64 = (0..3)
-        .map(|i| extrinsic.translation[i] - number(&true_extrinsic["translation"][i]))
-        .map(|d| d * d)
-        .sum::<f64>()
-        .sqrt();
+    let true_extrinsic = truth.lidar_to_camera.as_ref().expect("the room has a LiDAR");
+    let (angle, shift) = true_extrinsic.difference(extrinsic);
     let root3 = 3f64.sqrt();
     vec![
-        ("fx", (result.camera.fx - number(&camera["fx"])).abs(), u.fx),
-        ("cx", (result.camera.cx - number(&camera["cx"])).abs(), u.cx),
-        ("cy", (result.camera.cy - number(&camera["cy"])).abs(), u.cy),
+        ("fx", (result.camera.fx - truth.camera.fx).abs(), u.fx),
+        ("cx", (result.camera.cx - truth.camera.cx).abs(), u.cx),
+        ("cy", (result.camera.cy - truth.camera.cy).abs(), u.cy),
         ("rotation °", angle, root3 * u.rotation_deg),
         ("translation m", shift, root3 * u.translation_m),
     ]
