@@ -4,9 +4,9 @@ boards (issue 14's 1.4 m board with 0.1 m squares and 0.1 m holes, a square boar
 holes on a 0.6 m grid), other LiDARs (VLP-32C, VLP-16), the band layout, wide and fisheye
 lenses. Each room: `roomcal simulate --visits`, `roomcal survey` from its first
 `--survey-visits` visits, then every later visit (a new vehicle) calibrated from one frame
-in the surveyed room. Renders are
-`--supersample 1` by default (the renderer integrates the checker over each sample's
-footprint: corners within 0.007 px of the truth noise-free, `tests/sim_scene.rs`).
+in the surveyed room. Renders are `--supersample 1` by default (the renderer integrates the
+checker over each sample's footprint: corners within 0.007 px of the truth noise-free,
+`tests/sim_scene.rs`).
 
 What must hold in every room: the survey is made or refused with a reason, and every
 calibration is either refused or within 3σ of the truth in every quantity (fx, cx, cy one
@@ -109,7 +109,7 @@ def one_room(folder, board, lidar, layout, lens, seed, args):
         if result["status"] == "accepted":
             run.update(study.errors(result, truth))
         else:
-            run["reason"] = result.get("reason") or "; ".join(result.get("notes", []))
+            run["reason"] = result.get("reason", "")
         runs.append(run)
     return {"survey": "made", "runs": runs}
 
@@ -166,7 +166,8 @@ def print_table(rows, args):
             print(f"| {row['room']} | {row['survey']}: {row['reason']} | | | | | | | | |")
             continue
         ok = accepted(row)
-        refused = [r.get("reason", "") for r in row["runs"] if r["status"] != "accepted"]
+        # Each distinct reason once (the vehicles of a room are often refused alike).
+        refused = sorted({r["reason"] for r in row["runs"] if r["status"] != "accepted"})
         worst = max((r["z_" + q] for r in ok for q in study.QUANTITIES), default=float("nan"))
         wrong = [f"visit {r['visit']}: {', '.join(beyond_3_sigma(r))}" for r in ok if beyond_3_sigma(r)]
         overlay = " / ".join(f"{rms(r[f'overlay_{d}'] for r in ok):.2f}" for d in (3, 10, 30))

@@ -1,8 +1,8 @@
 //! Surveys and surveyed calibrations in rooms built by others, end to end through the
 //! command line (`simulate --visits`, `survey`, `calibrate`): another board (1.4 × 1.1 m,
 //! 0.1 m squares, holes of 0.1 m at (±0.55, ±0.38): issue 14's) with a VLP-32C; the design's
-//! board with a VLP-16 (whose sixteen lines cross no hole twice there) seen through a
-//! fisheye. In each, a new vehicle's one frame is calibrated in the surveyed room, and
+//! board with a VLP-16 (whose sixteen lines place no board there: too few scan-line gaps
+//! of a hole's width) seen through a fisheye. In each, a new vehicle's one frame is calibrated in the surveyed room, and
 //! whatever it reports must hold: accepted within 3σ of the truth (fx, cx, cy on their
 //! axis; rotation and translation norms against √3 × the worst-axis σ), or refused with a
 //! reason. `scripts/surveyed_rooms.py` runs more rooms, with more vehicles each.
