@@ -14,7 +14,7 @@ axis; rotation and translation norms against √3 × the worst-axis σ, as
 `surveyed_study.py`). A result beyond 3σ is a silently wrong one and is listed.
 
     cargo build --release && scripts/surveyed_rooms.py [--work DIR] [--rooms N] \\
-        [--survey-visits 8] [--vehicles 3] [--supersample 1]
+        [--survey-visits 8] [--vehicles 3] [--supersample 1] [--only K ...]
 
 A markdown table on stdout, one row per room; the run's figures in DIR/rooms.json.
 """
@@ -59,6 +59,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", default=None, help="folder for the rooms (default: a new temporary one)")
     ap.add_argument("--rooms", type=int, default=len(ROOMS), help="the first N rooms of the list")
+    ap.add_argument("--only", type=int, nargs="*", default=None, help="only these rooms (1-based)")
     ap.add_argument("--survey-visits", type=int, default=8)
     ap.add_argument("--vehicles", type=int, default=3)
     ap.add_argument("--seed", type=int, default=11, help="room k is drawn with seed + k")
@@ -67,6 +68,8 @@ def main():
     work = args.work or tempfile.mkdtemp(prefix="surveyed-rooms-")
     rows = []
     for k, (board, lidar, layout, lens) in enumerate(ROOMS[: args.rooms]):
+        if args.only and k + 1 not in args.only:
+            continue
         name = f"{board} board, {lidar}, {layout}, {lens if lens == 'fisheye' else lens + '°'}"
         folder = os.path.join(work, f"room-{k + 1:02}")
         row = {"room": name, "seed": args.seed + k, **one_room(folder, board, lidar, layout, lens, args.seed + k, args)}
