@@ -251,22 +251,8 @@ mod tests {
     /// is 0.010° cut where the points appear, 0.125° cut where their beams meet the board.
     #[test]
     fn face_points_cut_where_they_appear_carry_no_range_noise_tilt() {
-        let spec = BoardSpec {
-            width: 1.2,
-            height: 1.0,
-            inner_corners: [7, 5],
-            square: 0.08,
-            hole_radius: 0.08,
-            holes: heapless::Vec::from_slice(&[
-                [-0.45, -0.35],
-                [0.45, -0.35],
-                [-0.45, 0.35],
-                [0.45, 0.35],
-            ])
-            .unwrap(),
-            count: 1,
-            checker_offset: [0.0, 0.0],
-        };
+        let design = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/room.toml");
+        let spec = crate::room::load(&design).expect("the design room file").board;
         // Board x across, y up, z towards the sensor side; the LiDAR frame has z forward.
         let facing = Se3 {
             rotation: so3_exp(&Vec3::new(0.0, 35f64.to_radians(), 0.0)),
