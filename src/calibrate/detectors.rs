@@ -279,7 +279,7 @@ mod tests {
                     let margin = PLANE_EDGE_MARGIN_M;
                     let clear = local.x.abs() <= spec.width / 2.0 - margin
                         && local.y.abs() <= spec.height / 2.0 - margin
-                        && (0..4).all(|h| {
+                        && (0..spec.holes.len()).all(|h| {
                             (spec.hole(h) - Vec3::new(local.x, local.y, 0.0)).norm()
                                 >= spec.hole_radius + margin
                         });
