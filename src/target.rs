@@ -154,7 +154,9 @@ pub struct QualitySpec {
     /// Fewest complete boards the camera must see in every frame (default: `board.count`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub min_boards: Option<u32>,
-    /// Fewest boards seen by both sensors, over all frames (LiDAR rooms).
+    /// Fewest boards seen by both sensors, over all frames (LiDAR rooms); in a surveyed
+    /// room, fewest surveyed targets the LiDAR registers against (boards by their holes or
+    /// their face, and planes).
     pub min_lidar_boards: u32,
     /// Smallest fraction of the image (a 4×4 grid of cells) holding detected corners.
     pub min_coverage: f64,

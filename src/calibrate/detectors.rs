@@ -195,7 +195,7 @@ impl Detectors {
 }
 
 /// Points farther than this many plane σ from a board's plane are not its face.
-const PLANE_CUT_SIGMAS: f64 = 3.0;
+pub const PLANE_CUT_SIGMAS: f64 = 3.0;
 /// Floor of the per-point plane σ (m): no LiDAR ranges better than this.
 const PLANE_MIN_SIGMA_M: f64 = 0.002;
 /// Points this close to the board's outline or a hole's rim are left out of the plane

@@ -155,6 +155,7 @@ pub(super) fn solve_all(
             frame: *frame,
             corners: board.corners.clone(),
             holes_lidar: pair.as_ref().map_or(Vec::new(), |p| p.holes_lidar.clone()),
+            lidar_face: pair.as_ref().is_some_and(|p| p.plane.is_some()),
             pose: *pose,
         })
         .collect();
@@ -168,6 +169,7 @@ pub(super) fn solve_all(
         iterations,
         notes: Vec::new(),
         pose_covariance: Some(pose_covariance),
+        lidar_planes: 0,
     })
 }
 

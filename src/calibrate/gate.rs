@@ -38,12 +38,18 @@ pub(super) fn gate(
                 q.min_lidar_boards
             )
         })?;
-        let lidar_boards = run.boards.iter().filter(|b| !b.holes_lidar.is_empty()).count();
-        check(lidar_boards >= q.min_lidar_boards as usize, || {
-            format!(
-                "{lidar_boards} boards seen by both sensors, at least {} needed",
-                q.min_lidar_boards
-            )
+        // In a surveyed room the survey gives every target its pose: the LiDAR registers
+        // against boards (by their holes or their face) and planes alike, as a rig's does.
+        let lidar_boards = run.boards.iter().filter(|b| b.seen_by_lidar()).count();
+        let (targets, seen) = match r.camera_in_room {
+            Some(_) => {
+                let n = lidar_boards + run.lidar_planes;
+                (n, format!("the LiDAR registers against {n} surveyed boards and planes"))
+            }
+            None => (lidar_boards, format!("{lidar_boards} boards seen by both sensors")),
+        };
+        check(targets >= q.min_lidar_boards as usize, || {
+            format!("{seen}, at least {} needed", q.min_lidar_boards)
         })?;
         holes_fit(q, r.quality.hole_rms_px)?;
         extrinsic_certain(q, &r.uncertainty)?;

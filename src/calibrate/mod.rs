@@ -103,8 +103,18 @@ pub struct UsedBoard {
     pub corners: Vec<Vec2>,
     /// The LiDAR's hole centres in the room's hole order (empty when unpaired).
     pub holes_lidar: Vec<Vec3>,
+    /// Whether the LiDAR's points on its face entered the solve (with its holes, or in a
+    /// surveyed room on their own, where the survey says where the face is).
+    pub lidar_face: bool,
     /// Board → camera, as solved.
     pub pose: Se3,
+}
+
+impl UsedBoard {
+    /// Seen by the LiDAR too: its holes placed, or its face's points used.
+    pub fn seen_by_lidar(&self) -> bool {
+        !self.holes_lidar.is_empty() || self.lidar_face
+    }
 }
 
 /// The outcome of a run: the result file and what the report needs to draw it.
@@ -125,6 +135,8 @@ pub struct Calibration {
     /// 0–5) and, in a surveyed room, room → camera (rows 6–11; zero otherwise), for
     /// composing a rig's extrinsics (`rig.rs`). `None` for a failed run.
     pub pose_covariance: Option<PoseCovariance>,
+    /// Surveyed planes whose LiDAR points entered the solve (0 with free boards).
+    pub lidar_planes: usize,
 }
 
 /// See [`Calibration::pose_covariance`].
@@ -317,6 +329,7 @@ fn gated(
             iterations: 0,
             notes: Vec::new(),
             pose_covariance: None,
+            lidar_planes: 0,
         },
     }
 }

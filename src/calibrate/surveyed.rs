@@ -13,6 +13,7 @@
 //! and its σ are that solve's.
 
 use super::association::{associate, lidar_nominal, paired_extrinsic};
+use super::detectors::{plane_points, PLANE_CUT_SIGMAS};
 use super::free::{accepted, camera_start, hole_outlier, CameraStart, CornerStart};
 use super::identify::{identify, oriented, Identity};
 use super::modes::{SurveyEntry, SurveyModes};
@@ -114,6 +115,9 @@ pub(super) fn solve_surveyed(
         // Plane points from the start, then again from the first solve; without a sweep
         // (a rig's pair run) there is nothing to select again, and one solve is the run.
         let mut planes = room_planes(survey, &surveyed, clouds, &room_to_camera, &ext, None);
+        let unpaired = |i: usize| pairs[i].is_none();
+        let mut faces =
+            unpaired_faces(spec, &surveyed, &identified, unpaired, clouds, &room_to_camera, &ext);
         let mut params = None;
         let passes = if clouds.iter().any(|c| !c.is_empty()) { 2 } else { 1 };
         for pass in 2 - passes..2 {
@@ -131,6 +135,7 @@ pub(super) fn solve_surveyed(
                 &pairs,
                 &keep,
                 &planes,
+                &faces,
                 camera.fx,
             )?;
             let mut p = problem.params_at_priors(camera, ext, room_to_camera);
@@ -149,6 +154,15 @@ pub(super) fn solve_surveyed(
                     &p.room_to_camera,
                     &p.lidar_to_camera,
                     Some(&planes),
+                );
+                faces = unpaired_faces(
+                    spec,
+                    &surveyed,
+                    &identified,
+                    unpaired,
+                    clouds,
+                    &p.room_to_camera,
+                    &p.lidar_to_camera,
                 );
                 params = Some(p);
                 continue;
@@ -199,6 +213,8 @@ pub(super) fn solve_surveyed(
                 &sigma,
                 &identified,
                 &pairs,
+                &faces,
+                planes.len(),
                 &keep,
                 &holes_board,
                 iterations,
@@ -493,6 +509,7 @@ fn add_observations<'a>(
     pairs: &'a [Option<super::association::Pair>],
     keep: &[usize],
     planes: &[(usize, PlanePoints)],
+    faces: &[Option<PlanePoints>],
     fx: f64,
 ) -> Result<Vec<SurveyEntry>, String> {
     let mut blocks: Vec<SurveyEntry> = Vec::new();
@@ -522,7 +539,7 @@ fn add_observations<'a>(
             holes_board: hb,
             holes_lidar: hl,
             hole_sigma_px: pair.map(|p| hole_sigma_px(fx, p.sigma_m, pose.translation.z)),
-            plane: pair.and_then(|p| p.plane),
+            plane: pair.and_then(|p| p.plane).or(faces[i]),
         };
         problem.add_observation(block, observation).map_err(solver_reason)?;
     }
@@ -539,6 +556,38 @@ fn add_observations<'a>(
         problem.add_observation(block, observation).map_err(solver_reason)?;
     }
     Ok(blocks)
+}
+
+/// The LiDAR's points on the face of every identified board whose holes it did not place
+/// (`unpaired(i)`), index by index (`None` for the others): the survey says where the board
+/// is, the room pose and the extrinsic carry it into the board's frame's sweep, and
+/// [`plane_points`] takes what lies on its face. First within [`PLANE_START_CUT_M`] of that
+/// plane (the start's extrinsic may be the nominal mounting, off by a degree or two), then
+/// within 3σ of what the first cut's points show. A LiDAR whose lines are too sparse to
+/// resolve a hole (a VLP-16) still sees the faces, and the faces with the room's planes place
+/// it.
+fn unpaired_faces(
+    spec: &crate::target::BoardSpec,
+    surveyed: &[Se3],
+    identified: &[(u32, CameraBoard, usize, Se3)],
+    unpaired: impl Fn(usize) -> bool,
+    clouds: &[&[Point]],
+    room_to_camera: &Se3,
+    extrinsic: &Se3,
+) -> Vec<Option<PlanePoints>> {
+    let room_to_lidar = extrinsic.inverse().compose(room_to_camera);
+    identified
+        .iter()
+        .enumerate()
+        .map(|(i, (frame, _, board, _))| {
+            let cloud = clouds.get(*frame as usize).filter(|c| !c.is_empty() && unpaired(i))?;
+            let board_to_lidar = room_to_lidar.compose(&surveyed[*board]);
+            let points = || cloud.iter().map(|p| Vec3::new(p.x as f64, p.y as f64, p.z as f64));
+            let first = plane_points(spec, &board_to_lidar, PLANE_START_CUT_M, points())?;
+            let cut = (PLANE_CUT_SIGMAS * first.sigma_m).min(PLANE_START_CUT_M);
+            plane_points(spec, &board_to_lidar, cut, points())
+        })
+        .collect()
 }
 
 /// The LiDAR's points on every surveyed plane, over all clouds: those within a cut of
@@ -652,6 +701,8 @@ fn calibration(
     sigma: &nalgebra::SMatrix<f64, ROOM_SHARED, ROOM_SHARED>,
     identified: &[(u32, CameraBoard, usize, Se3)],
     pairs: &[Option<super::association::Pair>],
+    faces: &[Option<PlanePoints>],
+    planes: usize,
     keep: &[usize],
     holes_board: &[Vec3],
     iterations: usize,
@@ -666,6 +717,7 @@ fn calibration(
             frame: identified[i].0,
             corners: identified[i].1.corners.clone(),
             holes_lidar: pairs[i].as_ref().map_or(Vec::new(), |p| p.holes_lidar.clone()),
+            lidar_face: pairs[i].as_ref().is_some_and(|p| p.plane.is_some()) || faces[i].is_some(),
             pose: *pose,
         })
         .collect();
@@ -703,6 +755,7 @@ fn calibration(
         iterations,
         notes,
         pose_covariance: Some(pose_covariance(sigma)),
+        lidar_planes: if with_lidar { planes } else { 0 },
     }
 }
 
