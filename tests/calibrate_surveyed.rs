@@ -354,6 +354,43 @@ fn a_surveyed_run_whose_lidar_places_nothing_is_rejected() {
     assert!(camera_only.result.lidar_to_camera.is_none());
 }
 
+/// A LiDAR that places no board by its holes (a VLP-16's lines are too sparse to resolve
+/// them) still sees the boards' faces: the faces of the boards the camera sees, cut where
+/// the survey puts them, and the room's planes place it, within 3σ of the truth; the gate
+/// counts those targets against `min_lidar_boards` and, asked for more than there are,
+/// refuses naming them.
+#[test]
+fn a_lidar_without_holes_is_placed_by_the_surveyed_faces_and_planes() {
+    let (mut room, truth, visit) = new_vehicle();
+    room.survey = Some(survey(&truth, None));
+    let mut frame = detections(&visit, &room, &mut Rng(7));
+    frame.lidar.clear();
+    let cloud = visit.scene.cloud.clone().unwrap();
+    let placed = run(&room, &frame, &cloud, false);
+    assert_eq!(placed.result.status, Status::Accepted, "{:?}", placed.result.reason);
+    assert!(placed.boards.iter().all(|b| b.holes_lidar.is_empty()));
+    let faces = placed.boards.iter().filter(|b| b.seen_by_lidar()).count();
+    assert!(
+        faces >= 2 && placed.lidar_planes >= 1,
+        "{faces} faces, {} planes",
+        placed.lidar_planes
+    );
+    let e = errors(&placed, &visit);
+    line("faces and planes, no holes", &e, &placed);
+    let u = &placed.result.uncertainty;
+    let root3 = 3f64.sqrt();
+    assert!(e.rot_deg <= 3.0 * root3 * u.rotation_deg, "rotation {:.4}°", e.rot_deg);
+    assert!(e.t_mm <= 3.0 * root3 * u.translation_m * 1e3, "translation {:.2} mm", e.t_mm);
+
+    let targets = faces + placed.lidar_planes;
+    room.quality.min_lidar_boards = targets as u32 + 1;
+    let refused = run(&room, &frame, &cloud, false);
+    assert_eq!(refused.result.status, Status::Rejected);
+    let reason = refused.result.reason.unwrap();
+    let expected = format!("the LiDAR registers against {targets} surveyed boards and planes");
+    assert!(reason.contains(&expected), "{reason}");
+}
+
 /// A survey whose planes all turned together (the error a survey's planes share: each
 /// visit's LiDAR places them, and its orientation against the boards is what a visit
 /// knows least). Its covariance says so; its per-plane σ cannot. Held by the covariance,
