@@ -78,9 +78,15 @@ pub fn lines(
         });
         out.extend(extrinsic_lines(e, &nominal, u.rotation_deg, u.translation_m));
     }
+    // A LiDAR placed by faces and planes alone (a surveyed room) has no hole residual.
+    let holes = match (room.lidar.is_some(), run.boards.iter().any(|b| !b.holes_lidar.is_empty())) {
+        (false, _) => String::new(),
+        (true, true) => format!(", holes {:.3} px RMS", r.quality.hole_rms_px),
+        (true, false) => ", no hole placed".to_string(),
+    };
     out.push(format!(
-        "  residuals   corners {:.3} px RMS, holes {:.3} px RMS, {} boards used, {} solver iterations",
-        r.quality.corner_rms_px, r.quality.hole_rms_px, r.quality.boards, run.iterations
+        "  residuals   corners {:.3} px RMS{holes}, {} boards used, {} solver iterations",
+        r.quality.corner_rms_px, r.quality.boards, run.iterations
     ));
     out.extend(board_lines(room, frames, run));
     for path in written {
@@ -144,6 +150,9 @@ fn board_lines(room: &Room, frames: &[FrameDetections], run: &Calibration) -> Ve
             (false, _) => String::new(),
             (true, Some(rms)) => {
                 format!("; LiDAR: {} hole centres, {rms:.3} px RMS", board.holes_lidar.len())
+            }
+            (true, None) if board.lidar_face => {
+                "; LiDAR: its face where the survey puts it (no hole placed)".to_string()
             }
             (true, None) => "; LiDAR: not found or not paired".to_string(),
         };
