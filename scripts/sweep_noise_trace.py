@@ -29,6 +29,9 @@ import tomllib
 
 import numpy as np
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from crb_bound import read_pcd_xyz  # noqa: E402  (one PCD reader for the scripts)
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ROOMCAL = os.environ.get("ROOMCAL_BIN", os.path.join(ROOT, "target", "release", "roomcal"))
 EDGE_MARGIN_M = 0.03  # calibrate::detectors::PLANE_EDGE_MARGIN_M
@@ -69,35 +72,13 @@ def visit_numbers(folder, span):
 
 def load_visit(noisy_dir, clean_dir, v):
     name = f"visit-{v:02}"
-    noisy = read_pcd(os.path.join(noisy_dir, name, "cloud.pcd"))
-    clean = read_pcd(os.path.join(clean_dir, name, "cloud.pcd"))
+    noisy = read_pcd_xyz(os.path.join(noisy_dir, name, "cloud.pcd"))
+    clean = read_pcd_xyz(os.path.join(clean_dir, name, "cloud.pcd"))
     with open(os.path.join(noisy_dir, name, "truth.json")) as f:
         truth = json.load(f)
     if len(noisy) != len(clean):
         sys.exit(f"{name}: {len(noisy)} points against {len(clean)} noise-free: not the same beams (same seed?)")
     return noisy, clean, truth
-
-
-def read_pcd(path):
-    """x, y, z of a binary PCD as `roomcal simulate` writes it."""
-    with open(path, "rb") as f:
-        raw = f.read()
-    header, pos = {}, 0
-    while "DATA" not in header:
-        end = raw.index(b"\n", pos)
-        line = raw[pos:end].decode()
-        pos = end + 1
-        if line and not line.startswith("#"):
-            key, *values = line.split()
-            header[key] = values
-    if header["DATA"][0] != "binary":
-        sys.exit(f"{path}: DATA {header['DATA'][0]}, this script reads binary")
-    kinds = {("F", "4"): "<f4", ("F", "8"): "<f8", ("U", "1"): "u1", ("U", "2"): "<u2", ("U", "4"): "<u4",
-             ("I", "4"): "<i4"}
-    dtype = np.dtype([(n, kinds[(t, s)]) for n, s, t in zip(header["FIELDS"], header["SIZE"], header["TYPE"])])
-    count = int(header["POINTS"][0])
-    data = np.frombuffer(raw[pos:pos + count * dtype.itemsize], dtype=dtype)
-    return np.stack([data["x"], data["y"], data["z"]], 1).astype(float)
 
 
 def board_poses(truth):

@@ -213,24 +213,47 @@ pub fn plane_points(
     cut_m: f64,
     points: impl Iterator<Item = Vec3>,
 ) -> Option<PlanePoints> {
+    summarise_face(board_to_lidar, face_points(spec, board_to_lidar, cut_m, points))
+}
+
+/// The points [`plane_points`] keeps, not yet summarised.
+pub fn face_points(
+    spec: &BoardSpec,
+    board_to_lidar: &Se3,
+    cut_m: f64,
+    points: impl Iterator<Item = Vec3>,
+) -> Vec<Vec3> {
     let to_board = board_to_lidar.inverse();
-    let (half_w, half_h) =
-        (spec.width / 2.0 - PLANE_EDGE_MARGIN_M, spec.height / 2.0 - PLANE_EDGE_MARGIN_M);
-    let keep_out = spec.hole_radius + PLANE_EDGE_MARGIN_M;
-    let on_face = |p: &Vec3| {
-        let b = to_board.act(p);
-        b.z.abs() <= cut_m
-            && b.x.abs() <= half_w
-            && b.y.abs() <= half_h
-            && (0..spec.holes.len())
-                .all(|h| (spec.hole(h) - Vec3::new(b.x, b.y, 0.0)).norm() >= keep_out)
-    };
-    let face: Vec<Vec3> = points.filter(on_face).collect();
+    points
+        .filter(|p| {
+            let b = to_board.act(p);
+            b.z.abs() <= cut_m && clear_face(spec, b.x, b.y)
+        })
+        .collect()
+}
+
+/// [`plane_points`]' summary of a board's face points, with [`face_sigma`] as their σ.
+fn summarise_face(board_to_lidar: &Se3, face: Vec<Vec3>) -> Option<PlanePoints> {
+    let sigma = face_sigma(board_to_lidar, &face);
+    PlanePoints::from_points(face, sigma)
+}
+
+/// Face points' RMS distance from the plane of `board_to_lidar` (m), floored at
+/// [`PLANE_MIN_SIGMA_M`].
+pub fn face_sigma(board_to_lidar: &Se3, face: &[Vec3]) -> f64 {
     let normal = board_to_lidar.rotation.column(2).into_owned();
     let origin = board_to_lidar.translation;
     let sum_sq: f64 = face.iter().map(|p| normal.dot(&(p - origin)).powi(2)).sum();
-    let sigma = (sum_sq / face.len().max(1) as f64).sqrt().max(PLANE_MIN_SIGMA_M);
-    PlanePoints::from_points(face, sigma)
+    (sum_sq / face.len().max(1) as f64).sqrt().max(PLANE_MIN_SIGMA_M)
+}
+
+/// Whether board-plane point (x, y) is on the face clear of its outline and its holes by
+/// [`PLANE_EDGE_MARGIN_M`].
+fn clear_face(spec: &BoardSpec, x: f64, y: f64) -> bool {
+    let keep_out = spec.hole_radius + PLANE_EDGE_MARGIN_M;
+    x.abs() <= spec.width / 2.0 - PLANE_EDGE_MARGIN_M
+        && y.abs() <= spec.height / 2.0 - PLANE_EDGE_MARGIN_M
+        && (0..spec.holes.len()).all(|h| (spec.hole(h) - Vec3::new(x, y, 0.0)).norm() >= keep_out)
 }
 
 #[cfg(test)]
@@ -276,14 +299,7 @@ mod tests {
                     }
                     let point = beam * (s + 0.02 * rng.normal());
                     noisy.push(point);
-                    let margin = PLANE_EDGE_MARGIN_M;
-                    let clear = local.x.abs() <= spec.width / 2.0 - margin
-                        && local.y.abs() <= spec.height / 2.0 - margin
-                        && (0..spec.holes.len()).all(|h| {
-                            (spec.hole(h) - Vec3::new(local.x, local.y, 0.0)).norm()
-                                >= spec.hole_radius + margin
-                        });
-                    if clear {
+                    if clear_face(&spec, local.x, local.y) {
                         on_face.push(point);
                     }
                 }

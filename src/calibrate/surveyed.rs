@@ -13,7 +13,7 @@
 //! and its σ are that solve's.
 
 use super::association::{associate, lidar_nominal, paired_extrinsic};
-use super::detectors::{plane_points, PLANE_CUT_SIGMAS};
+use super::detectors::{face_points, face_sigma, plane_points, PLANE_CUT_SIGMAS};
 use super::free::{accepted, camera_start, hole_outlier, CameraStart, CornerStart};
 use super::identify::{identify, oriented, Identity};
 use super::modes::{SurveyEntry, SurveyModes};
@@ -539,7 +539,7 @@ fn add_observations<'a>(
             holes_board: hb,
             holes_lidar: hl,
             hole_sigma_px: pair.map(|p| hole_sigma_px(fx, p.sigma_m, pose.translation.z)),
-            plane: pair.and_then(|p| p.plane).or(faces[i]),
+            plane: face_of(pairs, faces, i),
         };
         problem.add_observation(block, observation).map_err(solver_reason)?;
     }
@@ -556,6 +556,16 @@ fn add_observations<'a>(
         problem.add_observation(block, observation).map_err(solver_reason)?;
     }
     Ok(blocks)
+}
+
+/// Identified board `i`'s face points as the solve takes them: its LiDAR board's when the
+/// holes paired it, else [`unpaired_faces`]'.
+fn face_of(
+    pairs: &[Option<super::association::Pair>],
+    faces: &[Option<PlanePoints>],
+    i: usize,
+) -> Option<PlanePoints> {
+    pairs[i].as_ref().and_then(|p| p.plane).or(faces[i])
 }
 
 /// The LiDAR's points on the face of every identified board whose holes it did not place
@@ -582,10 +592,13 @@ fn unpaired_faces(
         .map(|(i, (frame, _, board, _))| {
             let cloud = clouds.get(*frame as usize).filter(|c| !c.is_empty() && unpaired(i))?;
             let board_to_lidar = room_to_lidar.compose(&surveyed[*board]);
-            let points = || cloud.iter().map(|p| Vec3::new(p.x as f64, p.y as f64, p.z as f64));
-            let first = plane_points(spec, &board_to_lidar, PLANE_START_CUT_M, points())?;
-            let cut = (PLANE_CUT_SIGMAS * first.sigma_m).min(PLANE_START_CUT_M);
-            plane_points(spec, &board_to_lidar, cut, points())
+            let points = cloud.iter().map(|p| Vec3::new(p.x as f64, p.y as f64, p.z as f64));
+            let first = face_points(spec, &board_to_lidar, PLANE_START_CUT_M, points);
+            // The tighter cut keeps a subset of the first: only its points are read again
+            // (and too few there leave too few here).
+            let cut =
+                (PLANE_CUT_SIGMAS * face_sigma(&board_to_lidar, &first)).min(PLANE_START_CUT_M);
+            plane_points(spec, &board_to_lidar, cut, first.into_iter())
         })
         .collect()
 }
@@ -717,7 +730,7 @@ fn calibration(
             frame: identified[i].0,
             corners: identified[i].1.corners.clone(),
             holes_lidar: pairs[i].as_ref().map_or(Vec::new(), |p| p.holes_lidar.clone()),
-            lidar_face: pairs[i].as_ref().is_some_and(|p| p.plane.is_some()) || faces[i].is_some(),
+            lidar_face: face_of(pairs, faces, i).is_some(),
             pose: *pose,
         })
         .collect();
