@@ -232,6 +232,25 @@ pub fn face_points(
         .collect()
 }
 
+/// The face of a board that is *expected* at `board_to_lidar` (placed there by something
+/// other than its holes: the survey, or the camera through an extrinsic), in a sweep. Its
+/// points are cut twice: within `start_cut_m` of that plane first (the pose may be off by
+/// centimetres and a degree or two), then within [`PLANE_CUT_SIGMAS`] of what the first
+/// cut's points show, as [`plane_points`] summarises them. `None` when too few remain.
+pub fn expected_face(
+    spec: &BoardSpec,
+    board_to_lidar: &Se3,
+    start_cut_m: f64,
+    cloud: &[crate::lidar::Point],
+) -> Option<PlanePoints> {
+    let points = cloud.iter().map(|p| Vec3::new(p.x as f64, p.y as f64, p.z as f64));
+    let first = face_points(spec, board_to_lidar, start_cut_m, points);
+    // The tighter cut keeps a subset of the first: only its points are read again (and too
+    // few there leave too few here).
+    let cut = (PLANE_CUT_SIGMAS * face_sigma(board_to_lidar, &first)).min(start_cut_m);
+    plane_points(spec, board_to_lidar, cut, first.into_iter())
+}
+
 /// [`plane_points`]' summary of a board's face points, with [`face_sigma`] as their σ.
 fn summarise_face(board_to_lidar: &Se3, face: Vec<Vec3>) -> Option<PlanePoints> {
     let sigma = face_sigma(board_to_lidar, &face);

@@ -26,6 +26,7 @@ use crate::lidar::Point;
 use crate::solve::{hole_sigma_px, PlanePoints, SolveError};
 use crate::target::{BoardSpec, Room, SurveySpec, SurveyedBoard, SurveyedPlane, MAX_BOARDS};
 
+use super::detectors::expected_face;
 use super::free::run_corner_noise_px;
 use super::{calibrate, CalibrateOptions, FrameDetections};
 use bundle::{BundleBoard, BundleVisit, Sigma, SurveyProblem, SurveyState, VisitState};
@@ -38,6 +39,10 @@ pub const FRAME: &str = gauge::MEAN_FRAME;
 
 /// Most bundle iterations.
 const MAX_ITERATIONS: usize = 60;
+/// A board face the LiDAR did not place by its holes is looked for within this distance
+/// (m) of where the visit's free-board start puts it (board pose and extrinsic, each good
+/// to a few millimetres and a few tenths of a degree), then within 3σ of what that shows.
+const FACE_START_CUT_M: f64 = 0.10;
 
 /// What one visit contributes: its free-board calibration and the planes in its sweep.
 #[derive(Clone, Debug)]
@@ -159,6 +164,8 @@ pub fn prepare_visit(
     let corner_sigma_px = run_corner_noise_px(&run)
         .unwrap_or_else(|| median(&frame.camera.iter().map(|b| b.sigma_px).collect::<Vec<_>>()));
     let hole_scale = hole_noise_scale(&run, frame);
+    let board_to_lidar =
+        |used: &super::UsedBoard| run.lidar_to_camera.map(|e| e.inverse().compose(&used.pose));
     let boards = run
         .boards
         .iter()
@@ -171,7 +178,15 @@ pub fn prepare_visit(
                 holes_lidar: used.holes_lidar.clone(),
                 hole_sigma_px: hole_scale
                     * hole_sigma_px(run.camera.fx, hole_sigma_m, used.pose.translation.z),
-                plane: lidar.and_then(|l| l.plane),
+                // A board whose holes the LiDAR did not place still shows its face where
+                // the camera and the start's extrinsic put it: every face the LiDAR hits
+                // enters the bundle (issue 13), as in a surveyed calibration.
+                plane: match lidar {
+                    Some(l) => l.plane,
+                    None => board_to_lidar(used).and_then(|pose| {
+                        expected_face(&room.board, &pose, FACE_START_CUT_M, cloud)
+                    }),
+                },
                 pose: used.pose,
             }
         })

@@ -13,7 +13,7 @@
 //! and its σ are that solve's.
 
 use super::association::{associate, lidar_nominal, paired_extrinsic};
-use super::detectors::{face_points, face_sigma, plane_points, PLANE_CUT_SIGMAS};
+use super::detectors::expected_face;
 use super::free::{accepted, camera_start, hole_outlier, CameraStart, CornerStart};
 use super::identify::{identify, oriented, Identity};
 use super::modes::{SurveyEntry, SurveyModes};
@@ -571,9 +571,8 @@ fn face_of(
 /// The LiDAR's points on the face of every identified board whose holes it did not place
 /// (`unpaired(i)`), index by index (`None` for the others): the survey says where the board
 /// is, the room pose and the extrinsic carry it into the board's frame's sweep, and
-/// [`plane_points`] takes what lies on its face. First within [`PLANE_START_CUT_M`] of that
-/// plane (the start's extrinsic may be the nominal mounting, off by a degree or two), then
-/// within 3σ of what the first cut's points show. A LiDAR whose lines are too sparse to
+/// [`expected_face`] takes what lies on its face, first within [`PLANE_START_CUT_M`] of it
+/// (the start's extrinsic may be the nominal mounting, off by a degree or two). A LiDAR whose lines are too sparse to
 /// resolve a hole (a VLP-16) still sees the faces, and the faces with the room's planes place
 /// it.
 fn unpaired_faces(
@@ -591,14 +590,7 @@ fn unpaired_faces(
         .enumerate()
         .map(|(i, (frame, _, board, _))| {
             let cloud = clouds.get(*frame as usize).filter(|c| !c.is_empty() && unpaired(i))?;
-            let board_to_lidar = room_to_lidar.compose(&surveyed[*board]);
-            let points = cloud.iter().map(|p| Vec3::new(p.x as f64, p.y as f64, p.z as f64));
-            let first = face_points(spec, &board_to_lidar, PLANE_START_CUT_M, points);
-            // The tighter cut keeps a subset of the first: only its points are read again
-            // (and too few there leave too few here).
-            let cut =
-                (PLANE_CUT_SIGMAS * face_sigma(&board_to_lidar, &first)).min(PLANE_START_CUT_M);
-            plane_points(spec, &board_to_lidar, cut, first.into_iter())
+            expected_face(spec, &room_to_lidar.compose(&surveyed[*board]), PLANE_START_CUT_M, cloud)
         })
         .collect()
 }
