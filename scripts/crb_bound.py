@@ -339,34 +339,43 @@ def per_block_prior_errors(truth, room, board, noise, placed, cloud, survey_info
 
 def survey_summary(survey_info, room, planes=None):
     """RMS over the boards of the survey bound's position (worst axis, mm) and rotation
-    (worst axis, deg) σ, each board's pose taken relative to the boards' mean frame (as
-    `roomcal survey` reports them), and the planes' normal σ (worst axis, deg): of the room
-    planes `planes` (indices) when given, else of every plane a sweep holds."""
+    (worst axis, deg) σ, and over the planes of the normal's σ (worst axis, deg): the room
+    planes `planes` (indices) when given, else every plane a sweep holds. Boards and planes
+    alike are taken relative to the boards' mean frame, as `roomcal survey` reports them
+    (a plane's normal turned with that frame: in board 0's gauge it would carry board 0's
+    own turn)."""
     nb = len(room["boards"])
     keep = [k for k in range(6, len(survey_info)) if survey_info[k, k] > 0]
     cov = np.zeros_like(survey_info)
     cov[np.ix_(keep, keep)] = np.linalg.inv(survey_info[np.ix_(keep, keep)])
     boards = [pose(b) for b in room["boards"]]
+    normals0 = [np.array(p["normal"], dtype=float) for p in room["planes"]]
+    held = [j for j in range(len(normals0)) if survey_info[6 * nb + 3 * j, 6 * nb + 3 * j] > 0
+            and (planes is None or j in planes)]
 
     def in_mean_frame(poses):
         mr, mt = mean_frame(poses)
-        return [(mr.T @ r, mr.T @ (t - mt)) for r, t in poses]
+        return mr, [(mr.T @ r, mr.T @ (t - mt)) for r, t in poses]
 
-    truth = in_mean_frame(boards)
+    mr0, truth = in_mean_frame(boards)
 
     def relative(x):
-        moved = in_mean_frame([perturb(b, x[6 * i:6 * i + 6]) for i, b in enumerate(boards)])
-        return np.concatenate([np.concatenate([rotation_vector(r @ r0.T), t - t0])
-                               for (r, t), (r0, t0) in zip(moved, truth)])
+        mr, moved = in_mean_frame([perturb(b, x[6 * i:6 * i + 6]) for i, b in enumerate(boards)])
+        out = [np.concatenate([rotation_vector(r @ r0.T), t - t0]) for (r, t), (r0, t0) in zip(moved, truth)]
+        for j in held:
+            at = 6 * nb + 3 * j
+            n = rodrigues(tangent_basis(normals0[j]) @ x[at:at + 2]) @ normals0[j]
+            # The small turn of the normal in the mean frame (a vector across it, rad).
+            out.append(np.cross(mr0.T @ normals0[j], mr.T @ n))
+        return np.concatenate(out)
 
-    jac = numeric_jacobian(relative, np.zeros(6 * nb))
-    rel = jac @ cov[:6 * nb, :6 * nb] @ jac.T
+    jac = numeric_jacobian(relative, np.zeros(len(survey_info)))
+    rel = jac @ cov @ jac.T
     d = np.diag(rel)
     rot = [math.degrees(math.sqrt(d[6 * i:6 * i + 3].max())) for i in range(nb)]
     pos = [1000 * math.sqrt(d[6 * i + 3:6 * i + 6].max()) for i in range(nb)]
-    plane_var = np.diag(cov)[6 * nb:]
-    normals = [math.degrees(math.sqrt(plane_var[3 * j:3 * j + 2].max())) for j in range(len(plane_var) // 3)
-               if plane_var[3 * j] > 0 and (planes is None or j in planes)]
+    normals = [math.degrees(math.sqrt(max(np.linalg.eigvalsh(rel[a:a + 3, a:a + 3]).max(), 0.0)))
+               for a in (6 * nb + 3 * k for k in range(len(held)))]
     rms = lambda xs: math.sqrt(sum(x * x for x in xs) / len(xs)) if xs else float("nan")
     return {"pos_mm": rms(pos), "rot_deg": rms(rot), "normal_deg": rms(normals), "planes": len(normals)}
 

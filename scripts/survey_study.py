@@ -17,8 +17,8 @@ beside it: on a shared machine the wall time says more about the other jobs than
 `--bound` adds the survey's own Cramér–Rao bound (`crb_bound.survey_information`: every
 visit's information about the boards and planes, its own parameters marginalised; corners at
 the survey's reported corner RMS per axis, holes 3 mm, the sweeps' range noise) in the same
-mean frame: the RMS over boards of the worst-axis position and rotation σ, and over the planes
-two or more visits' sweeps hold (those the survey keeps) of the normal's.
+mean frame (boards and planes alike): the RMS over boards of the worst-axis position and
+rotation σ, and over the survey's planes (matched to the truth's by normal) of the normal's.
 """
 import argparse
 import re
@@ -170,15 +170,16 @@ def study(sim_dir, count, work):
         within += max(abs(x) for x in d) <= 3 * spec["sigma_m"]
         within += a <= 3 * spec["sigma_deg"] * math.sqrt(3)  # the angle is a norm over 3 axes
         total += 2
-    off, turn = [], []
+    off, turn, kept = [], [], []
     truth_planes = [plane_in(truth_frame, tp) for tp in truth["planes"]]
     for plane in survey.get("planes", []):
         mine = plane_in(mine_frame, plane)
         best = None
-        for tp in truth_planes:
+        for k, tp in enumerate(truth_planes):
             ang = math.degrees(math.acos(max(-1, min(1, sum(x * y for x, y in zip(tp["normal"], mine["normal"]))))))
             if best is None or ang < best[0]:
-                best = (ang, abs(tp["offset"] - mine["offset"]))
+                best = (ang, abs(tp["offset"] - mine["offset"]), k)
+        kept.append(best[2])
         turn.append(best[0])
         off.append(best[1])
         within += best[1] <= 3 * plane["sigma_m"]
@@ -203,6 +204,7 @@ def study(sim_dir, count, work):
         "plane_deg": rms(turn),
         "plane_sigma_deg": mean([p["sigma_deg"] for p in planes]),
         "within_3_sigma": f"{within}/{total}",
+        "truth_planes": kept,
     }
 
 
@@ -228,7 +230,7 @@ def main():
             r = study(sim_dir, count, work)
             bound = ""
             if args.bound:
-                b = survey_bound(sim_dir, count, r["corner_rms_px"] / math.sqrt(2), infos)
+                b = survey_bound(sim_dir, count, r["corner_rms_px"] / math.sqrt(2), infos, r["truth_planes"])
                 bound = f" {b['pos_mm']:.2f} / {b['rot_deg']:.4f} / {b['normal_deg']:.4f} |"
             print(f"| {seed} | {r['visits']} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | {r['pos_mm']:.2f} ({r['pos_sigma_mm']:.2f}) "
                   f"| {r['rot_deg']:.4f} ({r['rot_sigma_deg']:.4f}) | {r['planes']} "
@@ -236,9 +238,11 @@ def main():
                   f"| {r['within_3_sigma']} |{bound}", flush=True)
 
 
-def survey_bound(sim_dir, count, corner_px, infos):
+def survey_bound(sim_dir, count, corner_px, infos, planes):
     """The survey bound of visits 1..`count` (`infos`: the visits' information so far, kept
-    between calls; the first call's corner noise stands for every visit)."""
+    between calls; the first call's corner noise stands for every visit), over the room-truth
+    planes `planes` (the survey's own, matched by normal: a plane the survey's plane search
+    did not keep, as a ceiling a few sweeps graze, has no σ of the survey to set beside)."""
     import crb_bound  # numpy: only with --bound
     with open(os.path.join(sim_dir, "room-truth.json")) as f:
         room = json.load(f)
@@ -250,10 +254,6 @@ def survey_bound(sim_dir, count, corner_px, infos):
             range_m = json.load(f)["range_noise_m"]
         noise = crb_bound.Noise(corner_px=corner_px, hole_m=0.003, range_m=range_m)
         infos.append(crb_bound.visit_survey_information(scene, room, board, noise))
-    # The planes two or more of these visits' sweeps hold: those `roomcal survey` keeps.
-    nb = 6 * len(room["boards"])
-    seen = [sum(info[nb + 3 * j, nb + 3 * j] > 0 for info in infos[:count]) for j in range(len(room["planes"]))]
-    planes = [j for j, n in enumerate(seen) if n >= 2]
     return crb_bound.survey_summary(sum(infos[:count]), room, planes)
 
 
