@@ -2,8 +2,10 @@
 //! (each its own vehicle: own intrinsics, LiDAR mounting and parking pose).
 //!
 //! 1. **Per visit** ([`prepare_visit`]): today's free-board calibration gives its
-//!    intrinsics, extrinsic and every board's board→camera pose; the room's big planes are
-//!    found in its sweep ([`crate::detect::planes`]).
+//!    intrinsics, extrinsic and every board's board→camera pose (a LiDAR that placed no
+//!    board by its holes is placed by the boards' faces, [`register`]); every board's face
+//!    is cut from its sweep where that start puts it, and the room's big planes are found
+//!    in it ([`crate::detect::planes`]).
 //! 2. **Chaining** ([`chain`]): every visit's boards are labelled as room boards (the
 //!    symmetric checkerboard's half-turn resolved) and every visit placed in the room.
 //! 3. **Planes** ([`planes`]): each visit's planes carried into the room by its start
@@ -19,6 +21,7 @@ pub mod bundle;
 pub mod chain;
 pub mod gauge;
 pub mod planes;
+pub mod register;
 
 use crate::detect::planes::{find_planes, FoundPlane, PlaneConfig};
 use crate::geometry::{Camera, Mat3, Se3, Vec2, Vec3};
@@ -48,7 +51,8 @@ const FACE_START_CUT_M: f64 = 0.10;
 #[derive(Clone, Debug)]
 pub struct SurveyVisit {
     pub camera: Camera,
-    /// LiDAR → camera (`None`: the visit's LiDAR gave no board).
+    /// LiDAR → camera (`None`: the visit's LiDAR placed no board by its holes and its
+    /// faces did not place it, [`register::register_by_faces`]).
     pub lidar_to_camera: Option<Se3>,
     /// Corner σ (px): the noise the visit's own corner residuals show
     /// ([`super::free::corner_noise_px`]), the detector's median σ where they cannot.
@@ -164,8 +168,15 @@ pub fn prepare_visit(
     let corner_sigma_px = run_corner_noise_px(&run)
         .unwrap_or_else(|| median(&frame.camera.iter().map(|b| b.sigma_px).collect::<Vec<_>>()));
     let hole_scale = hole_noise_scale(&run, frame);
+    // A LiDAR that placed no board by its holes is placed by the boards' faces, from the
+    // nominal mounting: its faces and its sweep's planes then enter the bundle too.
+    let lidar_to_camera = run.lidar_to_camera.or_else(|| {
+        let nominal = super::association::lidar_nominal(room.lidar.as_ref()?);
+        let poses: Vec<Se3> = run.boards.iter().map(|b| b.pose).collect();
+        register::register_by_faces(&room.board, &poses, cloud, &nominal)
+    });
     let board_to_lidar =
-        |used: &super::UsedBoard| run.lidar_to_camera.map(|e| e.inverse().compose(&used.pose));
+        |used: &super::UsedBoard| lidar_to_camera.map(|e| e.inverse().compose(&used.pose));
     let boards = run
         .boards
         .iter()
@@ -191,17 +202,11 @@ pub fn prepare_visit(
             }
         })
         .collect();
-    let planes = match run.lidar_to_camera {
+    let planes = match lidar_to_camera {
         Some(_) => find_planes(cloud, &PlaneConfig::default()),
         None => Vec::new(),
     };
-    Ok(SurveyVisit {
-        camera: run.camera,
-        lidar_to_camera: run.lidar_to_camera,
-        corner_sigma_px,
-        boards,
-        planes,
-    })
+    Ok(SurveyVisit { camera: run.camera, lidar_to_camera, corner_sigma_px, boards, planes })
 }
 
 /// How much larger the hole term's noise is than the hole detector's σ say, from the
