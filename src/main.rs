@@ -854,7 +854,7 @@ fn survey(args: SurveyArgs) -> Result<(), Failure> {
     std::fs::write(&args.out, roomcal::room::to_toml(&surveyed))
         .with_context(|| format!("writing {}", args.out.display()))
         .map_err(|e| Failure::new(1, e))?;
-    for line in cli::survey::lines(&solved, &args.out.display().to_string()) {
+    for line in cli::survey::lines(&solved, &prepared, &args.out.display().to_string()) {
         say!("{line}");
     }
     Ok(())

@@ -62,6 +62,31 @@ pub struct SurveyVisit {
     pub planes: Vec<FoundPlane>,
 }
 
+/// How a visit's LiDAR was placed for the survey's start.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LidarPlacement {
+    /// By the holes of the boards it placed (its free-board calibration).
+    Holes,
+    /// By the boards' faces alone ([`register::register_by_faces`]): it placed no hole.
+    Faces,
+    /// Not placed: its sweep adds nothing to the survey.
+    Unplaced,
+}
+
+impl SurveyVisit {
+    /// How this visit's LiDAR was placed: the free-board start places it only by holes,
+    /// so an extrinsic without a board's holes came from the faces.
+    pub fn lidar_placement(&self) -> LidarPlacement {
+        match self.lidar_to_camera {
+            None => LidarPlacement::Unplaced,
+            Some(_) if self.boards.iter().any(|b| !b.holes_lidar.is_empty()) => {
+                LidarPlacement::Holes
+            }
+            Some(_) => LidarPlacement::Faces,
+        }
+    }
+}
+
 /// One board of a visit as its free-board calibration used it.
 #[derive(Clone, Debug, PartialEq)]
 pub struct VisitBoard {
