@@ -484,27 +484,15 @@ fn mistakes_name_the_visit_and_the_board() {
 // board, and the walls and floor came out at 3.1–3.2σ.
 #[test]
 fn a_survey_of_8_simulated_visits_recovers_every_board_and_plane_within_3_sigma() {
-    use roomcal::sim::visits::simulate_visits;
-    use roomcal::sim::{ImageNoise, SimOptions};
-    let options = SimOptions {
-        seed: 4,
-        image: ImageNoise { supersample: 1, ..ImageNoise::default() },
-        ..SimOptions::default()
-    };
-    let sim = simulate_visits(&room(), &options, 8).unwrap();
+    let sim = rendered_visits(8);
     let room = &sim.room;
     let visits: Vec<SurveyVisit> = sim
         .visits
         .iter()
         .enumerate()
         .map(|(v, visit)| {
-            let mut detectors = Detectors::new(room).unwrap();
             let cloud = visit.scene.cloud.as_ref().unwrap();
-            let frame = FrameDetections {
-                camera: detectors.detect_pixels(&visit.scene.image).unwrap(),
-                lidar: detectors.detect_cloud(cloud),
-            };
-            prepare_visit(room, v, &frame, cloud).unwrap()
+            prepare_visit(room, v, &detected(room, visit), cloud).unwrap()
         })
         .collect();
     let found = survey(room, &visits).unwrap();
@@ -600,21 +588,10 @@ fn a_survey_of_8_simulated_visits_recovers_every_board_and_plane_within_3_sigma(
 /// the range noise RMS). Before, those boards entered the bundle with corners only.
 #[test]
 fn a_survey_visit_gives_the_faces_of_boards_whose_holes_were_not_placed() {
-    use roomcal::sim::visits::simulate_visits;
-    use roomcal::sim::{ImageNoise, SimOptions};
-    let options = SimOptions {
-        seed: 4,
-        image: ImageNoise { supersample: 1, ..ImageNoise::default() },
-        ..SimOptions::default()
-    };
-    let sim = simulate_visits(&room(), &options, 1).unwrap();
+    let sim = rendered_visits(1);
     let (room, visit) = (&sim.room, &sim.visits[0]);
     let cloud = visit.scene.cloud.as_ref().unwrap();
-    let mut detectors = Detectors::new(room).unwrap();
-    let mut frame = FrameDetections {
-        camera: detectors.detect_pixels(&visit.scene.image).unwrap(),
-        lidar: detectors.detect_cloud(cloud),
-    };
+    let mut frame = detected(room, visit);
     assert!(frame.lidar.len() >= 3, "{} LiDAR boards placed", frame.lidar.len());
     frame.lidar.truncate(2);
     let prepared = prepare_visit(room, 0, &frame, cloud).unwrap();
@@ -652,4 +629,25 @@ fn a_survey_visit_gives_the_faces_of_boards_whose_holes_were_not_placed() {
         unplaced_faces += 1;
     }
     assert!(unplaced_faces >= 1, "no board was left without its holes");
+}
+
+/// `n` visits of the design's room rendered at one sample per pixel (seed 4).
+fn rendered_visits(n: usize) -> roomcal::sim::visits::Visits {
+    use roomcal::sim::{ImageNoise, SimOptions};
+    let options = SimOptions {
+        seed: 4,
+        image: ImageNoise { supersample: 1, ..ImageNoise::default() },
+        ..SimOptions::default()
+    };
+    roomcal::sim::visits::simulate_visits(&room(), &options, n).unwrap()
+}
+
+/// A rendered visit's camera and LiDAR detections.
+fn detected(room: &Room, visit: &roomcal::sim::visits::Visit) -> FrameDetections {
+    let mut detectors = Detectors::new(room).unwrap();
+    let cloud = visit.scene.cloud.as_ref().unwrap();
+    FrameDetections {
+        camera: detectors.detect_pixels(&visit.scene.image).unwrap(),
+        lidar: detectors.detect_cloud(cloud),
+    }
 }

@@ -572,9 +572,9 @@ fn face_of(
 /// (`unpaired(i)`), index by index (`None` for the others): the survey says where the board
 /// is, the room pose and the extrinsic carry it into the board's frame's sweep, and
 /// [`expected_face`] takes what lies on its face, first within [`PLANE_START_CUT_M`] of it
-/// (the start's extrinsic may be the nominal mounting, off by a degree or two). A LiDAR whose lines are too sparse to
-/// resolve a hole (a VLP-16) still sees the faces, and the faces with the room's planes place
-/// it.
+/// (the start's extrinsic may be the nominal mounting, off by a degree or two). A LiDAR whose
+/// lines are too sparse to resolve a hole (a VLP-16) still sees the faces, and the faces with
+/// the room's planes place it.
 fn unpaired_faces(
     spec: &crate::target::BoardSpec,
     surveyed: &[Se3],
