@@ -219,7 +219,7 @@ fn draw_points(image: &mut RgbImage, camera: &Camera, clouds: &[(Se3, &[Point])]
     let view = ViewBounds::of(camera);
     let in_view = || {
         clouds.iter().flat_map(|(t, c)| c.iter().map(move |p| (t, p))).filter_map(|(t, p)| {
-            let q = t.act(&Vec3::new(p.x as f64, p.y as f64, p.z as f64));
+            let q = t.act(&p.position());
             view.project(camera, &q).map(|px| (px, q.norm()))
         })
     };

@@ -5,6 +5,7 @@ use super::{median, CameraBoard, LidarBoard};
 use crate::detect::holes::{HoleConfig, HoleDetector};
 use crate::detect::{ChessboardDetector, DetectError, GreyImage};
 use crate::geometry::{Se3, Vec2, Vec3};
+use crate::lidar::Point;
 use crate::solve::PlanePoints;
 use crate::target::{BoardSpec, Room};
 
@@ -41,11 +42,7 @@ impl RigDetectors {
 
     /// The boards of a rig LiDAR's sweep: where `expected` says (from
     /// [`expected_in_rig_lidars`]), else every board a global search places.
-    pub fn detect_lidar(
-        &mut self,
-        points: &[crate::lidar::Point],
-        expected: Option<&[Se3]>,
-    ) -> Vec<LidarBoard> {
+    pub fn detect_lidar(&mut self, points: &[Point], expected: Option<&[Se3]>) -> Vec<LidarBoard> {
         self.first().detect_where_expected(points, expected)
     }
 }
@@ -112,7 +109,7 @@ impl Detectors {
     /// without `expected`, the global search.
     pub fn detect_where_expected(
         &mut self,
-        points: &[crate::lidar::Point],
+        points: &[Point],
         expected: Option<&[Se3]>,
     ) -> Vec<LidarBoard> {
         if let Some(expected) = expected {
@@ -126,7 +123,7 @@ impl Detectors {
     }
 
     /// Every board the LiDAR places in the cloud, with its hole centres.
-    pub fn detect_cloud(&mut self, points: &[crate::lidar::Point]) -> Vec<LidarBoard> {
+    pub fn detect_cloud(&mut self, points: &[Point]) -> Vec<LidarBoard> {
         self.holes.detect(points, &mut self.found_holes);
         let found = core::mem::take(&mut self.found_holes);
         let boards = found.iter().map(|b| self.lidar_board(b, points)).collect();
@@ -139,7 +136,7 @@ impl Detectors {
     /// ([`HoleDetector::detect_expected`]).
     pub fn detect_expected(
         &mut self,
-        points: &[crate::lidar::Point],
+        points: &[Point],
         expected: &[Se3],
     ) -> Vec<Option<LidarBoard>> {
         let mut found = core::mem::take(&mut self.found_expected);
@@ -155,7 +152,7 @@ impl Detectors {
     fn lidar_board(
         &self,
         board: &crate::detect::holes::LidarBoard,
-        points: &[crate::lidar::Point],
+        points: &[Point],
     ) -> LidarBoard {
         LidarBoard {
             holes: board.holes.to_vec(),
@@ -164,7 +161,7 @@ impl Detectors {
                 &self.spec,
                 &board.pose,
                 PLANE_CUT_SIGMAS * board.plane_rms_m.max(PLANE_MIN_SIGMA_M),
-                points.iter().map(|p| Vec3::new(p.x as f64, p.y as f64, p.z as f64)),
+                points.iter().map(Point::position),
             ),
         }
     }
@@ -243,7 +240,7 @@ pub fn expected_face(
     start_cut_m: f64,
     cloud: &[crate::lidar::Point],
 ) -> Option<PlanePoints> {
-    let points = cloud.iter().map(|p| Vec3::new(p.x as f64, p.y as f64, p.z as f64));
+    let points = cloud.iter().map(Point::position);
     let first = face_points(spec, board_to_lidar, start_cut_m, points);
     // The tighter cut keeps a subset of the first: only its points are read again (and too
     // few there leave too few here).

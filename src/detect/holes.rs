@@ -528,7 +528,7 @@ impl HoleDetector {
         self.keys.reserve_exact(points.len());
         let inv = 1.0 / self.config.voxel_m;
         for p in points {
-            let v = Vec3::new(p.x as f64, p.y as f64, p.z as f64);
+            let v = p.position();
             let r = v.norm();
             if !r.is_finite() || r < near || r > far {
                 continue;

@@ -134,7 +134,7 @@ pub fn select_plane_points<'a>(
         if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
             continue;
         }
-        let q = Vec3::new(p.x as f64, p.y as f64, p.z as f64);
+        let q = p.position();
         let mut within = planes.iter().enumerate().filter(|(_, plane)| {
             plane.cut.admits(plane.normal.dot(&q) - plane.offset, incidence2(&plane.normal, &q))
         });
@@ -154,7 +154,7 @@ const MAX_FAILURES: usize = 3;
 pub fn find_planes(cloud: &[Point], config: &PlaneConfig) -> Vec<FoundPlane> {
     let mut left: Vec<Vec3> = cloud
         .iter()
-        .map(|p| Vec3::new(p.x as f64, p.y as f64, p.z as f64))
+        .map(Point::position)
         .filter(|p| p.iter().all(|v| v.is_finite()) && p.norm() > 1e-3)
         .collect();
     let mut rng = SplitMix(0x5EED_0F91_A7E5);

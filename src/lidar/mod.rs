@@ -28,6 +28,13 @@ pub struct Point {
     pub time: f64,
 }
 
+impl Point {
+    /// The return's position in double precision, as the geometry and the solver take it.
+    pub fn position(&self) -> crate::geometry::Vec3 {
+        crate::geometry::Vec3::new(self.x as f64, self.y as f64, self.z as f64)
+    }
+}
+
 pub mod calibration;
 pub mod decoder;
 pub mod hesai;

@@ -48,8 +48,7 @@ pub fn register_by_faces(
     cloud: &[Point],
     nominal: &Se3,
 ) -> Option<Se3> {
-    let points: Vec<Vec3> =
-        cloud.iter().map(|p| Vec3::new(p.x as f64, p.y as f64, p.z as f64)).collect();
+    let points: Vec<Vec3> = cloud.iter().map(Point::position).collect();
     let mut extrinsic = *nominal;
     for band in BANDS_M {
         for _ in 0..STEPS {
@@ -264,7 +263,7 @@ mod tests {
         let scattered: Vec<Point> = sweep(&spec, &boards, &truth, 0.0)
             .into_iter()
             .map(|p| {
-                let v = Vec3::new(p.x as f64, p.y as f64, p.z as f64);
+                let v = p.position();
                 let moved = v + v.normalize() * 0.3 * (noise.uniform() - 0.5);
                 Point { x: moved.x as f32, y: moved.y as f32, z: moved.z as f32, ..p }
             })
