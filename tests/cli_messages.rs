@@ -119,6 +119,35 @@ fn rejected_run_keeps_exit_code_3_and_says_why_in_one_plain_line() {
 }
 
 #[test]
+fn a_run_stopped_before_its_solve_prints_no_placeholder_as_a_result() {
+    // The six-board room's image with another room's sweep: no LiDAR board pairs with a
+    // camera board, so nothing is solved. The summary must not print the result file's
+    // placeholder extrinsic as a LiDAR found far from its mounting.
+    let dir = temp_dir("unsolved");
+    let out = dir.join("result.json");
+    let (code, stdout, stderr) = roomcal(&[
+        "calibrate",
+        "--room",
+        &fixture("six-boards-pandar64", "room.toml"),
+        "--image",
+        &fixture("six-boards-pandar64", "image.png"),
+        "--cloud",
+        &fixture("four-boards-vlp32c", "cloud.pcd"),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 3, "{stdout}{stderr}");
+    assert_plain("unsolved", &(stdout.clone() + &stderr));
+    assert!(stdout.starts_with("roomcal calibrate: rejected: "), "{stdout}");
+    assert!(stdout.contains("  solved      nothing: the run stopped before the solve"), "{stdout}");
+    for placeholder in ["vs nominal", "  camera      ", "  distortion  "] {
+        assert!(!stdout.contains(placeholder), "`{placeholder}` printed:\n{stdout}");
+    }
+    assert!(stdout.contains("  written     "), "{stdout}");
+    assert!(out.exists(), "the rejected run's result file is still written");
+}
+
+#[test]
 fn detect_and_bad_input_messages_are_plain() {
     let dir = temp_dir("detect");
     let out = dir.join("detections.json");

@@ -56,6 +56,19 @@ pub fn lines(
         "  input       {} frame(s): {seen} complete boards in the image(s){lidar}",
         frames.len()
     ));
+    if never_solved(run) {
+        // Its result carries the room's nominal camera and an identity extrinsic (the
+        // result file's fields are not optional); printed, they would read as a LiDAR
+        // found 120° and half a metre off its mounting.
+        out.push(
+            "  solved      nothing: the run stopped before the solve (the result file's camera is \
+             the room's nominal one and its extrinsic a placeholder, not measurements)"
+                .to_string(),
+        );
+        out.push("  boards      none used: see the status line".to_string());
+        out.extend(written.iter().map(|path| format!("  written     {path}")));
+        return out;
+    }
     out.push(format!(
         "  camera      {} {}×{}: fx {:.3} fy {:.3} px (σ {:.3} {:.3}), cx {:.3} cy {:.3} px (σ {:.3} {:.3})",
         model_name(c.model),
@@ -93,6 +106,12 @@ pub fn lines(
         out.push(format!("  written     {path}"));
     }
     out
+}
+
+/// A run rejected before its solve (nothing to pair, too few boards): no board used, no
+/// iteration made.
+fn never_solved(run: &Calibration) -> bool {
+    run.boards.is_empty() && run.iterations == 0
 }
 
 /// The LiDAR's pose in the camera's body frame and its change from the nominal mounting.
