@@ -18,7 +18,7 @@
 
 use crate::geometry::{Mat3, Vec3};
 use crate::lidar::Point;
-use crate::solve::problem::incidence2;
+use crate::solve::problem::{incidence2_of, BeamSample};
 use crate::solve::PlanePoints;
 
 /// How planes are searched for.
@@ -135,8 +135,10 @@ pub fn select_plane_points<'a>(
             continue;
         }
         let q = p.position();
+        let r2 = q.norm_squared();
         let mut within = planes.iter().enumerate().filter(|(_, plane)| {
-            plane.cut.admits(plane.normal.dot(&q) - plane.offset, incidence2(&plane.normal, &q))
+            let along = plane.normal.dot(&q);
+            plane.cut.admits(along - plane.offset, incidence2_of(along, r2))
         });
         if let (Some((only, _)), None) = (within.next(), within.next()) {
             if keep(&q) {
@@ -241,13 +243,18 @@ pub fn trimmed_plane_points(
     floor_m: f64,
 ) -> Option<PlanePoints> {
     let all = points.iter().map(plane_point);
-    let mut summary = PlanePoints::along_beams(all.clone(), normal, offset, floor_m)?;
+    // Every round measures every point against the last fit once, keeps those its cut
+    // admits, and summarises them from here (two passes over the kept, none over the rest).
+    let mut kept: Vec<BeamSample> = Vec::with_capacity(points.len());
+    kept.extend(all.clone().map(|q| BeamSample::of(q, normal, offset)));
+    let mut summary = PlanePoints::from_beam_samples(kept.iter().copied(), floor_m)?;
     for _ in 0..TRIM_ROUNDS {
         let (n, d) = summary.fitted_plane_towards(normal);
         let cut = PlaneCut::measured(&summary, floor_m);
-        // Filtered as read, not copied: the summary passes over the points twice.
-        let kept = all.clone().filter(|q| cut.admits(n.dot(q) - d, incidence2(&n, q)));
-        let next = PlanePoints::along_beams(kept, &n, d, floor_m)?;
+        kept.clear();
+        let measured = all.clone().map(|q| BeamSample::of(q, &n, d));
+        kept.extend(measured.filter(|s| cut.admits(s.residual, s.cos2)));
+        let next = PlanePoints::from_beam_samples(kept.iter().copied(), floor_m)?;
         let settled = next.count == summary.count;
         summary = next;
         if settled {

@@ -210,17 +210,23 @@ impl PlanePoints {
         // for points far from the sensor.
         let mut iter = points.into_iter();
         let (origin, w0) = iter.next()?;
-        let (mut sum, mut outer, mut weight, mut count) =
-            (Vec3::zeros(), Mat3::zeros(), w0, 1usize);
+        let (mut sum, mut outer, mut weight, mut count) = (Vec3::zeros(), [0.0; 6], w0, 1usize);
         let mut weights_valid = w0.is_finite() && w0 > 0.0;
         for (p, w) in iter {
             weights_valid &= w.is_finite() && w > 0.0;
             let d = p - origin;
             sum += d * w;
-            outer += d * d.transpose() * w;
+            // The outer product's six distinct entries (a floor is 10⁵ points, twice per fit).
+            let [x, y, z] = [d.x, d.y, d.z];
+            let products = [x * x, x * y, x * z, y * y, y * z, z * z];
+            for (o, product) in outer.iter_mut().zip(products) {
+                *o += product * w;
+            }
             weight += w;
             count += 1;
         }
+        let [xx, xy, xz, yy, yz, zz] = outer;
+        let outer = Mat3::new(xx, xy, xz, xy, yy, yz, xz, yz, zz);
         let scatter = outer - sum * sum.transpose() / weight;
         let positive = sigma_m.is_finite() && sigma_m > 0.0;
         if count < Self::MIN_POINTS
@@ -249,17 +255,26 @@ impl PlanePoints {
         offset: f64,
         floor_m: f64,
     ) -> Option<Self> {
-        let incidence2 = |p: &Vec3| incidence2(normal, p);
+        let seen = points.map(|p| BeamSample::of(p, normal, offset));
+        Self::from_beam_samples(seen, floor_m)
+    }
+
+    /// [`Self::along_beams`] of points already measured against the plane (each its
+    /// residual and incidence, [`BeamSample::of`]): a caller that filters points by those
+    /// (a trimmed fit) measures each point once instead of once per pass.
+    pub fn from_beam_samples(
+        samples: impl Iterator<Item = BeamSample> + Clone,
+        floor_m: f64,
+    ) -> Option<Self> {
+        let floor2 = floor_m * floor_m;
         let (mut excess, mut cos2) = (0.0f64, 0.0f64);
-        for p in points.clone() {
-            let residual = normal.dot(&p) - offset;
-            excess += residual * residual - floor_m * floor_m;
-            cos2 += incidence2(&p);
+        for s in samples.clone() {
+            excess += s.residual * s.residual - floor2;
+            cos2 += s.cos2;
         }
         let range2 = if cos2 > 0.0 { (excess / cos2).max(0.0) } else { 0.0 };
-        let reference2 = range2 + floor_m * floor_m;
-        let weighted =
-            points.map(|p| (p, reference2 / (range2 * incidence2(&p) + floor_m * floor_m)));
+        let reference2 = range2 + floor2;
+        let weighted = samples.map(|s| (s.point, reference2 / (range2 * s.cos2 + floor2)));
         Self::from_weighted_points(weighted, libm::sqrt(reference2))
     }
 
@@ -296,10 +311,37 @@ impl PlanePoints {
     }
 }
 
+/// One point as a range sensor at the origin saw it on a plane `normal · p = offset`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BeamSample {
+    pub point: Vec3,
+    /// `normal · p − offset`, metres.
+    pub residual: f64,
+    /// [`incidence2`] of the point's beam against the plane.
+    pub cos2: f64,
+}
+
+impl BeamSample {
+    /// The point measured against the plane.
+    pub fn of(point: Vec3, normal: &Vec3, offset: f64) -> Self {
+        let along = normal.dot(&point);
+        BeamSample {
+            point,
+            residual: along - offset,
+            cos2: incidence2_of(along, point.norm_squared()),
+        }
+    }
+}
+
 /// `cos²θ` of the beam from a sensor at the origin to `p` against the unit `normal` (1 for
 /// a point at the origin, which no beam reaches).
 pub fn incidence2(normal: &Vec3, p: &Vec3) -> f64 {
-    let (along, r2) = (normal.dot(p), p.norm_squared());
+    incidence2_of(normal.dot(p), p.norm_squared())
+}
+
+/// [`incidence2`] from `normal · p` and `|p|²`, for a caller that has them already (the
+/// residual needs the one, every plane a point is tried against the other).
+pub fn incidence2_of(along: f64, r2: f64) -> f64 {
     if r2 > 0.0 {
         along * along / r2
     } else {
