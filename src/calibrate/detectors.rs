@@ -229,6 +229,12 @@ pub fn face_points(
         .collect()
 }
 
+/// How far (m) from where a start puts a board's face its points are first looked for
+/// ([`expected_face`]) when the start is a calibration's (board pose and extrinsic, each
+/// good to a few millimetres and a few tenths of a degree): a survey visit's free-board
+/// start, or a registration by the faces ([`super::register`]).
+pub const EXPECTED_FACE_CUT_M: f64 = 0.10;
+
 /// The face of a board that is *expected* at `board_to_lidar` (placed there by something
 /// other than its holes: the survey, or the camera through an extrinsic), in a sweep. Its
 /// points are cut twice: within `start_cut_m` of that plane first (the pose may be off by

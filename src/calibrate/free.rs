@@ -2,18 +2,21 @@
 //! several seeds on the corners, then the joint solve over corners, holes and board faces.
 
 use super::association::{associate, lidar_nominal};
+use super::detectors::{expected_face, EXPECTED_FACE_CUT_M};
+use super::register::register_by_faces;
 use super::{
     default_fov, fov_guesses, median, nominal_camera, solver_reason, CalibrateOptions, Calibration,
     CameraBoard, FrameDetections, UsedBoard, MAX_OBSERVATIONS,
 };
 use crate::geometry::{Camera, CameraModel, Se3, Vec3};
+use crate::lidar::Point;
 use crate::result::{
     BoardDetection, CalibrationResult, CameraResult, Extrinsic, Quality, Status, Uncertainty,
 };
 use crate::solve::{
     covariance, covariance::with_fixed_intrinsics, hole_sigma_px, initialise, BoardObservation,
-    IntrinsicsSeed, JointParams, JointProblem, LmOptions, Loss, ParamMask, SharedCovariance,
-    SolveReport,
+    IntrinsicsSeed, JointParams, JointProblem, LmOptions, Loss, ParamMask, PlanePoints,
+    SharedCovariance, SolveReport,
 };
 use crate::target::Room;
 
@@ -29,9 +32,10 @@ pub const HOLE_OUTLIER_FLOOR_PX: f64 = 1.0;
 pub(super) fn solve_free(
     room: &Room,
     frames: &[FrameDetections],
+    clouds: &[&[Point]],
     options: &CalibrateOptions,
 ) -> Result<Calibration, String> {
-    let first = solve_all(room, frames, options)?;
+    let first = solve_all(room, frames, clouds, options)?;
     let Some((index, worst, median)) = hole_outlier(room, &first) else {
         return Ok(first);
     };
@@ -45,7 +49,8 @@ pub(super) fn solve_free(
     tracing::warn!("{name}");
     let mut without = frames.to_vec();
     without[frame].lidar.retain(|l| !same_holes(&l.holes, &board.holes_lidar));
-    let mut second = solve_all(room, &without, options).map_err(|e| format!("{e}; {name}"))?;
+    let mut second =
+        solve_all(room, &without, clouds, options).map_err(|e| format!("{e}; {name}"))?;
     second.notes.push(name);
     Ok(second)
 }
@@ -75,6 +80,7 @@ fn same_holes(a: &[Vec3], b: &[Vec3]) -> bool {
 pub(super) fn solve_all(
     room: &Room,
     frames: &[FrameDetections],
+    clouds: &[&[Point]],
     options: &CalibrateOptions,
 ) -> Result<Calibration, String> {
     let CameraStart {
@@ -91,6 +97,13 @@ pub(super) fn solve_all(
         }
         None => vec![None; camera_boards.len()],
     };
+    // A LiDAR that placed no board by its holes (a VLP-16) is placed by the boards' faces.
+    let faces = match &room.lidar {
+        Some(lidar) if pairs.iter().all(Option::is_none) && !options.without_planes => {
+            FacesOnly::register(room, &lidar_nominal(lidar), &camera_boards, &poses, clouds)
+        }
+        _ => None,
+    };
     let hole_sigmas: Vec<Option<f64>> = pairs
         .iter()
         .zip(&poses)
@@ -100,7 +113,9 @@ pub(super) fn solve_all(
         .collect();
     let mut problem: JointProblem<'_, MAX_OBSERVATIONS> =
         JointProblem::new(corner_sigma, 2.0, Loss::Huber(3.0));
-    for (((_, board), pair), sigma) in camera_boards.iter().zip(&pairs).zip(&hole_sigmas) {
+    for (i, (((_, board), pair), sigma)) in
+        camera_boards.iter().zip(&pairs).zip(&hole_sigmas).enumerate()
+    {
         let (hb, hl): (&[Vec3], &[Vec3]) = match pair {
             Some(p) => (&holes_board, &p.holes_lidar),
             None => (&[], &[]),
@@ -112,12 +127,18 @@ pub(super) fn solve_all(
                 holes_board: hb,
                 holes_lidar: hl,
                 hole_sigma_px: *sigma,
-                plane: pair.as_ref().and_then(|p| p.plane).filter(|_| !options.without_planes),
+                plane: match &faces {
+                    Some(f) => f.faces[i],
+                    None => pair.as_ref().and_then(|p| p.plane).filter(|_| !options.without_planes),
+                },
             })
             .map_err(solver_reason)?;
     }
     let (mut params, _) =
         initialise(&problem, camera, IntrinsicsSeed::Given).map_err(solver_reason)?;
+    if let Some(f) = &faces {
+        params.lidar_to_camera = f.start; // no hole pairs to start it from
+    }
     let mut mask = ParamMask::free();
     if options.two_stage {
         mask = mask.fix_intrinsics();
@@ -143,7 +164,7 @@ pub(super) fn solve_all(
     .map_err(solver_reason)?;
     let pose_covariance = lidar_pose_covariance(&sigma);
     let sigma = sigma.uncertainty();
-    let with_lidar = room.lidar.is_some() && problem.has_holes();
+    let with_lidar = room.lidar.is_some() && (problem.has_holes() || faces.is_some());
     if room.lidar.is_some() && !with_lidar {
         return Err("no LiDAR board could be paired with a camera board".into());
     }
@@ -151,11 +172,13 @@ pub(super) fn solve_all(
         .iter()
         .zip(&pairs)
         .zip(params.board_poses.iter())
-        .map(|(((frame, board), pair), pose)| UsedBoard {
+        .enumerate()
+        .map(|(i, (((frame, board), pair), pose))| UsedBoard {
             frame: *frame,
             corners: board.corners.clone(),
             holes_lidar: pair.as_ref().map_or(Vec::new(), |p| p.holes_lidar.clone()),
-            lidar_face: pair.as_ref().is_some_and(|p| p.plane.is_some()),
+            lidar_face: pair.as_ref().is_some_and(|p| p.plane.is_some())
+                || faces.as_ref().is_some_and(|f| f.faces[i].is_some()),
             pose: *pose,
         })
         .collect();
@@ -167,10 +190,53 @@ pub(super) fn solve_all(
         boards,
         holes_board: holes_board.clone(),
         iterations,
-        notes: Vec::new(),
+        notes: faces.iter().map(FacesOnly::note).collect(),
         pose_covariance: Some(pose_covariance),
         lidar_planes: 0,
     })
+}
+
+/// A LiDAR placed by the boards' faces alone: the registration's start
+/// ([`register_by_faces`]) and every camera board's face cut at it (index by index).
+struct FacesOnly {
+    start: Se3,
+    faces: Vec<Option<PlanePoints>>,
+}
+
+impl FacesOnly {
+    /// From the first frame whose faces place the LiDAR; `None` without sweeps, or when no
+    /// frame's do (fewer than three faces, or points that do not lie on them).
+    fn register(
+        room: &Room,
+        nominal: &Se3,
+        camera_boards: &[(u32, &CameraBoard)],
+        poses: &[Se3],
+        clouds: &[&[Point]],
+    ) -> Option<FacesOnly> {
+        let start = clouds.iter().enumerate().find_map(|(f, cloud)| {
+            let frame_poses: Vec<Se3> = (camera_boards.iter().zip(poses))
+                .filter(|((frame, _), _)| *frame as usize == f)
+                .map(|(_, pose)| *pose)
+                .collect();
+            register_by_faces(&room.board, &frame_poses, cloud, nominal)
+        })?;
+        let camera_to_lidar = start.inverse();
+        let faces = (camera_boards.iter().zip(poses))
+            .map(|((frame, _), pose)| {
+                let cloud = clouds.get(*frame as usize)?;
+                let board_to_lidar = camera_to_lidar.compose(pose);
+                expected_face(&room.board, &board_to_lidar, EXPECTED_FACE_CUT_M, cloud)
+            })
+            .collect();
+        Some(FacesOnly { start, faces })
+    }
+
+    fn note(&self) -> String {
+        format!(
+            "the LiDAR resolved no board's holes: it was placed by {} board faces alone (its σ say how well they hold it)",
+            self.faces.iter().flatten().count()
+        )
+    }
 }
 
 /// The extrinsic's 6×6 block of the shared covariance, as [`Calibration::pose_covariance`]

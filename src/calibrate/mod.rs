@@ -29,6 +29,7 @@ pub use free::{corner_start, CornerStart};
 mod gate;
 pub mod identify;
 mod modes;
+pub mod register;
 pub mod rig;
 pub mod survey;
 mod surveyed;
@@ -190,7 +191,7 @@ pub fn calibrate_with_clouds(
             let given = options.corner_start.as_ref();
             surveyed::solve_surveyed(room, survey, frames, clouds, None, given)
         }
-        None => free::solve_free(room, frames, options),
+        None => free::solve_free(room, frames, clouds, options),
     };
     gated(room, frames, options, solved)
 }
@@ -236,7 +237,7 @@ pub fn calibrate_detecting(
             for (f, frame) in frames.iter_mut().enumerate().take(clouds.len()) {
                 frame.lidar = finder.everywhere(f);
             }
-            free::solve_free(room, frames, options)
+            free::solve_free(room, frames, clouds, options)
         }
     };
     (gated(room, frames, options, solved), finder.refused)

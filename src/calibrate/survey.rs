@@ -3,7 +3,7 @@
 //!
 //! 1. **Per visit** ([`prepare_visit`]): today's free-board calibration gives its
 //!    intrinsics, extrinsic and every board's board→camera pose (a LiDAR that placed no
-//!    board by its holes is placed by the boards' faces, [`register`]); every board's face
+//!    board by its holes is placed by the boards' faces, [`super::register`]); every board's face
 //!    is cut from its sweep where that start puts it, and the room's big planes are found
 //!    in it ([`crate::detect::planes`]).
 //! 2. **Chaining** ([`chain`]): every visit's boards are labelled as room boards (the
@@ -21,7 +21,6 @@ pub mod bundle;
 pub mod chain;
 pub mod gauge;
 pub mod planes;
-pub mod register;
 
 use crate::detect::planes::{find_planes, FoundPlane, PlaneConfig};
 use crate::geometry::{Camera, Mat3, Se3, Vec2, Vec3};
@@ -29,7 +28,7 @@ use crate::lidar::Point;
 use crate::solve::{hole_sigma_px, PlanePoints, SolveError};
 use crate::target::{BoardSpec, Room, SurveySpec, SurveyedBoard, SurveyedPlane, MAX_BOARDS};
 
-use super::detectors::expected_face;
+use super::detectors::{expected_face, EXPECTED_FACE_CUT_M};
 use super::free::run_corner_noise_px;
 use super::{calibrate, CalibrateOptions, FrameDetections};
 use bundle::{BundleBoard, BundleVisit, Sigma, SurveyProblem, SurveyState, VisitState};
@@ -42,17 +41,13 @@ pub const FRAME: &str = gauge::MEAN_FRAME;
 
 /// Most bundle iterations.
 const MAX_ITERATIONS: usize = 60;
-/// A board face the LiDAR did not place by its holes is looked for within this distance
-/// (m) of where the visit's free-board start puts it (board pose and extrinsic, each good
-/// to a few millimetres and a few tenths of a degree), then within 3σ of what that shows.
-const FACE_START_CUT_M: f64 = 0.10;
 
 /// What one visit contributes: its free-board calibration and the planes in its sweep.
 #[derive(Clone, Debug)]
 pub struct SurveyVisit {
     pub camera: Camera,
     /// LiDAR → camera (`None`: the visit's LiDAR placed no board by its holes and its
-    /// faces did not place it, [`register::register_by_faces`]).
+    /// faces did not place it, [`super::register::register_by_faces`]).
     pub lidar_to_camera: Option<Se3>,
     /// Corner σ (px): the noise the visit's own corner residuals show
     /// ([`super::free::corner_noise_px`]), the detector's median σ where they cannot.
@@ -67,7 +62,7 @@ pub struct SurveyVisit {
 pub enum LidarPlacement {
     /// By the holes of the boards it placed (its free-board calibration).
     Holes,
-    /// By the boards' faces alone ([`register::register_by_faces`]): it placed no hole.
+    /// By the boards' faces alone ([`super::register::register_by_faces`]): it placed no hole.
     Faces,
     /// Not placed: its sweep adds nothing to the survey.
     Unplaced,
@@ -198,7 +193,7 @@ pub fn prepare_visit(
     let lidar_to_camera = run.lidar_to_camera.or_else(|| {
         let nominal = super::association::lidar_nominal(room.lidar.as_ref()?);
         let poses: Vec<Se3> = run.boards.iter().map(|b| b.pose).collect();
-        register::register_by_faces(&room.board, &poses, cloud, &nominal)
+        super::register::register_by_faces(&room.board, &poses, cloud, &nominal)
     });
     let board_to_lidar =
         |used: &super::UsedBoard| lidar_to_camera.map(|e| e.inverse().compose(&used.pose));
@@ -220,7 +215,7 @@ pub fn prepare_visit(
                 plane: match lidar {
                     Some(l) => l.plane,
                     None => board_to_lidar(used).and_then(|pose| {
-                        expected_face(&room.board, &pose, FACE_START_CUT_M, cloud)
+                        expected_face(&room.board, &pose, EXPECTED_FACE_CUT_M, cloud)
                     }),
                 },
                 pose: used.pose,

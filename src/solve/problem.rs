@@ -664,10 +664,11 @@ impl<'a, const B: usize> JointProblem<'a, B> {
     }
 
     /// Shared parameters the data cannot move: the unused intrinsics of the model, and
-    /// the extrinsic when there is no hole residual.
+    /// the extrinsic when no LiDAR term holds it (no hole and no board face: faces alone
+    /// place a LiDAR that resolves no hole, three of them turned differently).
     pub fn structural_mask<C: Projector>(&self, camera: &C) -> ParamMask {
         let mut m = ParamMask::free().fix_range(camera.num_params().min(INTRINSICS), INTRINSICS);
-        if !self.has_holes() {
+        if !self.has_holes() && self.boards.iter().all(|b| b.plane.is_none()) {
             m = m.fix_extrinsic();
         }
         m

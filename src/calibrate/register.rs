@@ -1,5 +1,6 @@
-//! A survey visit's LiDAR placed by the board faces alone, when it placed no board by its
-//! holes (a VLP-16's sixteen lines cross a hole too rarely to resolve it).
+//! A LiDAR placed by the board faces alone, when it placed no board by its holes (a VLP-16's
+//! sixteen lines cross a hole too rarely to resolve it): a survey visit's, and a free-board
+//! calibration's.
 //!
 //! The camera knows every board's pose; the LiDAR sees their faces. Starting from the room's
 //! nominal mounting (a vehicle's is off by a degree or two and centimetres: at 6 m a 1.5°
@@ -7,8 +8,8 @@
 //! extrinsic puts the board, and the extrinsic is fitted to them point to plane
 //! (Gauss–Newton, held to the nominal by a prior so that a direction the faces leave open
 //! stays where the nominal put it); the band then narrows (30, 15, 8 cm). The result is only
-//! the survey's start for that visit: its faces (cut again at it) and the room planes its
-//! sweep then shows enter the bundle, which solves the extrinsic with everything else.
+//! a start: the faces (cut again at it) enter the survey's bundle, or the free-board joint
+//! solve, which solve the extrinsic with everything else and without the prior.
 //! Refused (`None`) when fewer than [`MIN_FACES`] faces hold points or the faces' points do
 //! not lie on them ([`MAX_FACE_RMS_M`]) — a registration that found something else.
 
