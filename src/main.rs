@@ -548,19 +548,21 @@ fn simulate_visits(
     capture: bool,
     (room_path, out): (&std::path::Path, &std::path::Path),
 ) -> Result<sim::visits::Visits, Failure> {
-    let visits = sim::visits::simulate_visits(room, options, count)
-        .with_context(|| format!("simulating {}", room_path.display()))
-        .map_err(bad_input)?;
-    sim::visits::write_visits(&visits, out).map_err(bad_input)?;
-    for (k, visit) in visits.visits.iter().enumerate().filter(|_| capture) {
-        let folder = out.join(sim::visits::visit_folder(k));
-        sim::write_capture(&visit.scene, &folder).map_err(bad_input)?;
-    }
+    // Each visit written as it is made: memory for one, and the folders show progress.
+    let visits = sim::visits::simulate_visits_each(room, options, count, |k, visit| {
+        sim::visits::write_visit(&visit, k, out)?;
+        if capture {
+            sim::write_capture(&visit.scene, &out.join(sim::visits::visit_folder(k)))?;
+        }
+        Ok(())
+    })
+    .with_context(|| format!("simulating {}", room_path.display()))
+    .map_err(bad_input)?;
+    sim::visits::write_room(&visits, out).map_err(bad_input)?;
     say!(
-        "simulated a room of {} boards and {} planes, {} visits -> {}",
+        "simulated a room of {} boards and {} planes, {count} visits -> {}",
         visits.truth.boards.len(),
         visits.truth.planes.len(),
-        visits.visits.len(),
         out.display()
     );
     Ok(visits)

@@ -124,6 +124,25 @@ pub fn simulate_visits(
     options: &SimOptions,
     count: usize,
 ) -> Result<Visits, SimError> {
+    let mut visits = Vec::with_capacity(count);
+    let mut simulated = simulate_visits_each(room, options, count, |_, visit| {
+        visits.push(visit);
+        Ok(())
+    })?;
+    simulated.visits = visits;
+    Ok(simulated)
+}
+
+/// [`simulate_visits`] that hands each visit to `each` as it is made (`k` 0-based, in
+/// order; the same visits, the same random streams) instead of keeping them: the room, its
+/// truth and layout come back with `visits` empty. Memory for one visit however many are
+/// made: 26 standing visits of 10 frames are a gigabyte of renders.
+pub fn simulate_visits_each(
+    room: &Room,
+    options: &SimOptions,
+    count: usize,
+    mut each: impl FnMut(usize, Visit) -> Result<(), SimError>,
+) -> Result<Visits, SimError> {
     if count == 0 || count > MAX_VISITS {
         return Err(SimError::Visits(count));
     }
@@ -153,38 +172,47 @@ pub fn simulate_visits(
         boards_in_room: &layout.boards_in_room,
         world_seed: layout.world_seed,
     };
-    let visits = (0..count)
-        .map(|k| vehicle.visit(&mut rng.fork(100 + k as u64)))
-        .collect::<Result<Vec<_>, _>>()?;
-    Ok(Visits { room, truth, visits, layout })
+    for k in 0..count {
+        each(k, vehicle.visit(&mut rng.fork(100 + k as u64))?)?;
+    }
+    Ok(Visits { room, truth, visits: Vec::new(), layout })
 }
 
 /// Writes `room-truth.json`, the simulated `room.toml` and one folder `visit-NN`
 /// (`visit-01` …) per visit with `image.png`, `cloud.pcd`, `truth.json` (with
 /// `room_to_camera`) and `room.toml`.
 pub fn write_visits(visits: &Visits, dir: &Path) -> Result<(), SimError> {
-    let fail = |path: &Path, e: &dyn std::fmt::Display| SimError::Write {
-        path: path.to_owned(),
-        message: e.to_string(),
-    };
-    std::fs::create_dir_all(dir).map_err(|e| fail(dir, &e))?;
     for (k, visit) in visits.visits.iter().enumerate() {
-        let folder = dir.join(visit_folder(k));
-        super::write_scene(&visit.scene, &folder)?;
-        let truth = VisitTruth {
-            scene: visit.scene.truth.clone(),
-            room_to_camera: Extrinsic::from_se3(&visit.room_to_camera),
-        };
-        let path = folder.join("truth.json");
-        let json = serde_json::to_string_pretty(&truth).expect("truth serialises");
-        std::fs::write(&path, json + "\n").map_err(|e| fail(&path, &e))?;
+        write_visit(visit, k, dir)?;
     }
+    write_room(visits, dir)
+}
+
+/// Visit `k`'s folder of [`write_visits`] (`visit-NN`, created with `dir`).
+pub fn write_visit(visit: &Visit, k: usize, dir: &Path) -> Result<(), SimError> {
+    let folder = dir.join(visit_folder(k));
+    super::write_scene(&visit.scene, &folder)?;
+    let truth = VisitTruth {
+        scene: visit.scene.truth.clone(),
+        room_to_camera: Extrinsic::from_se3(&visit.room_to_camera),
+    };
+    let path = folder.join("truth.json");
+    let json = serde_json::to_string_pretty(&truth).expect("truth serialises");
+    std::fs::write(&path, json + "\n").map_err(|e| write_failed(&path, &e))
+}
+
+/// The room's files of [`write_visits`]: `room-truth.json` and `room.toml` in `dir`.
+pub fn write_room(visits: &Visits, dir: &Path) -> Result<(), SimError> {
+    std::fs::create_dir_all(dir).map_err(|e| write_failed(dir, &e))?;
     let path = dir.join("room-truth.json");
     let json = serde_json::to_string_pretty(&visits.truth).expect("truth serialises");
-    std::fs::write(&path, json + "\n").map_err(|e| fail(&path, &e))?;
+    std::fs::write(&path, json + "\n").map_err(|e| write_failed(&path, &e))?;
     let path = dir.join("room.toml");
-    std::fs::write(&path, crate::room::to_toml(&visits.room)).map_err(|e| fail(&path, &e))?;
-    Ok(())
+    std::fs::write(&path, crate::room::to_toml(&visits.room)).map_err(|e| write_failed(&path, &e))
+}
+
+fn write_failed(path: &Path, e: &dyn std::fmt::Display) -> SimError {
+    SimError::Write { path: path.to_owned(), message: e.to_string() }
 }
 
 /// The folder name of visit `index` (0-based): `visit-01`, `visit-02`, ….
