@@ -170,9 +170,11 @@ fn board_lines(room: &Room, frames: &[FrameDetections], run: &Calibration) -> Ve
             (true, Some(rms)) => {
                 format!("; LiDAR: {} hole centres, {rms:.3} px RMS", board.holes_lidar.len())
             }
-            (true, None) if board.lidar_face => {
-                "; LiDAR: its face where the survey puts it (no hole placed)".to_string()
+            (true, None) if board.lidar_face => match run.result.camera_in_room {
+                Some(_) => "; LiDAR: its face where the survey puts it (no hole placed)",
+                None => "; LiDAR: its face, the LiDAR placed by the faces alone (no hole placed)",
             }
+            .to_string(),
             (true, None) => "; LiDAR: not found or not paired".to_string(),
         };
         out.push(format!(
