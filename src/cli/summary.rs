@@ -44,7 +44,6 @@ pub fn lines(
     written: &[String],
 ) -> Vec<String> {
     let r = &run.result;
-    let (c, u) = (&r.camera, &r.uncertainty);
     let seen: usize = frames.iter().map(|f| f.camera.len()).sum();
     let placed: usize = frames.iter().map(|f| f.lidar.len()).sum();
     let mut out = vec![status_line(r)];
@@ -65,10 +64,21 @@ pub fn lines(
              the room's nominal one and its extrinsic a placeholder, not measurements)"
                 .to_string(),
         );
-        out.push("  boards      none used: see the status line".to_string());
-        out.extend(written.iter().map(|path| format!("  written     {path}")));
-        return out;
+    } else {
+        out.extend(solution_lines(room, run));
     }
+    out.extend(board_lines(room, frames, run));
+    for path in written {
+        out.push(format!("  written     {path}"));
+    }
+    out
+}
+
+/// The solved camera, distortion, LiDAR pose and residuals.
+fn solution_lines(room: &Room, run: &Calibration) -> Vec<String> {
+    let r = &run.result;
+    let (c, u) = (&r.camera, &r.uncertainty);
+    let mut out = Vec::new();
     out.push(format!(
         "  camera      {} {}×{}: fx {:.3} fy {:.3} px (σ {:.3} {:.3}), cx {:.3} cy {:.3} px (σ {:.3} {:.3})",
         model_name(c.model),
@@ -91,7 +101,7 @@ pub fn lines(
         });
         out.extend(extrinsic_lines(e, &nominal, u.rotation_deg, u.translation_m));
     }
-    // A LiDAR placed by faces and planes alone (a surveyed room) has no hole residual.
+    // A LiDAR placed by faces (and a surveyed room's planes) alone has no hole residual.
     let holes = match (room.lidar.is_some(), run.boards.iter().any(|b| !b.holes_lidar.is_empty())) {
         (false, _) => String::new(),
         (true, true) => format!(", holes {:.3} px RMS", r.quality.hole_rms_px),
@@ -101,10 +111,6 @@ pub fn lines(
         "  residuals   corners {:.3} px RMS{holes}, {} boards used, {} solver iterations",
         r.quality.corner_rms_px, r.quality.boards, run.iterations
     ));
-    out.extend(board_lines(room, frames, run));
-    for path in written {
-        out.push(format!("  written     {path}"));
-    }
     out
 }
 

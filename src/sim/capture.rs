@@ -57,22 +57,19 @@ pub fn packets(firings: &Firings) -> Result<Vec<CapturedPacket>, SimError> {
 /// broadcast address on the model's data port), and `angles.csv` for Hesai models.
 pub fn write_capture(scene: &Scene, dir: &Path) -> Result<CaptureFiles, SimError> {
     let firings = scene.firings.as_ref().ok_or(SimError::NoSweep)?;
-    let fail = |path: &Path, e: &dyn std::fmt::Display| SimError::Write {
-        path: path.to_owned(),
-        message: e.to_string(),
-    };
-    std::fs::create_dir_all(dir).map_err(|e| fail(dir, &e))?;
+    std::fs::create_dir_all(dir).map_err(|e| SimError::write(dir, &e))?;
     let capture = dir.join("cloud.pcap");
     let port = firings.calibration.model.data_port();
     let (src, dst) =
         (SocketAddrV4::new(SENSOR_ADDR, port), SocketAddrV4::new(Ipv4Addr::BROADCAST, port));
-    let file = std::fs::File::create(&capture).map_err(|e| fail(&capture, &e))?;
-    let mut writer = PcapWriter::new(BufWriter::new(file)).map_err(|e| fail(&capture, &e))?;
+    let file = std::fs::File::create(&capture).map_err(|e| SimError::write(&capture, &e))?;
+    let mut writer =
+        PcapWriter::new(BufWriter::new(file)).map_err(|e| SimError::write(&capture, &e))?;
     for p in packets(firings)? {
         let d = UdpDatagram { timestamp_ns: p.timestamp_ns, src, dst, payload: &p.payload };
-        writer.write_udp(&d).map_err(|e| fail(&capture, &e))?;
+        writer.write_udp(&d).map_err(|e| SimError::write(&capture, &e))?;
     }
-    std::io::Write::flush(&mut writer.into_inner()).map_err(|e| fail(&capture, &e))?;
+    std::io::Write::flush(&mut writer.into_inner()).map_err(|e| SimError::write(&capture, &e))?;
     let calibration = write_calibration(&firings.calibration, dir)?;
     Ok(CaptureFiles { capture, calibration })
 }
@@ -88,7 +85,6 @@ fn write_calibration(cal: &Calibration, dir: &Path) -> Result<Option<PathBuf>, S
         return Ok(None);
     }
     let path = dir.join("angles.csv");
-    std::fs::write(&path, to_hesai_csv(cal))
-        .map_err(|e| SimError::Write { path: path.clone(), message: e.to_string() })?;
+    std::fs::write(&path, to_hesai_csv(cal)).map_err(|e| SimError::write(&path, &e))?;
     Ok(Some(path))
 }

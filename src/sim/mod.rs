@@ -128,6 +128,13 @@ pub enum SimError {
     RingWithoutVehicles,
 }
 
+impl SimError {
+    /// Writing `path` failed with `e`.
+    pub fn write(path: &Path, e: &dyn std::fmt::Display) -> Self {
+        SimError::Write { path: path.to_owned(), message: e.to_string() }
+    }
+}
+
 /// The ground truth of one scene (`truth.json`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Truth {
@@ -311,11 +318,7 @@ fn band_row_px(camera: &Camera, lidar_to_camera: &Se3, elevations: &[f64]) -> f6
 /// Writes `image.png`, `cloud.pcd` (binary), `truth.json` and the `room.toml` it came from,
 /// and a standing vehicle's further frames as `image-2.png`, `cloud-2.pcd`, … .
 pub fn write_scene(scene: &Scene, dir: &Path) -> Result<(), SimError> {
-    let fail = |path: &Path, e: &dyn std::fmt::Display| SimError::Write {
-        path: path.to_owned(),
-        message: e.to_string(),
-    };
-    std::fs::create_dir_all(dir).map_err(|e| fail(dir, &e))?;
+    std::fs::create_dir_all(dir).map_err(|e| SimError::write(dir, &e))?;
     let camera = &scene.truth.camera;
     // Frame 1 is `image.png` / `cloud.pcd`, frame k > 1 `image-k.png` / `cloud-k.pcd`.
     let write_frame = |suffix: &str, image: &[u8], cloud: Option<&Vec<Point>>| {
@@ -323,11 +326,11 @@ pub fn write_scene(scene: &Scene, dir: &Path) -> Result<(), SimError> {
         image::GrayImage::from_raw(camera.width, camera.height, image.to_vec())
             .expect("the renderer makes width × height pixels")
             .save(&image_path)
-            .map_err(|e| fail(&image_path, &e))?;
+            .map_err(|e| SimError::write(&image_path, &e))?;
         if let Some(cloud) = cloud {
             let cloud_path = dir.join(format!("cloud{suffix}.pcd"));
             crate::lidar::pcd::write(&cloud_path, cloud, crate::lidar::pcd::PcdFormat::Binary)
-                .map_err(|e| fail(&cloud_path, &e))?;
+                .map_err(|e| SimError::write(&cloud_path, &e))?;
         }
         Ok(())
     };
@@ -337,10 +340,10 @@ pub fn write_scene(scene: &Scene, dir: &Path) -> Result<(), SimError> {
     }
     let truth_path = dir.join("truth.json");
     let json = serde_json::to_string_pretty(&scene.truth).expect("truth serialises");
-    std::fs::write(&truth_path, json + "\n").map_err(|e| fail(&truth_path, &e))?;
+    std::fs::write(&truth_path, json + "\n").map_err(|e| SimError::write(&truth_path, &e))?;
     let room_path = dir.join("room.toml");
     std::fs::write(&room_path, crate::room::to_toml(&scene.room))
-        .map_err(|e| fail(&room_path, &e))?;
+        .map_err(|e| SimError::write(&room_path, &e))?;
     Ok(())
 }
 

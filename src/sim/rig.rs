@@ -248,11 +248,7 @@ fn simulate_from(
 /// as `NAME-k.png`, `NAME-k.pcd`), `rig-truth.json`, `room-truth.json` and the simulated
 /// `room.toml` (the room's `[camera]`/`[lidar]` are the rig's first pair).
 pub fn write_rig(sim: &RigSimulation, dir: &Path) -> Result<Vec<std::path::PathBuf>, SimError> {
-    let fail = |path: &Path, e: &dyn std::fmt::Display| SimError::Write {
-        path: path.to_owned(),
-        message: e.to_string(),
-    };
-    std::fs::create_dir_all(dir).map_err(|e| fail(dir, &e))?;
+    std::fs::create_dir_all(dir).map_err(|e| SimError::write(dir, &e))?;
     let mut written = Vec::new();
     let frame_name = |name: &str, k: usize, extension: &str| match k {
         1 => format!("{name}.{extension}"),
@@ -265,7 +261,7 @@ pub fn write_rig(sim: &RigSimulation, dir: &Path) -> Result<Vec<std::path::PathB
             image::GrayImage::from_raw(camera.spec.width, camera.spec.height, image.clone())
                 .expect("the renderer makes width × height pixels")
                 .save(&path)
-                .map_err(|e| fail(&path, &e))?;
+                .map_err(|e| SimError::write(&path, &e))?;
             written.push(path);
         }
     }
@@ -274,7 +270,7 @@ pub fn write_rig(sim: &RigSimulation, dir: &Path) -> Result<Vec<std::path::PathB
         for (k, cloud) in std::iter::once(&sim.clouds[l]).chain(more).enumerate() {
             let path = dir.join(frame_name(lidar.name.as_str(), k + 1, "pcd"));
             crate::lidar::pcd::write(&path, cloud, crate::lidar::pcd::PcdFormat::Binary)
-                .map_err(|e| fail(&path, &e))?;
+                .map_err(|e| SimError::write(&path, &e))?;
             written.push(path);
         }
     }
@@ -284,7 +280,7 @@ pub fn write_rig(sim: &RigSimulation, dir: &Path) -> Result<Vec<std::path::PathB
         ("room.toml", crate::room::to_toml(&sim.room)),
     ] {
         let path = dir.join(name);
-        std::fs::write(&path, text).map_err(|e| fail(&path, &e))?;
+        std::fs::write(&path, text).map_err(|e| SimError::write(&path, &e))?;
         written.push(path);
     }
     Ok(written)

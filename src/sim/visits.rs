@@ -206,21 +206,18 @@ pub fn write_visit(visit: &Visit, k: usize, dir: &Path) -> Result<(), SimError> 
     };
     let path = folder.join("truth.json");
     let json = serde_json::to_string_pretty(&truth).expect("truth serialises");
-    std::fs::write(&path, json + "\n").map_err(|e| write_failed(&path, &e))
+    std::fs::write(&path, json + "\n").map_err(|e| SimError::write(&path, &e))
 }
 
 /// The room's files of [`write_visits`]: `room-truth.json` and `room.toml` in `dir`.
 pub fn write_room(visits: &Visits, dir: &Path) -> Result<(), SimError> {
-    std::fs::create_dir_all(dir).map_err(|e| write_failed(dir, &e))?;
+    std::fs::create_dir_all(dir).map_err(|e| SimError::write(dir, &e))?;
     let path = dir.join("room-truth.json");
     let json = serde_json::to_string_pretty(&visits.truth).expect("truth serialises");
-    std::fs::write(&path, json + "\n").map_err(|e| write_failed(&path, &e))?;
+    std::fs::write(&path, json + "\n").map_err(|e| SimError::write(&path, &e))?;
     let path = dir.join("room.toml");
-    std::fs::write(&path, crate::room::to_toml(&visits.room)).map_err(|e| write_failed(&path, &e))
-}
-
-fn write_failed(path: &Path, e: &dyn std::fmt::Display) -> SimError {
-    SimError::Write { path: path.to_owned(), message: e.to_string() }
+    std::fs::write(&path, crate::room::to_toml(&visits.room))
+        .map_err(|e| SimError::write(&path, &e))
 }
 
 /// The folder name of visit `index` (0-based): `visit-01`, `visit-02`, ….
