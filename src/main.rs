@@ -548,7 +548,7 @@ fn simulate_visits(
     capture: bool,
     (room_path, out): (&std::path::Path, &std::path::Path),
 ) -> Result<sim::visits::Visits, Failure> {
-    // Each visit written as it is made: memory for a visit per core, and the folders show
+    // Each visit written as it is made: memory for one visit, and the folders show
     // the progress.
     let visits = sim::visits::simulate_visits_each(room, options, count, |k, visit| {
         sim::visits::write_visit(&visit, k, out)?;

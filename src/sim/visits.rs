@@ -135,8 +135,8 @@ pub fn simulate_visits(
 
 /// [`simulate_visits`] that hands each visit to `each` as it is made (`k` 0-based, in
 /// order; the same visits, the same random streams) instead of keeping them: the room, its
-/// truth and layout come back with `visits` empty. Memory for a visit per core however many
-/// are made: 26 standing visits of 10 frames are a gigabyte of renders.
+/// truth and layout come back with `visits` empty. Memory for one visit however many are
+/// made: 26 standing visits of 10 frames are a gigabyte of renders.
 pub fn simulate_visits_each(
     room: &Room,
     options: &SimOptions,
@@ -172,16 +172,8 @@ pub fn simulate_visits_each(
         boards_in_room: &layout.boards_in_room,
         world_seed: layout.world_seed,
     };
-    // Every visit's stream drawn first, in order (a visit does not draw from the room's),
-    // then as many visits rendered at once as there are cores: the same visits as one by
-    // one, handed over in order.
-    let streams: Vec<Rng> = (0..count).map(|k| rng.fork(100 + k as u64)).collect();
-    let at_once = std::thread::available_parallelism().map_or(1, |n| n.get());
-    for (c, chunk) in streams.chunks(at_once).enumerate() {
-        let made = crate::parallel::map(chunk, |_, stream| vehicle.visit(&mut stream.clone()));
-        for (i, visit) in made.into_iter().enumerate() {
-            each(c * at_once + i, visit?)?;
-        }
+    for k in 0..count {
+        each(k, vehicle.visit(&mut rng.fork(100 + k as u64))?)?;
     }
     Ok(Visits { room, truth, visits: Vec::new(), layout })
 }
