@@ -19,6 +19,7 @@ are `normal · x = offset` in both files.
 """
 import argparse
 import json
+import math
 import os
 import sys
 import tomllib
@@ -36,12 +37,19 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("work", help="a surveyed_study.py --work folder (surveyed.toml, room/)")
     ap.add_argument("--vehicles", type=int, nargs=2, default=[17, 26], metavar=("FIRST", "LAST"))
+    ap.add_argument("--survey", default="surveyed.toml",
+                    help="the survey file in WORK (surveyed_study.py --surveys K writes surveyed-K.toml)")
+    ap.add_argument("--survey-only", action="store_true",
+                    help="the survey's errors and χ² only, no vehicle calibrated")
     args = ap.parse_args()
-    text = open(os.path.join(args.work, "surveyed.toml")).read()
+    text = open(os.path.join(args.work, args.survey)).read()
     survey = tomllib.loads(text)["survey"]
     truth = json.load(open(os.path.join(args.work, "room", "room-truth.json")))
     exact = ExactSurvey(survey, truth)
     exact.print_errors()
+    exact.print_chi2()
+    if args.survey_only:
+        return
     head = text[: text.index("[survey]")]
     print("| survey values | mean error x, y, z mm | spread mm | t RMS mm | rot RMS ° |")
     print("|---|---|---|---|---|")
@@ -112,6 +120,37 @@ class ExactSurvey:
                   f"(σ {p['sigma_m'] * 1000:.2f}), normal {tilt:.4f}° (σ {p['sigma_deg']:.4f})")
         print()
 
+    def print_chi2(self):
+        """The survey's error against its own joint covariance (`survey.covariance`): χ² over
+        its modes (eigenvalues above 10⁻⁹ of the largest, the room's null directions left out,
+        as the calibration does), for everything and for the boards and the planes alone
+        (their marginal covariances). About the number of modes when the σ are honest."""
+        rows = self.survey.get("covariance")
+        if not rows:
+            print("no survey.covariance: no χ²\n")
+            return
+        n = len(rows)
+        c = np.zeros((n, n))
+        for i, row in enumerate(rows):
+            c[i, : i + 1] = row
+            c[: i + 1, i] = row
+        error, planes_at = [], 6 * len(self.boards)
+        for (rs, ts), (r, t) in zip(self.boards, self.truth_boards):
+            error += list(crb_bound.rotation_vector(rs @ r.T)) + list(ts - t)
+        for p, exact in zip(self.survey["planes"], self.truth_planes):
+            if exact is None:
+                error += [0.0] * 4  # no truth: counted as exact
+                continue
+            normal, offset = exact
+            error += list(np.cross(normal, np.array(p["normal"]))) + [p["offset"] - offset]
+        error = np.array(error)
+        for name, part in (("everything", slice(0, n)), ("boards", slice(0, planes_at)),
+                           ("planes", slice(planes_at, n))):
+            chi2, modes = chi2_over_modes(c[part, part], error[part])
+            print(f"survey χ² over its covariance, {name}: {chi2:.1f} over {modes} modes "
+                  f"(error/σ RMS {math.sqrt(chi2 / max(modes, 1)):.2f})")
+        print()
+
     def survey_toml(self, exact_boards, exact_planes):
         s = self.survey
         out = ["[survey]", f"visits = {s['visits']}", f"frame = {json.dumps(s['frame'])}", ""]
@@ -128,6 +167,14 @@ class ExactSurvey:
                     f"normal = {json.dumps(normal)}", f"offset = {off}",
                     f"sigma_m = {p['sigma_m']}", f"sigma_deg = {p['sigma_deg']}", ""]
         return "\n".join(out)
+
+
+def chi2_over_modes(c, e):
+    """eᵀ C⁺ e over C's eigenvectors above 10⁻⁹ of its largest eigenvalue, and their number."""
+    values, vectors = np.linalg.eigh(c)
+    keep = values > 1e-9 * values.max()
+    a = vectors[:, keep].T @ e
+    return float(np.sum(a * a / values[keep])), int(keep.sum())
 
 
 def kabsch(p, q):
