@@ -120,15 +120,15 @@ class ExactSurvey:
                   f"(σ {p['sigma_m'] * 1000:.2f}), normal {tilt:.4f}° (σ {p['sigma_deg']:.4f})")
         print()
 
-    def print_chi2(self):
+    def chi2(self):
         """The survey's error against its own joint covariance (`survey.covariance`): χ² over
         its modes (eigenvalues above 10⁻⁹ of the largest, the room's null directions left out,
-        as the calibration does), for everything and for the boards and the planes alone
-        (their marginal covariances). About the number of modes when the σ are honest."""
+        as the calibration does) and their number, for everything and for the boards and the
+        planes alone (their marginal covariances); about the number of modes when the σ are
+        honest. Empty without a covariance. A plane with no truth counts as exact."""
         rows = self.survey.get("covariance")
         if not rows:
-            print("no survey.covariance: no χ²\n")
-            return
+            return {}
         n = len(rows)
         c = np.zeros((n, n))
         for i, row in enumerate(rows):
@@ -139,14 +139,19 @@ class ExactSurvey:
             error += list(crb_bound.rotation_vector(rs @ r.T)) + list(ts - t)
         for p, exact in zip(self.survey["planes"], self.truth_planes):
             if exact is None:
-                error += [0.0] * 4  # no truth: counted as exact
+                error += [0.0] * 4
                 continue
             normal, offset = exact
             error += list(np.cross(normal, np.array(p["normal"]))) + [p["offset"] - offset]
         error = np.array(error)
-        for name, part in (("everything", slice(0, n)), ("boards", slice(0, planes_at)),
-                           ("planes", slice(planes_at, n))):
-            chi2, modes = chi2_over_modes(c[part, part], error[part])
+        parts = {"everything": slice(0, n), "boards": slice(0, planes_at), "planes": slice(planes_at, n)}
+        return {name: chi2_over_modes(c[part, part], error[part]) for name, part in parts.items()}
+
+    def print_chi2(self):
+        values = self.chi2()
+        if not values:
+            print("no survey.covariance: no χ²\n")
+        for name, (chi2, modes) in values.items():
             print(f"survey χ² over its covariance, {name}: {chi2:.1f} over {modes} modes "
                   f"(error/σ RMS {math.sqrt(chi2 / max(modes, 1)):.2f})")
         print()
