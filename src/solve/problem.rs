@@ -278,10 +278,23 @@ impl PlanePoints {
         Self::from_weighted_points(weighted, libm::sqrt(reference2))
     }
 
+    /// The weighted scatter of the points about their centroid, `L Lᵀ`.
+    pub fn scatter(&self) -> Mat3 {
+        self.spread.transpose() * self.spread
+    }
+
+    /// The same points with `correction` taken out of their scatter (an expected part of it
+    /// that is noise, not geometry); `None` when what is left is not a scatter (not positive
+    /// definite).
+    pub fn less_scatter(self, correction: &Mat3) -> Option<Self> {
+        let l = Cholesky::new(&(self.scatter() - correction)).ok()?;
+        Some(PlanePoints { spread: l.l().transpose(), ..self })
+    }
+
     /// The plane through the points, `normal · p = offset`: the weighted least-squares fit
     /// (the scatter's smallest eigenvector through the centroid).
     pub fn fitted_plane(&self) -> (Vec3, f64) {
-        let scatter = self.spread.transpose() * self.spread;
+        let scatter = self.scatter();
         let eigen = nalgebra::SymmetricEigen::new(scatter);
         let smallest = eigen.eigenvalues.imin();
         let normal = eigen.eigenvectors.column(smallest).into_owned();
