@@ -100,8 +100,7 @@ def report(folders):
     for folder in folders:
         survey = tomllib.load(open(os.path.join(folder, "surveyed.toml"), "rb"))["survey"]
         if truth is None:
-            room = folder if os.path.exists(os.path.join(folder, "room", "room-truth.json")) else None
-            truth = json.load(open(os.path.join(room or folder, "room", "room-truth.json")))
+            truth = json.load(open(os.path.join(folder, "room", "room-truth.json")))
         exact = attribution.ExactSurvey(survey, truth)
         for i, ((rs, ts), (r, t)) in enumerate(zip(exact.boards, exact.truth_boards)):
             b = survey["boards"][i]

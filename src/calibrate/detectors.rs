@@ -324,6 +324,39 @@ mod tests {
     use super::*;
     use crate::geometry::se3::so3_exp;
 
+    /// One sweep's returns from the board at `facing`: every beam of the lines' elevations
+    /// and the azimuths (rad, sensor at the origin, z forward, y up) that truly meets the
+    /// solid board, its point 2 cm of range noise along the beam (one draw per such beam,
+    /// in order), beside where it truly meets the board (board frame).
+    fn cast_on_board(
+        spec: &BoardSpec,
+        facing: &Se3,
+        lines: impl Iterator<Item = f64>,
+        azimuths: impl Iterator<Item = f64> + Clone,
+        rng: &mut crate::sim::rng::Rng,
+    ) -> Vec<(Vec3, Vec3)> {
+        let normal = facing.rotation.column(2).into_owned();
+        let to_board = facing.inverse();
+        let mut hits = Vec::new();
+        for elevation in lines {
+            for azimuth in azimuths.clone() {
+                let beam = Vec3::new(azimuth.sin(), elevation.sin(), azimuth.cos()).normalize();
+                let s = normal.dot(&facing.translation) / normal.dot(&beam);
+                let local = to_board.act(&(beam * s));
+                if spec.is_solid(local.x, local.y) {
+                    hits.push((beam * (s + 0.02 * rng.normal()), local));
+                }
+            }
+        }
+        hits
+    }
+
+    /// A face's tilt away from `normal`: its fitted normal's part across `normal`.
+    fn tilt(summary: PlanePoints, normal: &Vec3) -> Vec3 {
+        let (n, _) = summary.fitted_plane_towards(normal);
+        n - normal * n.dot(normal)
+    }
+
     /// Range noise moves a point along its beam, so a least-squares plane through points
     /// chosen by where their beams meet a board turns towards the beams (errors in
     /// variables). [`plane_points`] chooses them that way (a choice the noise cannot move)
@@ -350,30 +383,13 @@ mod tests {
         let (mut ours, mut uncorrected) = (Vec3::zeros(), Vec3::zeros());
         let sweeps = 300;
         for _ in 0..sweeps {
-            let (mut noisy, mut on_face) = (Vec::new(), Vec::new());
-            for line in 0..40 {
-                let elevation = (0.1 + 0.3 * line as f64 / 39.0).atan();
-                for k in 0..160 {
-                    let azimuth = (-0.16 + 0.32 * k as f64 / 159.0).atan();
-                    let beam = Vec3::new(azimuth.sin(), elevation.sin(), azimuth.cos()).normalize();
-                    let s = normal.dot(&facing.translation) / normal.dot(&beam);
-                    let local = facing.inverse().act(&(beam * s));
-                    if !spec.is_solid(local.x, local.y) {
-                        continue;
-                    }
-                    let point = beam * (s + 0.02 * rng.normal());
-                    noisy.push(point);
-                    if clear_face(&spec, local.x, local.y) {
-                        on_face.push(point);
-                    }
-                }
-            }
-            let tilt = |summary: PlanePoints| {
-                let (n, _) = summary.fitted_plane_towards(&normal);
-                n - normal * n.dot(&normal)
-            };
-            ours += tilt(plane_points(&spec, &facing, 0.06, noisy.into_iter()).unwrap());
-            uncorrected += tilt(PlanePoints::from_points(on_face, 0.02).unwrap());
+            let lines = (0..40).map(|line| (0.1 + 0.3 * line as f64 / 39.0).atan());
+            let azimuths = (0..160).map(|k| (-0.16 + 0.32 * k as f64 / 159.0).atan());
+            let hits = cast_on_board(&spec, &facing, lines, azimuths, &mut rng);
+            let noisy = hits.iter().map(|(point, _)| *point);
+            let on_face = hits.iter().filter(|(_, b)| clear_face(&spec, b.x, b.y)).map(|(p, _)| *p);
+            ours += tilt(plane_points(&spec, &facing, 0.06, noisy).unwrap(), &normal);
+            uncorrected += tilt(PlanePoints::from_points(on_face, 0.02).unwrap(), &normal);
         }
         let (ours, uncorrected) = (
             (ours / sweeps as f64).norm().to_degrees(),
@@ -404,29 +420,16 @@ mod tests {
         let (mut ours, mut appear) = (Vec3::zeros(), Vec3::zeros());
         let redraws = 1000;
         for _ in 0..redraws {
-            let mut noisy = Vec::new();
-            for line in 0..9 {
-                let elevation = (0.17 + 0.0058 * line as f64).atan();
-                for k in 0..240 {
-                    let azimuth = (-0.12 + 0.24 * k as f64 / 239.0).atan();
-                    let beam = Vec3::new(azimuth.sin(), elevation.sin(), azimuth.cos()).normalize();
-                    let s = normal.dot(&facing.translation) / normal.dot(&beam);
-                    let local = to_board.act(&(beam * s));
-                    if spec.is_solid(local.x, local.y) {
-                        noisy.push(beam * (s + 0.02 * rng.normal()));
-                    }
-                }
-            }
-            let tilt = |summary: PlanePoints| {
-                let (n, _) = summary.fitted_plane_towards(&normal);
-                n - normal * n.dot(&normal)
-            };
-            ours += tilt(plane_points(&spec, &facing, 0.06, noisy.iter().copied()).unwrap());
-            let appearing = noisy.iter().copied().filter(|p| {
+            let lines = (0..9).map(|line| (0.17 + 0.0058 * line as f64).atan());
+            let azimuths = (0..240).map(|k| (-0.12 + 0.24 * k as f64 / 239.0).atan());
+            let hits = cast_on_board(&spec, &facing, lines, azimuths, &mut rng);
+            let noisy = hits.iter().map(|(point, _)| *point);
+            ours += tilt(plane_points(&spec, &facing, 0.06, noisy.clone()).unwrap(), &normal);
+            let appearing = noisy.filter(|p| {
                 let b = to_board.act(p);
                 b.z.abs() <= 0.06 && clear_face(&spec, b.x, b.y)
             });
-            appear += tilt(PlanePoints::from_points(appearing, 0.02).unwrap());
+            appear += tilt(PlanePoints::from_points(appearing, 0.02).unwrap(), &normal);
         }
         let (ours, appear) = (
             (ours / redraws as f64).norm().to_degrees(),
