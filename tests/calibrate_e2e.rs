@@ -8,6 +8,10 @@ use std::process::Command;
 use roomcal::result::{CalibrationResult, Status};
 use roomcal::sim::Truth;
 
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::Scratch;
+
 fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
 }
@@ -20,19 +24,13 @@ fn roomcal(args: &[&str]) -> (i32, String) {
     (out.status.code().unwrap_or(-1), text)
 }
 
-fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("roomcal-e2e-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
 fn fixture(name: &str, file: &str) -> String {
     root().join("fixtures").join(name).join(file).to_string_lossy().into_owned()
 }
 
 #[test]
 fn calibrates_the_six_board_fixture() {
-    let dir = temp_dir("six");
+    let dir = Scratch::new("e2e-six");
     let (out, report) = (dir.join("result.json"), dir.join("report.png"));
     let (code, text) = roomcal(&[
         "calibrate",
@@ -96,7 +94,7 @@ fn calibrates_the_six_board_fixture() {
 
 #[test]
 fn a_room_with_one_board_more_than_seen_is_rejected_with_exit_3() {
-    let dir = temp_dir("reject");
+    let dir = Scratch::new("e2e-reject");
     let room = std::fs::read_to_string(fixture("six-boards-pandar64", "room.toml")).unwrap();
     let seven = dir.join("room.toml");
     std::fs::write(&seven, room.replace("count = 6", "count = 7")).unwrap();
@@ -119,7 +117,7 @@ fn a_room_with_one_board_more_than_seen_is_rejected_with_exit_3() {
 
 #[test]
 fn bad_input_exits_2_naming_the_file() {
-    let dir = temp_dir("bad");
+    let dir = Scratch::new("e2e-bad");
     // An image of another size than the room's camera.
     let (code, text) = roomcal(&[
         "calibrate",
@@ -156,7 +154,7 @@ fn intrinsics_on_the_real_opencv_images() {
         eprintln!("skipped: {} is absent", data.display());
         return;
     }
-    let dir = temp_dir("opencv");
+    let dir = Scratch::new("e2e-opencv");
     let room = dir.join("room.toml");
     std::fs::write(
         &room,

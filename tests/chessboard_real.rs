@@ -4,6 +4,10 @@
 use roomcal::detect::{load_grey, Board, ChessboardDetector};
 use roomcal::target::BoardSpec;
 
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::Scratch;
+
 const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data/chessboard/opencv-left");
 
 fn spec_9x6() -> BoardSpec {
@@ -91,8 +95,7 @@ fn opencv_left_all_boards_complete() {
 
 #[test]
 fn load_grey_names_the_file() {
-    let dir = std::env::temp_dir().join(format!("roomcal-chess-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("chess");
     let missing = dir.join("missing.png");
     let err = load_grey(&missing).unwrap_err().to_string();
     assert!(err.contains("missing.png"), "{err}");
@@ -118,5 +121,4 @@ fn load_grey_names_the_file() {
     let grey = load_grey(&png).unwrap();
     assert_eq!((grey.width, grey.height, grey.data.len()), (4, 3, 12));
     assert!(grey.data[3] > grey.data[0]);
-    std::fs::remove_dir_all(&dir).ok();
 }

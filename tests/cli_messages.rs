@@ -3,8 +3,12 @@
 //! stdout and stderr checked for Rust's debug dumps (`{`, `Some(`, `[[`) and for the
 //! summary's promised lines.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
+
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::Scratch;
 
 fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -16,12 +20,6 @@ fn roomcal(args: &[&str]) -> (i32, String, String) {
         Command::new(env!("CARGO_BIN_EXE_roomcal")).args(args).output().expect("roomcal runs");
     let text = |bytes: &[u8]| String::from_utf8_lossy(bytes).into_owned();
     (out.status.code().unwrap_or(-1), text(&out.stdout), text(&out.stderr))
-}
-
-fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("roomcal-cli-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
 }
 
 fn fixture(name: &str, file: &str) -> String {
@@ -54,7 +52,7 @@ fn calibrate_six(dir: &Path, extra: &[&str]) -> (i32, String, String) {
 
 #[test]
 fn calibrate_summary_is_plain_sentences_with_rpy_and_one_line_per_board() {
-    let dir = temp_dir("summary");
+    let dir = Scratch::new("cli-summary");
     let (code, stdout, stderr) = calibrate_six(&dir, &[]);
     println!("{stdout}{stderr}");
     assert_eq!(code, 0);
@@ -74,7 +72,7 @@ fn calibrate_summary_is_plain_sentences_with_rpy_and_one_line_per_board() {
 
 #[test]
 fn quiet_prints_the_status_line_and_json_the_result_file() {
-    let dir = temp_dir("quiet-json");
+    let dir = Scratch::new("cli-quiet-json");
     let (code, stdout, stderr) = calibrate_six(&dir, &["--quiet"]);
     assert_eq!(code, 0, "{stdout}{stderr}");
     assert_eq!(stdout.lines().count(), 1, "{stdout}");
@@ -93,7 +91,7 @@ fn quiet_prints_the_status_line_and_json_the_result_file() {
 fn rejected_run_keeps_exit_code_3_and_says_why_in_one_plain_line() {
     // Six boards needed, the four-board fixture's room asks for them all: at count 7 the
     // gate must reject (the room file is the fixture's with a larger count).
-    let dir = temp_dir("rejected");
+    let dir = Scratch::new("cli-rejected");
     let room = std::fs::read_to_string(fixture("four-boards-vlp32c", "room.toml")).unwrap();
     let room = room.replace("count = 4", "count = 7");
     assert!(room.contains("count = 7"), "the fixture room changed: {room}");
@@ -123,7 +121,7 @@ fn a_run_stopped_before_its_solve_prints_no_placeholder_as_a_result() {
     // The six-board room's image with another room's sweep: no LiDAR board pairs with a
     // camera board, so nothing is solved. The summary must not print the result file's
     // placeholder extrinsic as a LiDAR found far from its mounting.
-    let dir = temp_dir("unsolved");
+    let dir = Scratch::new("cli-unsolved");
     let out = dir.join("result.json");
     let (code, stdout, stderr) = roomcal(&[
         "calibrate",
@@ -149,7 +147,7 @@ fn a_run_stopped_before_its_solve_prints_no_placeholder_as_a_result() {
 
 #[test]
 fn detect_and_bad_input_messages_are_plain() {
-    let dir = temp_dir("detect");
+    let dir = Scratch::new("cli-detect");
     let out = dir.join("detections.json");
     let (code, stdout, stderr) = roomcal(&[
         "detect",
@@ -194,7 +192,7 @@ fn every_help_says_what_it_is_for_with_an_example() {
 
 #[test]
 fn report_picture_carries_the_frame_and_a_footer_with_status_legend_and_range_bar() {
-    let dir = temp_dir("report");
+    let dir = Scratch::new("cli-report");
     let report = dir.join("report.png");
     let (code, stdout, stderr) =
         calibrate_six(&dir, &["--quiet", "--report", report.to_str().unwrap()]);
@@ -221,7 +219,7 @@ fn report_picture_carries_the_frame_and_a_footer_with_status_legend_and_range_ba
 /// vehicles to lay it out around: each refusal is exit 2 naming what is wrong.
 #[test]
 fn simulate_refuses_a_ring_it_cannot_lay_out() {
-    let dir = temp_dir("ring");
+    let dir = Scratch::new("cli-ring");
     let out = dir.to_str().unwrap();
     let room = root().join("config/wide-room.toml");
     let room = room.to_str().unwrap();

@@ -2,8 +2,12 @@
 //! nothing at all on stderr when it is not a terminal (a pipe, here), the updating line when
 //! it is one (a pseudo-terminal from util-linux's `script`), and nothing with `--quiet`.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
+
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::Scratch;
 
 fn fixture(file: &str) -> String {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -11,12 +15,6 @@ fn fixture(file: &str) -> String {
         .join(file)
         .to_string_lossy()
         .into_owned()
-}
-
-fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("roomcal-progress-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
 }
 
 /// `calibrate` on two frames of the six-board fixture (the same pair twice).
@@ -48,7 +46,7 @@ fn on_a_terminal(args: &[String]) -> Option<String> {
 
 #[test]
 fn a_pipe_gets_no_progress() {
-    let dir = temp_dir("pipe");
+    let dir = Scratch::new("progress-pipe");
     let out = Command::new(env!("CARGO_BIN_EXE_roomcal"))
         .args(two_frame_args(&dir, &[]))
         .output()
@@ -57,12 +55,11 @@ fn a_pipe_gets_no_progress() {
     assert_eq!(out.status.code(), Some(0), "{stderr}");
     assert!(!stderr.contains('\r') && !stderr.contains("[1/"), "progress on a pipe: {stderr:?}");
     assert!(String::from_utf8_lossy(&out.stdout).starts_with("roomcal calibrate: accepted"));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn a_terminal_sees_each_step_then_a_cleared_line() {
-    let dir = temp_dir("tty");
+    let dir = Scratch::new("progress-tty");
     let Some(screen) = on_a_terminal(&two_frame_args(&dir, &[])) else {
         println!("skipped: util-linux `script` is not installed (no pseudo-terminal)");
         return;
@@ -85,17 +82,15 @@ fn a_terminal_sees_each_step_then_a_cleared_line() {
     // The last line is blanked and the cursor returned before the summary starts.
     let summary = screen.find("roomcal calibrate: accepted").expect("the summary");
     assert!(screen[..summary].trim_end_matches(['\r', '\n']).ends_with(&" ".repeat(10)));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn quiet_silences_the_progress_on_a_terminal() {
-    let dir = temp_dir("quiet");
+    let dir = Scratch::new("progress-quiet");
     let Some(screen) = on_a_terminal(&two_frame_args(&dir, &["--quiet"])) else {
         println!("skipped: util-linux `script` is not installed (no pseudo-terminal)");
         return;
     };
     assert!(!screen.contains("[1/8]"), "progress despite --quiet: {screen:?}");
     assert!(screen.starts_with("roomcal calibrate: accepted"), "{screen:?}");
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -3,7 +3,7 @@
 //! untouched; manual mode waits for a request; a missing camera device is retried, not
 //! fatal; the UDS backend answers from the store.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
@@ -18,6 +18,10 @@ use roomcal::store::Store;
 
 #[path = "common/results.rs"]
 mod results;
+
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::Scratch;
 
 fn result(fx: f64, status: Status) -> CalibrationResult {
     CalibrationResult {
@@ -88,9 +92,8 @@ fn fake(boards: usize, status: Status) -> (Fake, Arc<AtomicUsize>, Arc<AtomicUsi
 }
 
 /// A scene folder: room.toml, one PNG, one PCD (a still room), roomcal.toml.
-fn scene(name: &str, extra: &str) -> (PathBuf, config::Config) {
-    let dir = std::env::temp_dir().join(format!("roomcal-daemon-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
+fn scene(name: &str, extra: &str) -> (Scratch, config::Config) {
+    let dir = Scratch::new(&format!("daemon-{name}"));
     std::fs::create_dir_all(dir.join("frames")).unwrap();
     let room =
         std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/room.toml")).unwrap();
@@ -119,7 +122,7 @@ fn scene(name: &str, extra: &str) -> (PathBuf, config::Config) {
     );
     let path = dir.join("roomcal.toml");
     std::fs::write(&path, &text).unwrap();
-    (dir.clone(), config::load(&path).unwrap())
+    (dir, config::load(&path).unwrap())
 }
 
 fn current_bytes(dir: &Path) -> Option<Vec<u8>> {
@@ -145,7 +148,6 @@ async fn replay_auto_trigger_stores_a_generation_and_exits_once() {
     // Two accumulated sweeps of 16 × 720 points.
     assert_eq!(cur.result.camera.fx, 500.0 + 2.0 * 16.0 * 720.0);
     assert!(dir.join("store/camera.yaml").exists());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[tokio::test(start_paused = true)]
@@ -164,7 +166,6 @@ async fn too_few_boards_never_trigger() {
     assert_eq!(runs.load(Ordering::SeqCst), 0);
     assert!(counts.load(Ordering::SeqCst) >= 25, "about one detection pass a second");
     assert!(current_bytes(&dir).is_none());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[tokio::test(start_paused = true)]
@@ -182,7 +183,6 @@ async fn rejected_run_leaves_current_untouched() {
     let rejected = store.rejected().unwrap();
     assert_eq!(rejected.len(), 1);
     assert_eq!(rejected[0].result.status, Status::Rejected);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[tokio::test(start_paused = true)]
@@ -201,22 +201,21 @@ async fn manual_mode_runs_only_on_request_and_latches_in_auto() {
     assert_eq!(handle.shared().current.unwrap().generation, 1);
     let summary = task.await.unwrap().unwrap();
     assert_eq!(summary.accepted, 1, "one run in 60 s");
-    let _ = std::fs::remove_dir_all(&dir);
+    drop(dir);
 
     // Auto mode: one run per visit, however long the vehicle stays.
-    let (dir, cfg) = scene("latch", "");
+    let (_dir, cfg) = scene("latch", "");
     let (cal, _, runs) = fake(6, Status::Accepted);
     let s =
         daemon::run(cfg, cal, RunOptions::default(), tokio::time::sleep(Duration::from_secs(60)))
             .await
             .unwrap();
     assert_eq!((s.runs, runs.load(Ordering::SeqCst)), (1, 1));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[tokio::test(start_paused = true)]
 async fn missing_camera_device_is_named_and_retried() {
-    let (dir, mut cfg) = scene("nodev", "");
+    let (_dir, mut cfg) = scene("nodev", "");
     cfg.camera = config::CameraSource::V4l2("/dev/video-roomcal-missing".into());
     let err = daemon::open_camera(&cfg).err().unwrap().to_string();
     assert!(err.contains("/dev/video-roomcal-missing"), "{err}");
@@ -231,7 +230,6 @@ async fn missing_camera_device_is_named_and_retried() {
     .unwrap();
     assert_eq!(s.runs, 0);
     assert_eq!(counts.load(Ordering::SeqCst), 0, "no frames, no detection");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A rig in force: the sensor table and the per-sensor DIDs describe it (cameras, then
@@ -240,9 +238,8 @@ async fn missing_camera_device_is_named_and_retried() {
 #[test]
 fn backend_serves_the_rig_in_force_sensor_by_sensor() {
     use roomcal::service::uds::SensorKind;
-    let dir = std::env::temp_dir().join(format!("roomcal-daemon-rig-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    let store = Store::open(&dir, 4).unwrap();
+    let dir = Scratch::new("daemon-rig");
+    let store = Store::open(dir.path(), 4).unwrap();
     let rig = results::rig_result();
     let rec = store.commit_rig(&rig, 1_700_000_000).unwrap();
     let shared = Arc::new(std::sync::Mutex::new(daemon::Shared {
@@ -274,14 +271,12 @@ fn backend_serves_the_rig_in_force_sensor_by_sensor() {
     let front = b.sensor_extrinsic(0).unwrap();
     assert_eq!((front.rotation, front.translation), ([1.0, 0.0, 0.0, 0.0], [0.0; 3]));
     assert_eq!(b.sensor_extrinsic(4), None);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn backend_answers_from_the_store_and_rolls_back() {
-    let dir = std::env::temp_dir().join(format!("roomcal-daemon-backend-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    let store = Store::open(&dir, 4).unwrap();
+    let dir = Scratch::new("daemon-backend");
+    let store = Store::open(dir.path(), 4).unwrap();
     store.commit(&result(800.0, Status::Accepted), 1_700_000_000).unwrap();
     let rec = store.commit(&result(810.0, Status::Accepted), 1_700_000_100).unwrap();
     let shared = Arc::new(std::sync::Mutex::new(daemon::Shared {
@@ -331,7 +326,6 @@ fn backend_answers_from_the_store_and_rolls_back() {
     assert_eq!(b.intrinsics().unwrap().fx, 800.0);
     assert_eq!(store.current().unwrap().unwrap().restored_from, Some(1));
     assert_eq!(b.rollback(), Err(Refusal::NotAvailable));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The service as a bench tool sees it: the daemon listens on a socketcand endpoint
@@ -386,7 +380,6 @@ async fn service_listens_on_socketcand_and_runs_a_calibration() {
     stop.send(()).unwrap();
     let summary = task.await.unwrap().unwrap();
     assert_eq!((summary.runs, summary.accepted, summary.generation), (1, 1, 3));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -417,7 +410,7 @@ fn cpu_seconds() -> Option<f64> {
 #[test]
 #[ignore]
 fn idle_cpu_of_a_replay_run() {
-    let (dir, cfg) = scene("idlecpu", "");
+    let (_dir, cfg) = scene("idlecpu", "");
     let (cal, counts, _) = fake(0, Status::Accepted);
     let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
     let before = cpu_seconds().unwrap();
@@ -436,7 +429,6 @@ fn idle_cpu_of_a_replay_run() {
         counts.load(Ordering::SeqCst)
     );
     assert!(counts.load(Ordering::SeqCst) >= 8);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `--once`: a run whose result cannot be written is an error (the binary exits 1), not
@@ -454,7 +446,6 @@ async fn once_fails_when_the_store_cannot_be_written() {
     let err = task.await.unwrap().unwrap_err().to_string();
     assert!(err.contains("store/history"), "the error names the store path: {err}");
     assert!(current_bytes(&dir).is_none());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `current.json` emptied while the daemon runs is put back from the record in force
@@ -485,7 +476,6 @@ async fn current_json_emptied_while_running_is_restored() {
     std::fs::write(dir.join("store/current.json"), b"").unwrap();
     assert_eq!(b.state().generation, 1);
     assert_eq!(current_bytes(&dir).unwrap(), good, "restored before the read was answered");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Three wrong keys, then the daemon restarts: the 10 s lockout still holds (it is kept in
@@ -546,7 +536,6 @@ async fn security_lockout_survives_a_restart() {
     drop(c);
     stop.send(()).unwrap();
     task.await.unwrap().unwrap();
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -605,7 +594,7 @@ impl Calibrator for RigFake {
 
 /// `scene`'s folder with the example rig (config/rig.toml) and a daemon configuration
 /// naming a source per sensor; `bumper` is the bumper LiDAR's source.
-fn rig_scene(name: &str, bumper: &str) -> (PathBuf, config::Config) {
+fn rig_scene(name: &str, bumper: &str) -> (Scratch, config::Config) {
     rig_scene_with(name, bumper, "", "")
 }
 
@@ -615,7 +604,7 @@ fn rig_scene_with(
     bumper: &str,
     wide: &str,
     trigger: &str,
-) -> (PathBuf, config::Config) {
+) -> (Scratch, config::Config) {
     let (dir, _) = scene(name, "");
     std::fs::copy(concat!(env!("CARGO_MANIFEST_DIR"), "/config/rig.toml"), dir.join("rig.toml"))
         .unwrap();
@@ -649,12 +638,11 @@ async fn a_rig_daemon_captures_every_sensor_and_keeps_the_rig_in_force() {
     {
         assert!(dir.join("store").join(file).exists(), "{file}");
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[tokio::test(start_paused = true)]
 async fn a_rig_run_times_out_naming_the_sensor_that_delivered_nothing() {
-    let (dir, cfg) = rig_scene("rig-timeout", "replay:missing.pcd");
+    let (_dir, cfg) = rig_scene("rig-timeout", "replay:missing.pcd");
     let seen = Arc::new(std::sync::Mutex::new(Vec::new()));
     let error =
         daemon::run(cfg, RigFake::new(&seen), RunOptions { once: true }, std::future::pending())
@@ -664,7 +652,6 @@ async fn a_rig_run_times_out_naming_the_sensor_that_delivered_nothing() {
     assert!(error.contains("0 of 2 sweeps of LiDAR `bumper`"), "{error}");
     assert!(error.contains("2 of 2 sweeps of LiDAR `top`"), "{error}");
     assert!(seen.lock().unwrap().is_empty(), "calibrated without the bumper LiDAR");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The room counts as seen when every camera sees its boards: a wide camera that sees two
@@ -679,7 +666,7 @@ async fn a_rigs_trigger_waits_for_every_watched_camera() {
         async move {
             let stop = tokio::time::sleep(Duration::from_secs(30));
             let summary = daemon::run(cfg, cal, RunOptions { once: true }, stop).await.unwrap();
-            let _ = std::fs::remove_dir_all(&dir);
+            drop(dir);
             (summary.runs, seen.lock().unwrap().len())
         }
     };

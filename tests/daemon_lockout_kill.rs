@@ -13,6 +13,10 @@ use roomcal::service::client::{ClientError, UdsClient};
 use roomcal::service::socketcand::SocketcandClient;
 use roomcal::service::uds::Session;
 
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::Scratch;
+
 fn fixture(file: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/six-boards-pandar64").join(file)
 }
@@ -56,9 +60,7 @@ async fn connect(port: u16) -> UdsClient<SocketcandClient> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn lockout_survives_sigkill_of_the_daemon() {
-    let dir = std::env::temp_dir().join(format!("roomcal-lockout-kill-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("lockout-kill");
     let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
     let config = config(&dir, port);
 
@@ -87,7 +89,6 @@ async fn lockout_survives_sigkill_of_the_daemon() {
     let answer = c.request(&[0x27, 0x01]).await;
     daemon.kill().unwrap();
     daemon.wait().unwrap();
-    let _ = std::fs::remove_dir_all(&dir);
     match answer {
         Err(ClientError::Negative { service: 0x27, nrc: 0x37 }) => {}
         other => panic!("expected requiredTimeDelayNotExpired after SIGKILL, got {other:?}"),

@@ -9,6 +9,10 @@ use std::process::Command;
 
 use roomcal::sim::Truth;
 
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::Scratch;
+
 fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
 }
@@ -70,8 +74,7 @@ fn assert_current_matches_truth(current_path: &Path) {
 
 #[test]
 fn replay_daemon_calibrates_from_the_sensors_packets() {
-    let dir = std::env::temp_dir().join(format!("roomcal-daemon-pcap-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("daemon-pcap");
     let lidar = format!(
         "source = \"replay:{}\"\ncalibration = {:?}",
         fixture("cloud.pcap").display(),
@@ -80,13 +83,11 @@ fn replay_daemon_calibrates_from_the_sensors_packets() {
     let text = run_once(&config_with_lidar(&dir, &fixture("room.toml"), &lidar));
     assert!(text.contains("1 accepted"), "{text}");
     assert_current_matches_truth(&dir.join("store/current.json"));
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
 fn replay_daemon_calibrates_and_a_short_room_is_rejected() {
-    let dir = std::env::temp_dir().join(format!("roomcal-daemon-replay-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("daemon-replay");
     let text = run_once(&config(&dir, &fixture("room.toml")));
     assert!(text.contains("1 accepted"), "{text}");
     let current_path = dir.join("store/current.json");

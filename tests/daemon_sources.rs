@@ -7,6 +7,10 @@ use std::time::Duration;
 use roomcal::daemon::sources::{self, PcdReplay, SweepSource};
 use roomcal::lidar::{pcd, Calibration, Model, Point};
 
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::Scratch;
+
 fn vlp16_pcap() -> Option<PathBuf> {
     let p = Path::new(concat!(
         env!("CARGO_MANIFEST_DIR"),
@@ -76,9 +80,7 @@ async fn udp_bind_error_names_the_address() {
 
 #[tokio::test(start_paused = true)]
 async fn pcd_folder_replays_in_order_and_loops() {
-    let dir = std::env::temp_dir().join(format!("roomcal-pcdreplay-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("pcdreplay");
     for n in 1..=2usize {
         let pts = vec![Point { x: n as f32, ..Point::default() }; n];
         pcd::write(dir.join(format!("{n}.pcd")), &pts, pcd::PcdFormat::Ascii).unwrap();
@@ -93,5 +95,4 @@ async fn pcd_folder_replays_in_order_and_loops() {
     assert_eq!(got, [1, 2, 1, 2, 1]);
     assert_eq!(t0.elapsed(), Duration::from_millis(400));
     assert!(PcdReplay::open(&dir.join("none"), Duration::from_millis(100)).is_err());
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -22,6 +22,10 @@ use roomcal::lidar::{hesai, Model};
 mod impair;
 use impair::{header_garbage, mixed_garbage, Rng, TAIL_DATE, TAIL_US};
 
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::Scratch;
+
 /// How long a case may take before the daemon is stopped (the study saw no run in 45 s).
 const LIMIT: Duration = Duration::from_secs(40);
 
@@ -132,10 +136,7 @@ struct Outcome {
 }
 
 fn run_case(name: &str, imp: Impairments, seed: u64, limit: Duration) -> Outcome {
-    let dir =
-        std::env::temp_dir().join(format!("roomcal-daemon-udp-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new(&format!("daemon-udp-{name}"));
     let port = UdpSocket::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
     let text = format!(
         "room = {:?}\nstore = {:?}\n[camera]\nsource = \"replay:{}\"\n[lidar]\nsource = \"udp:127.0.0.1:{port}\"\n\
@@ -177,7 +178,7 @@ fn run_case(name: &str, imp: Impairments, seed: u64, limit: Duration) -> Outcome
     let mut log = String::new();
     child.stdout.take().unwrap().read_to_string(&mut log).unwrap();
     child.stderr.take().unwrap().read_to_string(&mut log).unwrap();
-    let _ = std::fs::remove_dir_all(&dir);
+    drop(dir);
     let lines = log
         .lines()
         .filter(|l| ["calibration", "sweep", "udp 127", "timed out"].iter().any(|w| l.contains(w)))

@@ -4,7 +4,7 @@
 //! Autoware file (camera_link, not the optical frame) checked on a mounting whose answer
 //! is known; and both writers: the store beside current.json and `calibrate --export`.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
 use roomcal::geometry::CameraModel;
@@ -15,6 +15,10 @@ use yaml_rust2::{Yaml, YamlLoader};
 #[path = "common/results.rs"]
 mod results;
 use results::{result, rig_result};
+
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::Scratch;
 
 const TOLERANCE: f64 = 1e-9;
 
@@ -230,13 +234,6 @@ fn kitti_calib_reads_back_as_the_json() {
     assert_eq!(kitti(&export(&camera_only, "calib.txt")).len(), 1);
 }
 
-fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("roomcal-export-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
 /// The three files in `dir` are exactly the exports of `result`.
 fn assert_exports_of(dir: &Path, result: &CalibrationResult) {
     for file in roomcal::export::files(result) {
@@ -247,8 +244,8 @@ fn assert_exports_of(dir: &Path, result: &CalibrationResult) {
 
 #[test]
 fn the_store_writes_the_exports_beside_current_json() {
-    let dir = temp_dir("store");
-    let store = roomcal::store::Store::open(&dir, 4).unwrap();
+    let dir = Scratch::new("export-store");
+    let store = roomcal::store::Store::open(dir.path(), 4).unwrap();
     let first = result(CameraModel::PinholeRadtan);
     store.commit(&first, 1_700_000_000).unwrap();
     assert_exports_of(&dir, &first);
@@ -268,7 +265,7 @@ fn fixture(file: &str) -> String {
 
 #[test]
 fn calibrate_exports_accepted_runs_only() {
-    let dir = temp_dir("cli");
+    let dir = Scratch::new("export-cli");
     let run = |room: &str, out: &Path, export: &Path| {
         Command::new(env!("CARGO_BIN_EXE_roomcal"))
             .args(["calibrate", "--room", room, "--image", &fixture("image.png")])
@@ -389,8 +386,8 @@ fn a_rigs_exports_place_every_sensor_as_its_extrinsics_say() {
 
 #[test]
 fn the_store_keeps_a_rig_with_its_views_and_rolls_it_back_whole() {
-    let dir = temp_dir("store-rig");
-    let store = roomcal::store::Store::open(&dir, 4).unwrap();
+    let dir = Scratch::new("export-store-rig");
+    let store = roomcal::store::Store::open(dir.path(), 4).unwrap();
     let first = rig_result();
     store.commit_rig(&first, 1_700_000_000).unwrap();
     let on_disk = |name: &str| std::fs::read_to_string(dir.join(name)).unwrap();
@@ -416,7 +413,8 @@ fn the_store_keeps_a_rig_with_its_views_and_rolls_it_back_whole() {
     }
     // One-pair consumers keep reading the first camera and first LiDAR.
     assert_eq!(on_disk("camera.yaml"), roomcal::store::camera_yaml(&first.pair.camera));
-    let in_force = || roomcal::store::Store::open(&dir, 4).unwrap().current().unwrap().unwrap();
+    let in_force =
+        || roomcal::store::Store::open(dir.path(), 4).unwrap().current().unwrap().unwrap();
     assert_eq!(in_force().rig_result(), Some(first.clone()));
 
     let mut second = first.clone();

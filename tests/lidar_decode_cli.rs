@@ -10,14 +10,17 @@ use roomcal::target::LidarModel;
 mod pcap_data;
 use pcap_data::{data_dir, file_with};
 
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::Scratch;
+
 fn decode(args: &[&std::ffi::OsStr]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_roomcal")).arg("decode").args(args).output().unwrap()
 }
 
 #[test]
 fn decodes_the_new_models_to_pcd() {
-    let out_dir = std::env::temp_dir().join(format!("roomcal-decode-cli-{}", std::process::id()));
-    std::fs::create_dir_all(&out_dir).unwrap();
+    let out_dir = Scratch::new("decode-cli");
     for (model, folder, calibration) in [
         ("pandarxt32", "hesai-pandarxt32", "PandarXT32.csv"),
         ("pandarqt64", "hesai-pandarqt64", "PandarQT64.csv"),
@@ -56,7 +59,6 @@ fn decodes_the_new_models_to_pcd() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(err.contains("metadata json") && err.contains("OS-1-32-G"), "{err}");
-    std::fs::remove_dir_all(&out_dir).unwrap();
 }
 
 #[test]

@@ -11,6 +11,10 @@ use proptest::prelude::*;
 use roomcal::lidar::pcd::{self, PcdError, PcdFormat, PcdReader};
 use roomcal::lidar::{lzf, Point};
 
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::Scratch;
+
 // ---------------------------------------------------------------------------------------
 // Allocation counting (per thread, so parallel tests do not disturb each other)
 
@@ -66,12 +70,6 @@ fn cloud(n: usize, seed: u64) -> Vec<Point> {
         .collect()
 }
 
-fn tmp_dir() -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("roomcal-pcd-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
 fn shared(rel: &str) -> PathBuf {
     PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data")).join(rel)
 }
@@ -116,7 +114,7 @@ fn scalar(v: f64, ty: char, size: usize) -> Vec<u8> {
 #[test]
 fn written_clouds_read_back_identically() {
     let points = cloud(5000, 1);
-    let dir = tmp_dir();
+    let dir = Scratch::new("pcd-round-trip");
     for format in [PcdFormat::Ascii, PcdFormat::Binary, PcdFormat::BinaryCompressed] {
         let path = dir.join(format!("{format:?}.pcd"));
         pcd::write(&path, &points, format).unwrap();
@@ -136,13 +134,11 @@ fn written_clouds_read_back_identically() {
     let raw = std::fs::metadata(dir.join("Binary.pcd")).unwrap().len();
     let packed = std::fs::metadata(dir.join("BinaryCompressed.pcd")).unwrap().len();
     assert!(packed < raw, "{packed} >= {raw}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn write_replaces_atomically_and_reports_errors() {
-    let dir = tmp_dir().join("atomic");
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("pcd-atomic");
     let path = dir.join("c.pcd");
     pcd::write(&path, &cloud(10, 2), PcdFormat::Binary).unwrap();
     pcd::write(&path, &cloud(20, 3), PcdFormat::Binary).unwrap();
@@ -151,7 +147,6 @@ fn write_replaces_atomically_and_reports_errors() {
     assert_eq!(names.len(), 1, "temporary file left behind: {names:?}");
     let err = pcd::write(dir.join("missing/c.pcd"), &[], PcdFormat::Ascii).unwrap_err();
     assert!(err.to_string().contains("missing/c.pcd"), "{err}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -362,8 +357,7 @@ fn truncated_data_is_explained() {
 
 #[test]
 fn reading_again_allocates_nothing() {
-    let dir = tmp_dir().join("alloc");
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("pcd-alloc");
     let mut reader = PcdReader::new();
     let mut out = Vec::new();
     for format in [PcdFormat::Ascii, PcdFormat::Binary, PcdFormat::BinaryCompressed] {
@@ -376,7 +370,6 @@ fn reading_again_allocates_nothing() {
         assert_eq!(made, 0, "{format:?}: {made} allocations on the second read");
         assert_eq!(out.len(), 3000);
     }
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 proptest! {

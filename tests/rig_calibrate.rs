@@ -20,6 +20,10 @@ use roomcal::sim::visits::RoomTruth;
 use roomcal::sim::{ImageNoise, SimOptions};
 use roomcal::target::{Room, SurveySpec, SurveyedBoard, SurveyedPlane};
 
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::Scratch;
+
 const CORNER_NOISE_PX: f64 = 0.025;
 const HOLE_NOISE_M: f64 = 0.003;
 
@@ -445,8 +449,7 @@ fn study(survey: Option<SurveyOf<'_>>, honest_sigma: bool) {
 /// the room, every extrinsic a σ and its error against `rig-truth.json` within 3√3σ.
 #[test]
 fn the_binary_calibrates_a_simulated_rig_in_a_surveyed_room() {
-    let dir = std::env::temp_dir().join(format!("roomcal-rig-surveyed-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("rig-surveyed");
     let roomcal = |args: &[&str]| {
         let out = std::process::Command::new(env!("CARGO_BIN_EXE_roomcal"))
             .args(args)
@@ -530,7 +533,6 @@ fn the_binary_calibrates_a_simulated_rig_in_a_surveyed_room() {
         assert!(s_deg > 0.0 && s_m > 0.0, "{from}: σ must be positive");
         assert!(deg <= bound * s_deg && m <= bound * s_m, "{from}: outside 3σ");
     }
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// A board moved 3 cm since the survey (one the roof LiDAR places): the pair runs and the

@@ -5,6 +5,10 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::Scratch;
+
 fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
 }
@@ -14,12 +18,6 @@ fn roomcal(args: &[&str]) -> (i32, String, String) {
         Command::new(env!("CARGO_BIN_EXE_roomcal")).args(args).output().expect("roomcal runs");
     let text = |bytes: &[u8]| String::from_utf8_lossy(bytes).into_owned();
     (out.status.code().unwrap_or(-1), text(&out.stdout), text(&out.stderr))
-}
-
-fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("roomcal-rig-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
 }
 
 fn config(file: &str) -> String {
@@ -59,7 +57,7 @@ fn rig_inputs(dir: &Path) -> Vec<String> {
 
 #[test]
 fn bad_rig_inputs_exit_2_naming_them() {
-    let dir = temp_dir("bad");
+    let dir = Scratch::new("rig-bad");
     let out = dir.join("result.json");
     let all = [
         "--image",
@@ -117,7 +115,7 @@ fn bad_rig_inputs_exit_2_naming_them() {
 
 #[test]
 fn a_simulated_rig_is_detected_and_calibrated_by_name() {
-    let dir = temp_dir("sim");
+    let dir = Scratch::new("rig-sim");
     let d = dir.to_string_lossy().into_owned();
     let (room, rig) = (config("room.toml"), config("rig.toml"));
     let (code, stdout, stderr) = roomcal(&[
@@ -227,7 +225,7 @@ fn assert_extrinsics_within_their_sigma(result: &serde_json::Value, truth: &serd
 /// whole rig workflow over the binary.
 #[test]
 fn a_rig_is_calibrated_in_the_room_its_visits_surveyed() {
-    let dir = temp_dir("surveyed");
+    let dir = Scratch::new("rig-surveyed");
     let d = dir.to_string_lossy().into_owned();
     let (room, rig) = (config("room.toml"), config("rig.toml"));
     let simulate = ["simulate", "--room", &room, "--rig", &rig, "--visits", "8", "--out", &d];
@@ -314,7 +312,7 @@ fn several_rigs_are_new_vehicles_in_the_visited_room() {
             roomcal(&[&args[..], &["--seed", "7", "--supersample", "1"], more].concat());
         assert_eq!(code, 0, "{stderr}");
     };
-    let (one, two) = (temp_dir("one-rig"), temp_dir("two-rigs"));
+    let (one, two) = (Scratch::new("rig-one-rig"), Scratch::new("rig-two-rigs"));
     simulate(&one, &[]);
     simulate(&two, &["--rigs", "2"]);
     let read = |path: PathBuf| -> serde_json::Value {
@@ -333,7 +331,8 @@ fn several_rigs_are_new_vehicles_in_the_visited_room() {
     assert_ne!(first["vehicle_to_room"], second["vehicle_to_room"], "own parking");
     assert_ne!(first["sensors"]["wide"], second["sensors"]["wide"], "own sensors");
 
-    let d = temp_dir("rigs-alone").to_string_lossy().into_owned();
+    let alone = Scratch::new("rig-rigs-alone");
+    let d = alone.to_string_lossy().into_owned();
     let (code, _, stderr) = roomcal(&["simulate", "--room", &room, "--rigs", "2", "--out", &d]);
     assert_eq!(code, 2, "{stderr}");
     assert!(stderr.contains("--visits") && stderr.contains("--rig"), "{stderr}");
@@ -354,7 +353,7 @@ fn a_standing_rig_is_calibrated_from_all_its_frames() {
             roomcal(&[&args[..], &["--supersample", "1", "--frames", frames]].concat());
         assert_eq!(code, 0, "{stderr}");
     };
-    let (one, three) = (temp_dir("standing-one"), temp_dir("standing-three"));
+    let (one, three) = (Scratch::new("rig-standing-one"), Scratch::new("rig-standing-three"));
     simulate(&one, "1");
     simulate(&three, "3");
     let bytes = |d: &Path, file: &str| {

@@ -19,6 +19,10 @@ use roomcal::service::{CanFrame, DEFAULT_REQUEST_ID, DEFAULT_RESPONSE_ID};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::oneshot;
 
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::Scratch;
+
 const SECRET: &[u8] = b"e2e vehicle secret";
 
 /// Starts the server on 127.0.0.1:0; returns its address and a stop handle.
@@ -107,8 +111,7 @@ async fn client_reads_every_did_unlocks_starts_and_rolls_back() {
 #[tokio::test]
 async fn query_pieces_print_every_did() {
     let (addr, stop, _task) = start_server(FakeBackend::calibrated()).await;
-    let dir = std::env::temp_dir().join(format!("roomcal-e2e-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = Scratch::new("e2e");
     let secret_file = dir.join("secret");
     std::fs::write(&secret_file, [SECRET, b"\n"].concat()).unwrap();
 
@@ -153,7 +156,6 @@ async fn query_pieces_print_every_did() {
     let err = query(&opts, QueryCommand::Start).await.unwrap_err();
     assert!(err.to_string().contains("secret file does not match"), "{err}");
     stop.send(()).unwrap();
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[tokio::test]

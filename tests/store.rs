@@ -11,6 +11,10 @@ use roomcal::geometry::CameraModel;
 use roomcal::result::{CalibrationResult, CameraResult, Extrinsic, Quality, Status, Uncertainty};
 use roomcal::store::{crc32, decode, encode, Store};
 
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::Scratch;
+
 /// A result whose fx encodes `tag`, so a record's content can be checked against its
 /// generation.
 fn result(tag: f64, status: Status) -> CalibrationResult {
@@ -38,16 +42,10 @@ fn result(tag: f64, status: Status) -> CalibrationResult {
     }
 }
 
-fn tempdir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("roomcal-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
-}
-
 #[test]
 fn commit_writes_current_history_and_yaml() {
-    let dir = tempdir("commit");
-    let store = Store::open(&dir, 3).unwrap();
+    let dir = Scratch::new("commit");
+    let store = Store::open(dir.path(), 3).unwrap();
     assert!(store.current().unwrap().is_none());
     let r1 = store.commit(&result(1.0, Status::Accepted), 1_700_000_000).unwrap();
     assert_eq!(r1.generation, 1);
@@ -76,13 +74,12 @@ fn commit_writes_current_history_and_yaml() {
     }
     let hist: Vec<u32> = store.history().unwrap().iter().map(|r| r.generation).collect();
     assert_eq!(hist, [4, 5, 6]);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn rejected_runs_never_replace_current() {
-    let dir = tempdir("rejected");
-    let store = Store::open(&dir, 2).unwrap();
+    let dir = Scratch::new("rejected");
+    let store = Store::open(dir.path(), 2).unwrap();
     store.commit(&result(1.0, Status::Accepted), 10).unwrap();
     let before = std::fs::read(dir.join("current.json")).unwrap();
     assert!(store.commit(&result(9.0, Status::Rejected), 20).is_err());
@@ -94,13 +91,12 @@ fn rejected_runs_never_replace_current() {
     assert_eq!(rej.len(), 2, "bounded");
     assert_eq!(rej[1].time, 23);
     assert_eq!(rej[1].result.reason.as_deref(), Some("corner RMS too high"));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn corrupt_current_falls_back_to_history_and_is_repaired() {
-    let dir = tempdir("corrupt");
-    let store = Store::open(&dir, 4).unwrap();
+    let dir = Scratch::new("corrupt");
+    let store = Store::open(dir.path(), 4).unwrap();
     store.commit(&result(1.0, Status::Accepted), 10).unwrap();
     store.commit(&result(2.0, Status::Accepted), 20).unwrap();
     let path = dir.join("current.json");
@@ -116,13 +112,12 @@ fn corrupt_current_falls_back_to_history_and_is_repaired() {
     std::fs::write(dir.join("history/gen-000002.json"), b"garbage").unwrap();
     let cur = store.current().unwrap().unwrap();
     assert_eq!(cur.generation, 1);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn rollback_goes_back_one_generation_at_a_time() {
-    let dir = tempdir("rollback");
-    let store = Store::open(&dir, 8).unwrap();
+    let dir = Scratch::new("rollback");
+    let store = Store::open(dir.path(), 8).unwrap();
     assert!(store.rollback(5).is_err(), "nothing to roll back");
     for g in 1..=3 {
         store.commit(&result(g as f64, Status::Accepted), g).unwrap();
@@ -133,7 +128,6 @@ fn rollback_goes_back_one_generation_at_a_time() {
     let r = store.rollback(101).unwrap();
     assert_eq!((r.generation, r.restored_from, r.result.camera.fx), (5, Some(1), 1001.0));
     assert!(store.rollback(102).is_err(), "generation 1 has no predecessor");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -183,8 +177,8 @@ fn next_rand(state: &mut u64) -> u64 {
 
 #[test]
 fn power_loss_leaves_old_or_new_generation() {
-    let dir = tempdir("powerloss");
-    Store::open(&dir, 4).unwrap();
+    let dir = Scratch::new("powerloss");
+    Store::open(dir.path(), 4).unwrap();
     let exe = std::env::current_exe().unwrap();
     let mut seed = 0x9E37_79B9_7F4A_7C15u64 ^ u64::from(std::process::id());
     let started = Instant::now();
@@ -194,7 +188,7 @@ fn power_loss_leaves_old_or_new_generation() {
     for round in 0..rounds {
         let mut child = std::process::Command::new(&exe)
             .args(["--exact", "powerloss_child", "--nocapture", "--test-threads=1"])
-            .env(CHILD_ENV, &dir)
+            .env(CHILD_ENV, dir.path())
             .stdout(std::process::Stdio::piped())
             .stderr(std::process::Stdio::null())
             .spawn()
@@ -239,7 +233,7 @@ fn power_loss_leaves_old_or_new_generation() {
         }
         last = rec.generation;
         // The history holds the generation in force.
-        let store = Store::open(&dir, 4).unwrap();
+        let store = Store::open(dir.path(), 4).unwrap();
         let hist = store.history().unwrap();
         assert!(hist.iter().any(|r| r.generation == last), "round {round}: {last} not in history");
         // Reopened, as the daemon restarts: no temporary file is left, and a generation
@@ -257,7 +251,6 @@ fn power_loss_leaves_old_or_new_generation() {
         started.elapsed().as_secs_f64()
     );
     assert!(advanced > rounds / 4, "the child wrote too rarely ({advanced} rounds advanced)");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Temporary files in the store's three directories.
@@ -283,8 +276,8 @@ fn dead_pid() -> u32 {
 
 #[test]
 fn temp_files_of_dead_writers_are_removed_at_open() {
-    let dir = tempdir("tempclean");
-    Store::open(&dir, 4).unwrap().commit(&result(1.0, Status::Accepted), 1).unwrap();
+    let dir = Scratch::new("tempclean");
+    Store::open(dir.path(), 4).unwrap().commit(&result(1.0, Status::Accepted), 1).unwrap();
     let dead = dead_pid();
     let stale = [
         dir.join(format!(".current.json.tmp-{dead}")),
@@ -295,10 +288,9 @@ fn temp_files_of_dead_writers_are_removed_at_open() {
     for p in stale.iter().chain([&ours]) {
         std::fs::write(p, b"half a record").unwrap();
     }
-    let store = Store::open(&dir, 4).unwrap();
+    let store = Store::open(dir.path(), 4).unwrap();
     assert_eq!(temp_files(&dir), [ours], "only this process's own temp file stays");
     assert_eq!(store.current().unwrap().unwrap().generation, 1);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 const FULL_ENV: &str = "ROOMCAL_STORE_FULL_DIR";
@@ -317,15 +309,15 @@ fn full_store_child() {
 
 #[test]
 fn failed_write_leaves_no_temp_file() {
-    let dir = tempdir("full");
-    Store::open(&dir, 4).unwrap();
+    let dir = Scratch::new("full");
+    Store::open(dir.path(), 4).unwrap();
     let exe = std::env::current_exe().unwrap();
     // SIGXFSZ ignored: the write returns EFBIG instead of killing the process.
     let out = std::process::Command::new("sh")
         .arg("-c")
         .arg("trap '' XFSZ; ulimit -f 1; exec \"$0\" --exact full_store_child --nocapture")
         .arg(&exe)
-        .env(FULL_ENV, &dir)
+        .env(FULL_ENV, dir.path())
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -335,13 +327,12 @@ fn failed_write_leaves_no_temp_file() {
     assert!(line.contains("gen-000001.json"), "the error names the file: {line}");
     assert_eq!(temp_files(&dir), Vec::<PathBuf>::new(), "the partial temp file was removed");
     assert!(!dir.join("current.json").exists());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn interrupted_update_is_completed_not_skipped() {
-    let dir = tempdir("interrupted");
-    let store = Store::open(&dir, 16).unwrap();
+    let dir = Scratch::new("interrupted");
+    let store = Store::open(dir.path(), 16).unwrap();
     for g in 1..=8u32 {
         store.commit(&result(f64::from(g), Status::Accepted), u64::from(g)).unwrap();
     }
@@ -354,21 +345,20 @@ fn interrupted_update_is_completed_not_skipped() {
         restored_from: None,
     };
     std::fs::write(dir.join("history/gen-000009.json"), encode(&nine)).unwrap();
-    let store = Store::open(&dir, 16).unwrap();
+    let store = Store::open(dir.path(), 16).unwrap();
     assert_eq!(store.current().unwrap().unwrap(), nine, "completed, not skipped");
     let path = dir.join("current.json");
     assert_eq!(decode(&std::fs::read(&path).unwrap(), &path).unwrap().generation, 9);
     let next = store.commit(&result(10.0, Status::Accepted), 10).unwrap();
     assert_eq!(next.generation, 10, "no jump over an unseen generation");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn generations_are_never_reused() {
     // Both current.json and the newest history entry corrupt (each a flipped digit, so
     // the JSON still parses), then the newest history entry truncated as well.
-    let dir = tempdir("reuse");
-    let store = Store::open(&dir, 8).unwrap();
+    let dir = Scratch::new("reuse");
+    let store = Store::open(dir.path(), 8).unwrap();
     for g in 1..=3u32 {
         store.commit(&result(f64::from(g), Status::Accepted), u64::from(g)).unwrap();
     }
@@ -384,11 +374,11 @@ fn generations_are_never_reused() {
     std::fs::write(dir.join("current.json"), b"{\"gen").unwrap();
     std::fs::write(dir.join("history/gen-000004.json"), b"").unwrap();
     assert_eq!(store.commit(&result(5.0, Status::Accepted), 5).unwrap().generation, 5);
-    let _ = std::fs::remove_dir_all(&dir);
+    drop(dir);
 
     // History deleted, current.json emptied: the rejected runs' names remember the number.
-    let dir = tempdir("reuse-deleted");
-    let store = Store::open(&dir, 8).unwrap();
+    let dir = Scratch::new("reuse-deleted");
+    let store = Store::open(dir.path(), 8).unwrap();
     for g in 1..=3u32 {
         store.commit(&result(f64::from(g), Status::Accepted), u64::from(g)).unwrap();
     }
@@ -405,13 +395,12 @@ fn generations_are_never_reused() {
     // History deleted while current.json is fine: the sequence continues from it.
     std::fs::remove_dir_all(dir.join("history")).unwrap();
     assert_eq!(store.commit(&result(5.0, Status::Accepted), 12).unwrap().generation, 5);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn the_last_generation_is_refused_not_overwritten() {
-    let dir = tempdir("u32max");
-    let store = Store::open(&dir, 4).unwrap();
+    let dir = Scratch::new("u32max");
+    let store = Store::open(dir.path(), 4).unwrap();
     let near = roomcal::store::Record {
         rig: Default::default(),
         result: result(1.0, Status::Accepted),
@@ -434,13 +423,12 @@ fn the_last_generation_is_refused_not_overwritten() {
     let hist: Vec<u32> = store.history().unwrap().iter().map(|r| r.generation).collect();
     assert_eq!(hist, [u32::MAX - 1, u32::MAX]);
     println!("{text}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn an_invalid_calibration_with_a_valid_checksum_is_not_in_force() {
-    let dir = tempdir("invalid");
-    let store = Store::open(&dir, 4).unwrap();
+    let dir = Scratch::new("invalid");
+    let store = Store::open(dir.path(), 4).unwrap();
     store.commit(&result(1.0, Status::Accepted), 1).unwrap();
     store.commit(&result(2.0, Status::Accepted), 2).unwrap();
     let mut bogus = result(0.0, Status::Accepted);
@@ -472,13 +460,12 @@ fn an_invalid_calibration_with_a_valid_checksum_is_not_in_force() {
     r.camera.distortion.push(f64::INFINITY);
     assert!(is_valid_calibration(&r).unwrap_err().contains("distortion"));
     assert!(is_valid_calibration(&result(0.0, Status::Rejected)).is_err());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn a_held_record_restores_an_emptied_current_json() {
-    let dir = tempdir("verify");
-    let store = Store::open(&dir, 4).unwrap();
+    let dir = Scratch::new("verify");
+    let store = Store::open(dir.path(), 4).unwrap();
     let rec = store.commit(&result(1.0, Status::Accepted), 1).unwrap();
     let path = dir.join("current.json");
     assert_eq!(store.verify_current(Some(&rec)).unwrap(), Some(rec.clone()));
@@ -488,9 +475,9 @@ fn a_held_record_restores_an_emptied_current_json() {
         assert_eq!(std::fs::read(&path).unwrap(), encode(&rec), "restored");
     }
     // A newer valid record written by someone else is taken, not overwritten.
-    let newer = Store::open(&dir, 4).unwrap().commit(&result(2.0, Status::Accepted), 2).unwrap();
+    let newer =
+        Store::open(dir.path(), 4).unwrap().commit(&result(2.0, Status::Accepted), 2).unwrap();
     assert_eq!(store.verify_current(Some(&rec)).unwrap(), Some(newer));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Captures the store's log lines during `f`.
@@ -520,8 +507,8 @@ fn logs_of<T>(f: impl FnOnce() -> T) -> (T, String) {
 #[cfg(feature = "daemon")]
 #[test]
 fn restore_is_logged_only_after_it_succeeded() {
-    let dir = tempdir("restorelog");
-    let store = Store::open(&dir, 4).unwrap();
+    let dir = Scratch::new("restorelog");
+    let store = Store::open(dir.path(), 4).unwrap();
     for g in 1..=3u32 {
         store.commit(&result(f64::from(g), Status::Accepted), u64::from(g)).unwrap();
     }
@@ -538,5 +525,4 @@ fn restore_is_logged_only_after_it_succeeded() {
     let (got, log) = logs_of(|| store.current());
     assert_eq!(got.unwrap().unwrap().generation, 3);
     assert!(log.contains("restored generation 3 from history"), "{log}");
-    let _ = std::fs::remove_dir_all(&dir);
 }

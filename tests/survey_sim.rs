@@ -8,6 +8,10 @@ use roomcal::geometry::{Se3, Vec3};
 use roomcal::sim::visits::{simulate_visits, write_visits, Visits};
 use roomcal::sim::{ImageNoise, SimOptions};
 
+#[path = "common/scratch.rs"]
+mod scratch;
+use scratch::Scratch;
+
 /// The design's room with a small camera, so that rendering stays cheap.
 fn small_room() -> roomcal::target::Room {
     let mut room =
@@ -94,7 +98,7 @@ fn the_floor_stays_where_the_room_put_it() {
 
 #[test]
 fn the_same_seed_writes_the_same_bytes() {
-    let dir = std::env::temp_dir().join(format!("roomcal-survey-sim-{}", std::process::id()));
+    let dir = Scratch::new("survey-sim");
     let (a, b) = (dir.join("a"), dir.join("b"));
     write_visits(&visits(7, 2), &a).unwrap();
     write_visits(&visits(7, 2), &b).unwrap();
@@ -110,7 +114,6 @@ fn the_same_seed_writes_the_same_bytes() {
     }
     let other = visits(8, 1);
     assert_ne!(other.truth.boards, visits(7, 1).truth.boards, "another seed, another room");
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
