@@ -1,11 +1,12 @@
 #!/usr/bin/env python3
 """What part of a survey moves new vehicles (issue 13): the vehicles of a
-`scripts/surveyed_study.py` work folder calibrated (one frame) in its survey as surveyed,
-with its boards replaced by the simulator's truth, with its planes replaced, and with both
-(σ kept), and the error each leaves: the mean LiDAR→camera translation error over the
-vehicles in the LiDAR frame (the error they share, mm), its spread, and the RMS translation
-and rotation errors. Beside them every surveyed board's and plane's own error against the
-truth (plane offsets under the vehicle, at the file's origin).
+`scripts/surveyed_study.py` work folder calibrated (one frame, or `--standing FRAMES SWEEPS`)
+in its survey as surveyed, with its boards replaced by the simulator's truth, with its planes
+replaced, and with both (σ and the joint covariance kept), and the error each leaves: the mean
+LiDAR→camera translation error over the vehicles in the LiDAR frame (the error they share,
+mm), its spread, and the RMS translation, rotation and overlay errors. Beside them every
+surveyed board's and plane's own error against the truth (plane offsets under the vehicle, at
+the file's origin).
 
 The truth (`room/room-truth.json`, the simulator's room frame) is put in the survey's frame
 (the nominal LiDAR at the visits' mean parking) by the rigid motion that best fits the board
@@ -15,7 +16,7 @@ truth's half-turned (the symmetric checkerboard) keeps that turn; planes by norm
 are `normal · x = offset` in both files.
 
     cargo build --release && scripts/surveyed_study.py --seed 4 --work DIR
-    scripts/survey_attribution.py DIR [--vehicles 17 26]
+    scripts/survey_attribution.py DIR [--vehicles 17 26] [--survey surveyed-2.toml] [--standing 10 10]
 """
 import argparse
 import json
@@ -41,6 +42,8 @@ def main():
                     help="the survey file in WORK (surveyed_study.py --surveys K writes surveyed-K.toml)")
     ap.add_argument("--survey-only", action="store_true",
                     help="the survey's errors and χ² only, no vehicle calibrated")
+    ap.add_argument("--standing", type=int, nargs=2, default=[1, 1], metavar=("FRAMES", "SWEEPS"),
+                    help="calibrate each vehicle from this many frames and sweeps (calibrate --standing)")
     args = ap.parse_args()
     text = open(os.path.join(args.work, args.survey)).read()
     survey = tomllib.loads(text)["survey"]
@@ -51,16 +54,19 @@ def main():
     if args.survey_only:
         return
     head = text[: text.index("[survey]")]
-    print("| survey values | mean error x, y, z mm | spread mm | t RMS mm | rot RMS ° |")
-    print("|---|---|---|---|---|")
+    print("| survey values | mean error x, y, z mm | spread mm | t RMS mm | rot RMS ° | overlay 3/10/30 m px |")
+    print("|---|---|---|---|---|---|")
     for name, boards, planes in (("as surveyed", False, False), ("boards exact", True, False),
                                  ("planes exact", False, True), ("both exact", True, True)):
         path = os.path.join(args.work, f"attribution-{int(boards)}{int(planes)}.toml")
         with open(path, "w") as f:
             f.write(head + exact.survey_toml(boards, planes))
-        shared, t, rot = calibrate_vehicles(args.work, path, range(args.vehicles[0], args.vehicles[1] + 1))
+        shared, rms = calibrate_vehicles(args.work, path, range(args.vehicles[0], args.vehicles[1] + 1),
+                                         *args.standing)
         mean, spread = shared.mean(0), shared.std(0)
-        print(f"| {name} | {fmt(mean)} | {fmt(spread)} | {t:.2f} | {rot:.4f} |", flush=True)
+        overlay = " / ".join(f"{rms(f'overlay_{d}'):.2f}" for d in crb_bound.OVERLAY_DEPTHS_M)
+        print(f"| {name} | {fmt(mean)} | {fmt(spread)} | {rms('t'):.2f} | {rms('rot'):.4f} | {overlay} |",
+              flush=True)
 
 
 def fmt(v):
@@ -158,7 +164,12 @@ class ExactSurvey:
 
     def survey_toml(self, exact_boards, exact_planes):
         s = self.survey
-        out = ["[survey]", f"visits = {s['visits']}", f"frame = {json.dumps(s['frame'])}", ""]
+        out = ["[survey]", f"visits = {s['visits']}", f"frame = {json.dumps(s['frame'])}"]
+        if "covariance" in s:
+            # The survey's joint covariance is kept with the values (what a calibration holds
+            # the room by): without it the vehicles would be held by per-board σ alone.
+            out.append("covariance = [" + ", ".join(json.dumps(row) for row in s["covariance"]) + "]")
+        out.append("")
         for i, b in enumerate(s["boards"]):
             r, t = self.truth_boards[i] if exact_boards else self.boards[i]
             out += ["[[survey.boards]]", f"rotation = {json.dumps(r.tolist())}",
@@ -192,19 +203,19 @@ def kabsch(p, q):
     return r, qc - r @ pc
 
 
-def calibrate_vehicles(work, room, visits):
-    """Each vehicle's LiDAR-frame translation error (mm), and the RMS t (mm) and rotation (°)."""
+def calibrate_vehicles(work, room, visits, frames=1, sweeps=1):
+    """Each vehicle's LiDAR-frame translation error (mm), and the RMS over the vehicles of any
+    of `surveyed_study.errors`' figures (a function of its name)."""
     shared, errors = [], []
     for v in visits:
         folder = os.path.join(work, "room", f"visit-{v:02}")
         truth = json.load(open(os.path.join(folder, "truth.json")))
-        result = study.calibrate(folder, room, 1, 1, False, work, 1000 + v)
+        result = study.calibrate(folder, room, frames, sweeps, False, work, 1000 + v)
         errors.append(study.errors(result, truth))
         want, got = truth["lidar_to_camera"], result["lidar_to_camera"]
         delta = np.array(got["translation"]) - np.array(want["translation"])
         shared.append(np.array(want["rotation"]).T @ delta * 1000)
-    rms = lambda k: float(np.sqrt(np.mean([e[k] ** 2 for e in errors])))
-    return np.array(shared), rms("t"), rms("rot")
+    return np.array(shared), lambda k: float(np.sqrt(np.mean([e[k] ** 2 for e in errors])))
 
 
 if __name__ == "__main__":

@@ -39,13 +39,25 @@ fn config(dir: &Path, port: u16) -> PathBuf {
     path
 }
 
-fn spawn(config: &Path) -> Child {
-    Command::new(env!("CARGO_BIN_EXE_roomcal"))
-        .args(["daemon", "--config", config.to_str().unwrap()])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap()
+fn spawn(config: &Path) -> Daemon {
+    Daemon(
+        Command::new(env!("CARGO_BIN_EXE_roomcal"))
+            .args(["daemon", "--config", config.to_str().unwrap()])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    )
+}
+
+/// A spawned daemon, killed when dropped: a failed assert must not leave it running.
+struct Daemon(Child);
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
 }
 
 async fn connect(port: u16) -> UdsClient<SocketcandClient> {
@@ -76,19 +88,18 @@ async fn lockout_survives_sigkill_of_the_daemon() {
     }
     // invalidKey, invalidKey, exceededNumberOfAttempts.
     assert_eq!(nrcs, [0x35, 0x35, 0x36]);
-    daemon.kill().unwrap(); // SIGKILL
-    let status = daemon.wait().unwrap();
+    daemon.0.kill().unwrap(); // SIGKILL
+    let status = daemon.0.wait().unwrap();
     assert_eq!(std::os::unix::process::ExitStatusExt::signal(&status), Some(9));
     drop(c);
     let record = std::fs::read_to_string(dir.join("store/security.json")).unwrap();
     println!("security.json after SIGKILL: {record}");
 
-    let mut daemon = spawn(&config);
+    let daemon = spawn(&config);
     let mut c = connect(port).await;
     c.session(Session::Extended).await.unwrap();
     let answer = c.request(&[0x27, 0x01]).await;
-    daemon.kill().unwrap();
-    daemon.wait().unwrap();
+    drop(daemon);
     match answer {
         Err(ClientError::Negative { service: 0x27, nrc: 0x37 }) => {}
         other => panic!("expected requiredTimeDelayNotExpired after SIGKILL, got {other:?}"),
