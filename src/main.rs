@@ -338,6 +338,12 @@ struct SimulateArgs {
     #[arg(long, conflicts_with_all = ["rig_seed"],
           value_parser = clap::value_parser!(u16).range(1..=99))]
     visits: Option<u16>,
+    /// With --visits: number the visits from K (visit-K, visit-K+1, …): the very visits a
+    /// run with more visits makes (each has its own random stream), so that a study adds
+    /// visits to a room without rendering the earlier ones again.
+    #[arg(long, requires = "visits", default_value_t = 1,
+          value_parser = clap::value_parser!(u16).range(1..=999))]
+    first_visit: u16,
     /// A rig file: one vehicle with every camera and LiDAR of the rig, parked once;
     /// writes NAME.png per camera, NAME.pcd per LiDAR, rig-truth.json, room-truth.json
     /// and room.toml. With --visits: the rig is one more vehicle of the visited room,
@@ -467,8 +473,9 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
     let mut layout = None;
     if let Some(visits) = args.visits {
         let count = usize::from(visits);
+        let numbers = (usize::from(args.first_visit) - 1, count);
         let visits =
-            simulate_visits(&room, &options, count, args.capture, (&args.room, &args.out))?;
+            simulate_visits(&room, &options, numbers, args.capture, (&args.room, &args.out))?;
         layout = Some(visits.layout);
     }
     if let Some(rig_path) = &args.rig {
@@ -540,17 +547,18 @@ fn simulate(args: SimulateArgs) -> Result<(), Failure> {
     Ok(())
 }
 
-/// `simulate --visits N`: one room, N visiting vehicles; returns them.
+/// `simulate --visits N [--first-visit K]`: one room, N visiting vehicles (0-based
+/// `first`, then `count`); returns them.
 fn simulate_visits(
     room: &roomcal::target::Room,
     options: &SimOptions,
-    count: usize,
+    (first, count): (usize, usize),
     capture: bool,
     (room_path, out): (&std::path::Path, &std::path::Path),
 ) -> Result<sim::visits::Visits, Failure> {
     // Each visit written as it is made: memory for one visit, and the folders show
     // the progress.
-    let visits = sim::visits::simulate_visits_each(room, options, count, |k, visit| {
+    let visits = sim::visits::simulate_visits_from(room, options, first, count, |k, visit| {
         sim::visits::write_visit(&visit, k, out)?;
         if capture {
             sim::write_capture(&visit.scene, &out.join(sim::visits::visit_folder(k)))?;
@@ -561,9 +569,10 @@ fn simulate_visits(
     .map_err(bad_input)?;
     sim::visits::write_room(&visits, out).map_err(bad_input)?;
     say!(
-        "simulated a room of {} boards and {} planes, {count} visits -> {}",
+        "simulated a room of {} boards and {} planes, {count} visits{} -> {}",
         visits.truth.boards.len(),
         visits.truth.planes.len(),
+        if first > 0 { format!(" (from visit {})", first + 1) } else { String::new() },
         out.display()
     );
     Ok(visits)

@@ -5,7 +5,7 @@
 use std::path::Path;
 
 use roomcal::geometry::{Se3, Vec3};
-use roomcal::sim::visits::{simulate_visits, write_visits, Visits};
+use roomcal::sim::visits::{simulate_visits, simulate_visits_from, write_visits, Visits};
 use roomcal::sim::{ImageNoise, SimOptions};
 
 #[path = "common/scratch.rs"]
@@ -114,6 +114,27 @@ fn the_same_seed_writes_the_same_bytes() {
     }
     let other = visits(8, 1);
     assert_ne!(other.truth.boards, visits(7, 1).truth.boards, "another seed, another room");
+}
+
+#[test]
+fn later_visits_alone_are_the_same_visits_a_longer_run_makes() {
+    let all = visits(11, 3);
+    let mut later = Vec::new();
+    let sim = simulate_visits_from(&small_room(), &options(11), 1, 2, |k, visit| {
+        later.push((k, visit));
+        Ok(())
+    })
+    .unwrap();
+    assert_eq!(sim.truth.boards, all.truth.boards, "the same room");
+    assert_eq!(later.iter().map(|(k, _)| *k).collect::<Vec<_>>(), [1, 2], "numbered as in the run");
+    for (k, visit) in &later {
+        let whole = &all.visits[*k];
+        assert_same_motion(&visit.room_to_camera, &whole.room_to_camera, &format!("visit {k}"));
+        assert!(visit.scene.image == whole.scene.image, "visit {k}: the same image");
+        assert!(visit.scene.cloud == whole.scene.cloud, "visit {k}: the same sweep");
+    }
+    let err = simulate_visits_from(&small_room(), &options(11), 990, 20, |_, _| Ok(())).unwrap_err();
+    assert!(err.to_string().contains("--first-visit 991"), "{err}");
 }
 
 #[test]

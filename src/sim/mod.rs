@@ -124,6 +124,8 @@ pub enum SimError {
     BandWithoutLidar,
     #[error("--visits {0}: a surveyed room is simulated with 1 to {max} visits", max = visits::MAX_VISITS)]
     Visits(usize),
+    #[error("--first-visit {first} with --visits {count}: visits are numbered up to {max}", max = visits::MAX_VISIT_NUMBER)]
+    VisitNumber { first: usize, count: usize },
     #[error("a ring of boards is laid out for a room's vehicles or a rig: give --visits or --rig")]
     RingWithoutVehicles,
 }

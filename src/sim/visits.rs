@@ -31,6 +31,8 @@ use super::{
 
 /// Most visits one simulation writes.
 pub const MAX_VISITS: usize = 99;
+/// Highest visit number a room's visits reach ([`simulate_visits_from`]).
+pub const MAX_VISIT_NUMBER: usize = 999;
 /// Parking error bounds: translation (m, x and y), yaw (deg), pitch and roll (deg).
 pub const PARKING_ERROR: (f64, f64, f64) = (0.3, 5.0, 0.5);
 /// Per-vehicle spread of the intrinsics about the nominal: focal length (relative),
@@ -141,10 +143,27 @@ pub fn simulate_visits_each(
     room: &Room,
     options: &SimOptions,
     count: usize,
+    each: impl FnMut(usize, Visit) -> Result<(), SimError>,
+) -> Result<Visits, SimError> {
+    simulate_visits_from(room, options, 0, count, each)
+}
+
+/// [`simulate_visits_each`] of visits `first..first + count` (0-based) only: each visit
+/// has its own random stream (the earlier visits' are forked and skipped, not rendered),
+/// so these are exactly the visits a run of `first + count` makes, and a study can add visits to a room without rendering the earlier ones again.
+/// `each` gets the visit's own index (`first`, `first + 1`, …).
+pub fn simulate_visits_from(
+    room: &Room,
+    options: &SimOptions,
+    first: usize,
+    count: usize,
     mut each: impl FnMut(usize, Visit) -> Result<(), SimError>,
 ) -> Result<Visits, SimError> {
     if count == 0 || count > MAX_VISITS {
         return Err(SimError::Visits(count));
+    }
+    if first.saturating_add(count) > MAX_VISIT_NUMBER {
+        return Err(SimError::VisitNumber { first: first + 1, count });
     }
     let mut room = super::with_options_models(room, options);
     let mut rng = Rng::new(options.seed);
@@ -172,8 +191,13 @@ pub fn simulate_visits_each(
         boards_in_room: &layout.boards_in_room,
         world_seed: layout.world_seed,
     };
-    for k in 0..count {
-        each(k, vehicle.visit(&mut rng.fork(100 + k as u64))?)?;
+    for k in 0..first + count {
+        // Every visit's stream is forked in turn (a fork advances the room's generator),
+        // the earlier ones only to be skipped.
+        let mut stream = rng.fork(100 + k as u64);
+        if k >= first {
+            each(k, vehicle.visit(&mut stream)?)?;
+        }
     }
     Ok(Visits { room, truth, visits: Vec::new(), layout })
 }
