@@ -86,7 +86,7 @@ def main():
         # Further surveys from visits after the vehicles' (one frame each is all a survey
         # reads): the same seed draws the same room and the same first frames.
         more = os.path.join(work, "room-surveys")
-        simulate(more, visits + (args.surveys - 1) * args.survey_visits, 1, args)
+        simulate_missing(more, visits + 1, visits + (args.surveys - 1) * args.survey_visits, args)
         for j in range(2, args.surveys + 1):
             first = visits + (j - 2) * args.survey_visits + 1
             surveys.append(survey(work, more, j, range(first, first + args.survey_visits)))
@@ -143,6 +143,23 @@ def simulate(sim, visits, frames, args):
         run([ROOMCAL, "simulate", "--room", ROOM, "--out", sim, "--visits", str(visits), "--frames", str(frames),
              "--seed", str(args.seed), "--boards", str(args.boards), "--lidar", "pandar64", "--fov", str(args.fov),
              "--layout", args.layout, "--supersample", str(args.supersample)])
+
+
+def simulate_missing(sim, first, last, args):
+    """Visits `first..=last` of the study's room, one frame each, rendering only those not
+    there yet (`simulate --first-visit`): more surveys cost only their own visits."""
+    missing = [v for v in range(first, last + 1)
+               if not os.path.exists(os.path.join(sim, f"visit-{v:02}", "truth.json"))]
+    while missing:
+        # One contiguous run of missing visits per call, at most 99 (simulate's limit).
+        start, count = missing[0], 1
+        while count < min(len(missing), 99) and missing[count] == start + count:
+            count += 1
+        run([ROOMCAL, "simulate", "--room", ROOM, "--out", sim, "--visits", str(count),
+             "--first-visit", str(start), "--frames", "1", "--seed", str(args.seed),
+             "--boards", str(args.boards), "--lidar", "pandar64", "--fov", str(args.fov),
+             "--layout", args.layout, "--supersample", str(args.supersample)])
+        missing = missing[count:]
 
 
 def survey(work, sim, j, numbers):
