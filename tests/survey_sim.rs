@@ -133,7 +133,8 @@ fn later_visits_alone_are_the_same_visits_a_longer_run_makes() {
         assert!(visit.scene.image == whole.scene.image, "visit {k}: the same image");
         assert!(visit.scene.cloud == whole.scene.cloud, "visit {k}: the same sweep");
     }
-    let err = simulate_visits_from(&small_room(), &options(11), 990, 20, |_, _| Ok(())).unwrap_err();
+    let err =
+        simulate_visits_from(&small_room(), &options(11), 990, 20, |_, _| Ok(())).unwrap_err();
     assert!(err.to_string().contains("--first-visit 991"), "{err}");
 }
 
