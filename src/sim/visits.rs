@@ -150,8 +150,9 @@ pub fn simulate_visits_each(
 
 /// [`simulate_visits_each`] of visits `first..first + count` (0-based) only: each visit
 /// has its own random stream (the earlier visits' are forked and skipped, not rendered),
-/// so these are exactly the visits a run of `first + count` makes, and a study can add visits to a room without rendering the earlier ones again.
-/// `each` gets the visit's own index (`first`, `first + 1`, …).
+/// so these are exactly the visits a run of `first + count` makes, and a study can add
+/// visits to a room without rendering the earlier ones again. `each` gets the visit's own
+/// index (`first`, `first + 1`, …).
 pub fn simulate_visits_from(
     room: &Room,
     options: &SimOptions,
@@ -163,7 +164,7 @@ pub fn simulate_visits_from(
         return Err(SimError::Visits(count));
     }
     if first.saturating_add(count) > MAX_VISIT_NUMBER {
-        return Err(SimError::VisitNumber { first: first + 1, count });
+        return Err(SimError::VisitNumber { first: first.saturating_add(1), count });
     }
     let mut room = super::with_options_models(room, options);
     let mut rng = Rng::new(options.seed);
