@@ -140,9 +140,7 @@ def main():
 def simulate(sim, visits, frames, args):
     """The study's room and its visits (kept when already there)."""
     if not os.path.exists(os.path.join(sim, "room-truth.json")):
-        run([ROOMCAL, "simulate", "--room", ROOM, "--out", sim, "--visits", str(visits), "--frames", str(frames),
-             "--seed", str(args.seed), "--boards", str(args.boards), "--lidar", "pandar64", "--fov", str(args.fov),
-             "--layout", args.layout, "--supersample", str(args.supersample)])
+        run(simulate_command(sim, visits, frames, args))
 
 
 def simulate_missing(sim, first, last, args):
@@ -155,11 +153,16 @@ def simulate_missing(sim, first, last, args):
         start, count = missing[0], 1
         while count < min(len(missing), 99) and missing[count] == start + count:
             count += 1
-        run([ROOMCAL, "simulate", "--room", ROOM, "--out", sim, "--visits", str(count),
-             "--first-visit", str(start), "--frames", "1", "--seed", str(args.seed),
-             "--boards", str(args.boards), "--lidar", "pandar64", "--fov", str(args.fov),
-             "--layout", args.layout, "--supersample", str(args.supersample)])
+        run(simulate_command(sim, count, 1, args) + ["--first-visit", str(start)])
         missing = missing[count:]
+
+
+def simulate_command(sim, visits, frames, args):
+    """`roomcal simulate` of the study's room (one place: every folder of a study must hold
+    the same room)."""
+    return [ROOMCAL, "simulate", "--room", ROOM, "--out", sim, "--visits", str(visits), "--frames", str(frames),
+            "--seed", str(args.seed), "--boards", str(args.boards), "--lidar", "pandar64", "--fov", str(args.fov),
+            "--layout", args.layout, "--supersample", str(args.supersample)]
 
 
 def survey(work, sim, j, numbers):
