@@ -5,7 +5,7 @@ square board's room). Needs the room simulated twice with one seed: as it was
 `--range-noise 0`, another --out); both then cast the same beams, so the difference of
 their ranges is each point's noise.
 
-    scripts/sweep_noise_trace.py NOISY_DIR NOISE_FREE_DIR [--visits 1-8] [--boards 1 3]
+    studies/sweep_noise_trace.py NOISY_DIR NOISE_FREE_DIR [--visits 1-8] [--boards 1 3]
 
 Per board (truth order), over the visits:
 - face tilt: the least-squares plane of its face points against the truth, about the
