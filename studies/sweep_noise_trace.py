@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""What a room's range noise did to its boards, visit by visit (session 23's trace of the
+"""What a room's range noise did to its boards, visit by visit (first used to trace the
 square board's room). Needs the room simulated twice with one seed: as it was
 (`roomcal simulate --visits N …`) and without range noise (the same command with
 `--range-noise 0`, another --out); both then cast the same beams, so the difference of
