@@ -37,6 +37,9 @@ for entry in "-rwxr-xr-x usr/bin/roomcal" \
     "-rw-r--r-- etc/roomcal/roomcal.toml" \
     "-rw-r--r-- etc/roomcal/room.toml" \
     "-rw-r--r-- usr/share/doc/roomcal/README.md" \
+    "-rw-r--r-- usr/share/doc/roomcal/docs/install.md" \
+    "-rw-r--r-- usr/share/doc/roomcal/docs/daemon.md" \
+    "-rw-r--r-- usr/share/doc/roomcal/docs/service.md" \
     "-rw-r--r-- usr/share/doc/roomcal/copyright"; do
     check "ships ${entry#* } (${entry%% *}, owned by root)" ships "${entry%% *}" "${entry#* }"
 done
@@ -46,6 +49,10 @@ check "ships no secret and nothing in the store" \
 check "the packaged configs are the repository's" \
     bash -c "cmp -s '$work/root/etc/roomcal/roomcal.toml' config/roomcal.toml \
         && cmp -s '$work/root/etc/roomcal/room.toml' config/room.toml"
+check "the packaged documentation is the repository's" \
+    bash -c "cmp -s '$work/root/usr/share/doc/roomcal/README.md' README.md \
+        && for page in install daemon service; do \
+            cmp -s \"$work/root/usr/share/doc/roomcal/docs/\$page.md\" docs/\$page.md || exit 1; done"
 check "the packaged unit is the repository's" \
     cmp -s "$work/root/lib/systemd/system/roomcal.service" systemd/roomcal.service
 

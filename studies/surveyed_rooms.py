@@ -13,7 +13,7 @@ calibration is either refused or within 3σ of the truth in every quantity (fx, 
 axis; rotation and translation norms against √3 × the worst-axis σ, as
 `surveyed_study.py`). A result beyond 3σ is a silently wrong one and is listed.
 
-    cargo build --release && scripts/surveyed_rooms.py [--work DIR] [--rooms N] \\
+    cargo build --release && studies/surveyed_rooms.py [--work DIR] [--rooms N] \\
         [--survey-visits 8] [--vehicles 3] [--supersample 1] [--only K ...]
 
 A markdown table on stdout, one row per room; the run's figures in DIR/rooms.json.

@@ -23,7 +23,7 @@ vehicle, a noise-free camera or LiDAR): what would have to change to reach a tar
     roomcal simulate --room config/room.toml --layout band --seed 1 --out /tmp/s1
     roomcal calibrate --room config/room.toml --image /tmp/s1/image.png \\
         --cloud /tmp/s1/cloud.pcd --out /tmp/s1/result.json
-    scripts/crb_bound.py --room config/room.toml /tmp/s1 [--what-if]
+    studies/crb_bound.py --room config/room.toml /tmp/s1 [--what-if]
 
 `--surveyed` takes visit folders of `roomcal simulate --visits N` (room-truth.json one level
 up) and adds the surveyed room (issue 13): one room→camera pose instead of a pose per board,
@@ -34,7 +34,7 @@ SURVEYED.toml` takes every board's and plane's σ from a survey `roomcal survey`
 matched to the truth by position, planes by normal) for rows the solver's σ can be held to.
 
     roomcal simulate --room config/room.toml --visits 2 --seed 1 --out /tmp/v
-    scripts/crb_bound.py --room config/room.toml --surveyed /tmp/v/visit-02 [--survey S.toml]
+    studies/crb_bound.py --room config/room.toml --surveyed /tmp/v/visit-02 [--survey S.toml]
 
 `--survey-visits N` bounds the room as a survey of the same room's visits 1..N would know it,
 jointly: each survey visit's information about every board and plane, its own 21
@@ -49,7 +49,7 @@ survey's errors are those of its joint bound (`per_block_prior_errors`, a sandwi
 not a bound): the price of writing the survey as per-board σ.
 
     roomcal simulate --room config/room.toml --visits 17 --seed 1 --out /tmp/v
-    scripts/crb_bound.py --room config/room.toml --surveyed /tmp/v/visit-17 --survey-visits 16
+    studies/crb_bound.py --room config/room.toml --surveyed /tmp/v/visit-17 --survey-visits 16
 
 Figures: σ fx as % of fx, σ cx and cy in px, rotation and translation as the worst axis
 (what roomcal reports) and, in brackets, the RMS length of the error vector (what an

@@ -13,9 +13,9 @@ of every LiDAR in every camera (`crb_bound.overlay_px`: where the result draws t
 points at 3, 10 and 30 m depth on a grid over that camera's image, against where the truth
 draws them, RMS px; LiDAR → camera composed from the two extrinsics). σ: the run's reported
 σ (rotation and translation norms against √3 × the worst-axis σ). The figures are RMS over the
-rigs; the Cramér–Rao bound of the camera→camera extrinsic is `scripts/crb_rig.py`'s.
+rigs; the Cramér–Rao bound of the camera→camera extrinsic is `studies/crb_rig.py`'s.
 
-    cargo build --release && scripts/rig_study.py [--vehicles 10] [--survey-visits 16] \\
+    cargo build --release && studies/rig_study.py [--vehicles 10] [--survey-visits 16] \\
         [--seed 1] [--frames 1] [--room ROOM] [--boards N] [--ring BOARDS,INNER_FOV,TURN] \\
         [--work DIR]
 

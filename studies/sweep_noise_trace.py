@@ -1,11 +1,11 @@
 #!/usr/bin/env python3
-"""What a room's range noise did to its boards, visit by visit (session 23's trace of the
+"""What a room's range noise did to its boards, visit by visit (first used to trace the
 square board's room). Needs the room simulated twice with one seed: as it was
 (`roomcal simulate --visits N …`) and without range noise (the same command with
 `--range-noise 0`, another --out); both then cast the same beams, so the difference of
 their ranges is each point's noise.
 
-    scripts/sweep_noise_trace.py NOISY_DIR NOISE_FREE_DIR [--visits 1-8] [--boards 1 3]
+    studies/sweep_noise_trace.py NOISY_DIR NOISE_FREE_DIR [--visits 1-8] [--boards 1 3]
 
 Per board (truth order), over the visits:
 - face tilt: the least-squares plane of its face points against the truth, about the

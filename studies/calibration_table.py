@@ -10,7 +10,7 @@ which is what a fusion stack sees; intrinsic and extrinsic errors partly cancel 
 Also a standing vehicle (`simulate --frames 10`, `calibrate --standing`): the daemon's
 default capture (5 frames averaged, 3 sweeps accumulated) and 10 of each.
 
-    cargo build --release && scripts/calibration_table.py [--seeds 1 2 3] [--work DIR]
+    cargo build --release && studies/calibration_table.py [--seeds 1 2 3] [--work DIR]
 """
 import argparse
 import json

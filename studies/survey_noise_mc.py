@@ -11,7 +11,7 @@ and the images leave.
 
     roomcal simulate --room config/room.toml --out NF/room --visits 16 --seed 1 \\
         --boards 7 --lidar pandar64 --fov 70 --layout grid --range-noise 0
-    scripts/survey_noise_mc.py NF [--draws 12] [--sigma 0.02] [--work DIR]
+    studies/survey_noise_mc.py NF [--draws 12] [--sigma 0.02] [--work DIR]
 
 The draws' work folders (DIR/k/room/visit-XX/cloud.pcd, DIR/k/surveyed.toml) are kept.
 """

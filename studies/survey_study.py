@@ -12,7 +12,7 @@ command (load, detect, free-board calibration and plane search per visit on ever
 chaining, the bundle), measured here around the process, with its CPU time (user + system)
 beside it: on a shared machine the wall time says more about the other jobs than about us.
 
-    cargo build --release && scripts/survey_study.py [--visits 4 8 16 32] [--seeds 1] [--work DIR] [--bound]
+    cargo build --release && studies/survey_study.py [--visits 4 8 16 32] [--seeds 1] [--work DIR] [--bound]
 
 `--bound` adds the survey's own Cramér–Rao bound (`crb_bound.survey_information`: every
 visit's information about the boards and planes, its own parameters marginalised; corners at

@@ -28,7 +28,7 @@ draw: `--surveys K` makes K independent surveys of the same room (the first from
 and calibrates every vehicle in each; the table pools them, and a second table gives each
 survey's own RMS.
 
-    cargo build --release && scripts/surveyed_study.py [--vehicles 10] [--survey-visits 16] \\
+    cargo build --release && studies/surveyed_study.py [--vehicles 10] [--survey-visits 16] \\
         [--seed 1] [--work DIR] [--joint-bound] [--surveys K]
 
 Tables in markdown on stdout; every run's figures in DIR/runs.json.

@@ -4,7 +4,7 @@ the smallest σ any unbiased calibration reaches for camera → first camera (an
 cameras' intrinsics) from one simulated frame at the measurements' noise.
 
 An independent numpy reference for the joint rig solve (`src/solve/rig.rs`), sharing no
-code with it; the camera, pose and plane helpers are `scripts/crb_bound.py`'s. From a
+code with it; the camera, pose and plane helpers are `studies/crb_bound.py`'s. From a
 `roomcal simulate --rig` scene (rig-truth.json, room-truth.json, room.toml, NAME.pcd) it
 builds the joint model at the truth — per camera its 9 intrinsics, the vehicle's room →
 first camera (6), every other sensor's mounting (sensor → first camera, 6), every
@@ -25,7 +25,7 @@ plane's prior is the survey's draw in `realistic_survey` (0.5 mm / 0.01° per ax
 
     roomcal simulate --room config/room.toml --rig config/rig.toml --seed 1 \\
         --supersample 1 --out /tmp/crbrig/s1
-    scripts/crb_rig.py /tmp/crbrig/s1 [/tmp/crbrig/s2 ...] [--lidars]
+    studies/crb_rig.py /tmp/crbrig/s1 [/tmp/crbrig/s2 ...] [--lidars]
 
 Rows per scene: the survey realistic and exact (boards and planes known). Figures: σ fx
 as % of fx and σ cx, cy px per camera; per mounting the worst-axis σ and, in brackets,

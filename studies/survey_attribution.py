@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """What part of a survey moves new vehicles (issue 13): the vehicles of a
-`scripts/surveyed_study.py` work folder calibrated (one frame, or `--standing FRAMES SWEEPS`)
+`studies/surveyed_study.py` work folder calibrated (one frame, or `--standing FRAMES SWEEPS`)
 in its survey as surveyed, with its boards replaced by the simulator's truth, with its planes
 replaced, and with both (σ and the joint covariance kept), and the error each leaves: the mean
 LiDAR→camera translation error over the vehicles in the LiDAR frame (the error they share,
@@ -15,8 +15,8 @@ given); boards are matched by nearest centre, a board whose surveyed frame is th
 truth's half-turned (the symmetric checkerboard) keeps that turn; planes by normal. Planes
 are `normal · x = offset` in both files.
 
-    cargo build --release && scripts/surveyed_study.py --seed 4 --work DIR
-    scripts/survey_attribution.py DIR [--vehicles 17 26] [--survey surveyed-2.toml] [--standing 10 10]
+    cargo build --release && studies/surveyed_study.py --seed 4 --work DIR
+    studies/survey_attribution.py DIR [--vehicles 17 26] [--survey surveyed-2.toml] [--standing 10 10]
 """
 import argparse
 import json
