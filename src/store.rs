@@ -118,6 +118,11 @@ pub enum StoreError {
         u32::MAX
     )]
     GenerationsExhausted { dir: PathBuf, seen_in: PathBuf },
+    #[error(
+        "store {dir}: another roomcal process ({holder}) writes this store; one process at a \
+         time may (stop it, or give this one another store)"
+    )]
+    Locked { dir: PathBuf, holder: String },
 }
 
 /// Why a record cannot be in force: the first thing wrong with its calibration.
@@ -168,7 +173,48 @@ pub struct Store {
     writes: Arc<Mutex<()>>,
 }
 
+/// One process's exclusive hold on a store (`STORE/.lock`, an advisory `flock`): while it
+/// lives no other process, and no other hold in this one, can take it. The kernel releases it
+/// when the holder exits however it exits, so a killed daemon never leaves the store locked.
+/// The file holds the holder's pid, for the message the next one gets.
+#[derive(Debug)]
+pub struct StoreLock {
+    _file: File,
+}
+
 impl Store {
+    /// Takes the store's writer lock ([`StoreLock`]) for as long as the returned value lives:
+    /// two writers on one store would reuse generation numbers and lose accepted runs.
+    /// [`StoreError::Locked`] names the holder's pid when another process has it.
+    pub fn lock_writer(&self) -> Result<StoreLock, StoreError> {
+        let path = self.dir.join(".lock");
+        let io_error = |source| StoreError::Io { path: path.clone(), source };
+        let mut file = fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .map_err(io_error)?;
+        match file.try_lock() {
+            Ok(()) => {
+                file.set_len(0).map_err(io_error)?;
+                writeln!(file, "{}", std::process::id()).map_err(io_error)?;
+                Ok(StoreLock { _file: file })
+            }
+            Err(fs::TryLockError::WouldBlock) => {
+                let mut text = String::new();
+                let _ = io::Read::read_to_string(&mut file, &mut text);
+                let holder = match text.trim().parse::<u32>() {
+                    Ok(pid) => format!("pid {pid}"),
+                    Err(_) => "pid unknown".to_string(),
+                };
+                Err(StoreError::Locked { dir: self.dir.clone(), holder })
+            }
+            Err(fs::TryLockError::Error(source)) => Err(io_error(source)),
+        }
+    }
+
     /// Opens (creating if needed) the store at `dir`, keeping `keep` generations and
     /// `keep` rejected runs (at least 2). Temporary files left by interrupted writes of
     /// processes that no longer run are removed.
@@ -836,6 +882,21 @@ fn indented_matrix(name: &str, rows: usize, cols: usize, data: &[f64], indent: &
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_second_writer_is_refused_with_the_holders_pid_until_the_first_lets_go() {
+        let dir = std::env::temp_dir().join(format!("roomcal-store-lock-{}", std::process::id()));
+        let _ = fs::remove_dir_all(&dir);
+        let store = Store::open(&dir, 4).unwrap();
+        let held = store.lock_writer().unwrap();
+        let refused = Store::open(&dir, 4).unwrap().lock_writer().unwrap_err();
+        let message = refused.to_string();
+        assert!(matches!(refused, StoreError::Locked { .. }), "{message}");
+        assert!(message.contains(&format!("pid {}", std::process::id())), "{message}");
+        drop(held);
+        store.lock_writer().expect("free once the holder let go");
+        fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn crc32_matches_zlib_check_value() {

@@ -491,6 +491,7 @@ async fn run_daemon<C: Calibrator>(
         config.trigger.min_boards = room.board.count.max(1) as usize;
     }
     let store = Store::open(&config.store, config.keep)?;
+    let _writer = store.lock_writer()?;
     let current = store.current()?;
     if let Some(r) = &current {
         tracing::info!(generation = r.generation, "calibration in force");
