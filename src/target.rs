@@ -27,7 +27,7 @@ pub const MAX_PLANE_NAME: usize = 32;
 /// How far a surveyed plane's normal may be from unit length.
 pub const NORMAL_TOLERANCE: f64 = 1e-6;
 
-// Physical ranges of the room file's numbers (README "Limits"). Every number outside its
+// Physical ranges of the room file's numbers (docs/limits.md). Every number outside its
 // range is refused by [`Room::validate`] with its key, before anything is sized from it.
 
 /// Largest board outline side (m): calibration boards are a metre or two; a few metres

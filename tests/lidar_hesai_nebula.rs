@@ -187,7 +187,7 @@ fn every_capture_packet_decodes_and_return_modes_are_read() {
         for d in &datagrams {
             let p = roomcal::lidar::hesai::Packet::new_checked(&d.payload[..], model).unwrap();
             assert_eq!(p.return_mode_byte(), mode);
-            assert_eq!(Model::detect(&d.payload), Some(model));
+            assert_eq!(roomcal::lidar::detect_model(&d.payload), Some(model));
             decode_packet(&cal, &d.payload, &mut |r| assert!(r.point.x.is_finite())).unwrap();
         }
     }

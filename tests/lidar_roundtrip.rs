@@ -111,7 +111,7 @@ fn encoded_packets_have_the_wire_sizes() {
         assert_eq!(encode_sweep(&cal, &one, 10.0, &mut |p| sizes.push(p.len())).unwrap(), 1);
         assert_eq!(sizes, [len], "{model:?}");
         assert_eq!(
-            Model::detect(&{
+            roomcal::lidar::detect_model(&{
                 let mut v = Vec::new();
                 encode_sweep(&cal, &one, 10.0, &mut |p| v = p.to_vec()).unwrap();
                 v

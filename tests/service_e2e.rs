@@ -10,10 +10,11 @@ use roomcal::service::client::{
     query, ClientError, ClientTiming, QueryCommand, QueryOptions, UdsClient,
 };
 use roomcal::service::driver::{serve, OsRandom};
+use roomcal::service::endpoint::Endpoint;
 use roomcal::service::fake::FakeBackend;
 use roomcal::service::isotp::Config;
 use roomcal::service::socketcand::{SocketcandClient, SocketcandServer};
-use roomcal::service::transport::{memory_pair, CanTransport, Endpoint, TransportError};
+use roomcal::service::transport::{memory_pair, CanTransport, TransportError};
 use roomcal::service::uds::{DaemonState, Server, ServerConfig, Session};
 use roomcal::service::{CanFrame, DEFAULT_REQUEST_ID, DEFAULT_RESPONSE_ID};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};

@@ -361,12 +361,11 @@ mod tests {
     /// chosen by where their beams meet a board turns towards the beams (errors in
     /// variables). [`plane_points`] chooses them that way (a choice the noise cannot move)
     /// and takes the expected cross term out of their scatter, which cancels the turn.
-    /// (Until session 26 it chose them by where they *appear*: that also cancels the turn
-    /// on average, but a given line pattern's points near the cut edges then carry noise of
-    /// a mean that is not zero, and a survey's sixteen visits shared it: planes turned
-    /// 0.005° and the side walls moved 0.6 mm over twelve redraws of the noise,
-    /// `scripts/survey_noise_mc.py`; the cross term taken out of *that* cut turned faces
-    /// 0.1° the other way, session 23.) Here: the design board 4 m off, turned 35° about
+    /// (Choosing them by where they *appear* also cancels the turn on average, but a given
+    /// line pattern's points near the cut edges then carry noise of a mean that is not zero,
+    /// and a survey's sixteen visits shared it: planes turned 0.005° and the side walls moved
+    /// 0.6 mm over twelve redraws of the noise, `studies/survey_noise_mc.py`; the cross term
+    /// taken out of *that* cut turned faces 0.1° the other way.) Here: the design board 4 m off, turned 35° about
     /// its vertical axis and 1 m above the sensor, 40 scan lines, 2 cm of range noise, 300
     /// sweeps; the mean tilt is 0.005° with the term taken out, 0.125° without.
     #[test]

@@ -21,7 +21,7 @@ use crate::solve::{
 use crate::target::Room;
 
 /// A board's hole RMS this many times the median of the others' marks its LiDAR
-/// placement as wrong (issue 14: one board placed with its holes turned in its plane)…
+/// placement as wrong (a board placed with its holes turned in its plane)…
 pub const HOLE_OUTLIER_RATIO: f64 = 5.0;
 /// …when it is also above this (px): below it every board agrees well enough.
 pub const HOLE_OUTLIER_FLOOR_PX: f64 = 1.0;
@@ -338,7 +338,7 @@ pub(super) fn camera_start<'f>(
 /// This, not the detector's σ, is what corners are weighted by where the relative weight of
 /// corners and other information matters (the survey's bundle against the LiDAR, a surveyed
 /// calibration against the survey's priors). The detector's σ are about twice the corners'
-/// actual error (simulated renders, 2026-12-05: it reports 0.031–0.035 px per axis, the
+/// actual error (simulated renders: it reports 0.031–0.035 px per axis, the
 /// residuals show 0.014–0.016 px, the truth 0.012–0.02 px), which weighed the corners 4–5×
 /// too lightly and made every surveyed σ 1.6–2× its bound.
 pub(super) fn corner_noise_px(rms_px: f64, corners: usize, boards: usize) -> Option<f64> {

@@ -22,10 +22,10 @@
 //! Composition σ: first-order propagation of each run's pose covariance
 //! ([`Calibration::pose_covariance`], left perturbations), runs taken as independent (over
 //! ten simulated vehicles the LiDAR translations' σ came out 1.8× optimistic; the joint σ are
-//! honest, README "Rigs").
+//! honest, docs/rigs.md).
 //!
 //! Gate: each run is gated by the room's `[quality]`; a rig is accepted only when every
-//! sensor is (see README, "Rigs": one failing sensor rejects the whole run and is named).
+//! sensor is (docs/rigs.md: one failing sensor rejects the whole run and is named).
 //! A joint solve that fails, or puts a board outside its survey σ, rejects the rig.
 
 use std::collections::BTreeMap;

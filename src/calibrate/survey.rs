@@ -184,7 +184,7 @@ pub fn prepare_visit(
     // corners against the LiDAR's terms sets where the boards end up. With the detector's
     // σ a 16-visit survey's boards were 0.46 mm / 0.0127° (σ, against a bound of 0.28 mm /
     // 0.0062°); with the residuals' 0.31 mm / 0.0072°, errors alike (0.19–0.26 mm,
-    // 0.006–0.007°; seed 4, `scripts/crb_bound.py --survey-visits`).
+    // 0.006–0.007°; seed 4, `studies/crb_bound.py --survey-visits`).
     let corner_sigma_px = run_corner_noise_px(&run)
         .unwrap_or_else(|| median(&frame.camera.iter().map(|b| b.sigma_px).collect::<Vec<_>>()));
     let hole_scale = hole_noise_scale(&run, frame);
@@ -211,7 +211,7 @@ pub fn prepare_visit(
                     * hole_sigma_px(run.camera.fx, hole_sigma_m, used.pose.translation.z),
                 // A board whose holes the LiDAR did not place still shows its face where
                 // the camera and the start's extrinsic put it: every face the LiDAR hits
-                // enters the bundle (issue 13), as in a surveyed calibration.
+                // enters the bundle, as in a surveyed calibration.
                 plane: match lidar {
                     Some(l) => l.plane,
                     None => board_to_lidar(used).and_then(|pose| {

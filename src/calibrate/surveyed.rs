@@ -104,8 +104,8 @@ pub(super) fn solve_surveyed(
     });
 
     let mut left_out: Vec<usize> = Vec::new();
-    // A LiDAR placement whose holes fit far worse than the other boards' (issue 14 item 4,
-    // as in the free-board run) is named, left out, and the room solved again, once.
+    // A LiDAR placement whose holes fit far worse than the other boards' (as in the
+    // free-board run) is named, left out, and the room solved again, once.
     let mut misplaced: Option<String> = None;
     loop {
         let mut unpair = None;
@@ -124,7 +124,7 @@ pub(super) fn solve_surveyed(
             // The corners weighed by the noise the start's fit shows, not by the detector's
             // σ (twice that): against the survey's priors the weight is what matters. Ten
             // new vehicles in a 16-visit survey (seed 4), with the survey weighted the same
-            // way: σ/bound 1.18–1.21 → 1.02–1.10, errors alike (`surveyed_study.py`).
+            // way: σ/bound 1.18–1.21 → 1.02–1.10, errors alike (`studies/surveyed_study.py`).
             let mut problem: Problem<'_> = RoomProblem::new(corner_noise, 2.0, Loss::Huber(3.0));
             let blocks = add_observations(
                 &mut problem,
@@ -181,7 +181,7 @@ pub(super) fn solve_surveyed(
             // No second solve re-weighted by the kinds' variance factors here (the
             // free-board solve has one): over ten new vehicles in a 16-visit surveyed
             // room it moved the overlay at 10 m from 0.44 to 0.64 px RMS and the rotation
-            // from 0.016 to 0.020° (`scripts/surveyed_study.py`, 2026-12-02). The σ are
+            // from 0.016 to 0.020° (`studies/surveyed_study.py`). The σ are
             // still each kind's own (`room_covariance`).
             // Held by the survey's joint covariance when it has one. A covariance the solve
             // cannot use (a hand-edited file, σ far beyond any measurement) leaves the

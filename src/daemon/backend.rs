@@ -11,7 +11,8 @@ use tokio::sync::{mpsc, watch};
 use crate::geometry::se3::rotation_to_quaternion;
 use crate::geometry::{CameraModel as GeoModel, Se3};
 use crate::result::{CameraResult, RigResult};
-use crate::service::transport::{CanTransport, Endpoint, TransportError};
+use crate::service::endpoint::Endpoint;
+use crate::service::transport::{CanTransport, TransportError};
 use crate::service::uds::{
     Backend, CameraModel, DaemonState, ExtrinsicRecord, IntrinsicsRecord, Outcome, QualityRecord,
     Refusal, SensorKind, SensorTable, StateRecord,

@@ -355,7 +355,7 @@ pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
     check_paths(&raw).map_err(invalid)?;
     let t = raw.trigger;
     if let Some(s) = &raw.service {
-        crate::service::transport::Endpoint::parse(&s.transport)
+        crate::service::endpoint::Endpoint::parse(&s.transport)
             .map_err(|e| invalid(format!("service.transport: {e}")))?;
         check_ids(s.request_id, s.response_id).map_err(invalid)?;
     }
@@ -558,7 +558,7 @@ pub const MAX_REPLAY_RATE: f64 = 1000.0;
 /// Largest `trigger.still_m` (m): the vehicle counts as still below this motion.
 pub const MAX_STILL_M: f64 = 10.0;
 
-/// Every number within its range (README "Limits"); the error names the key.
+/// Every number within its range (docs/limits.md); the error names the key.
 fn check_numbers(raw: &RawConfig) -> Result<(), crate::target::RoomError> {
     use crate::target::{Index, Range};
     let t = &raw.trigger;

@@ -149,7 +149,7 @@ impl Calibrator for RoomCalibrator {
         }
         // Each detector's workspaces are freed once its sensors are detected: they are not
         // held under the next detections, the solve, the report and between visits (the
-        // run's peak memory, README "Speed and memory").
+        // run's peak memory, docs/design-notes.md "Daemon and memory").
         detectors.cameras.iter_mut().for_each(Detectors::release_chessboard);
         // In a surveyed room each LiDAR is searched where the room expects its boards.
         let first = cameras.first().map_or(&[][..], Vec::as_slice);

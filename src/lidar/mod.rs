@@ -36,6 +36,7 @@ impl Point {
 }
 
 pub mod calibration;
+pub mod common;
 pub mod decoder;
 pub mod hesai;
 pub mod lzf;
@@ -49,9 +50,10 @@ pub mod trig;
 pub mod velodyne;
 
 pub use calibration::Calibration;
+pub use common::{DecodeError, Model, PacketSummary, Return, ReturnMode, SimReturn};
 pub use decoder::{
-    beam_direction, decode_into, decode_packet, encode_sweep, firing_azimuth, packet_period,
-    range_resolution, DecodeError, Model, PacketSummary, Return, ReturnMode, SimReturn,
+    beam_direction, decode_into, decode_packet, detect_model, encode_sweep, firing_azimuth,
+    packet_period, range_resolution,
 };
 pub use sweep::{Sweep, SweepAssembler, SweepConfig, SweepStats};
 

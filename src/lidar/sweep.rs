@@ -19,8 +19,8 @@
 //! mixed into a live stream never take it over.)
 
 use super::calibration::Calibration;
-use super::decoder::Model;
-use super::decoder::{decode_packet, DecodeError, Return};
+use super::common::{DecodeError, Model, Return};
+use super::decoder::decode_packet;
 use super::{hesai, ouster, velodyne, Point};
 
 /// Packet and point counters of an assembler (or of `decode_payloads`).

@@ -9,7 +9,7 @@
 //! clock, so `Point::time` is seconds past the hour plus the firing offset (manual ch. 9).
 
 use super::calibration::{Calibration, Interpolation};
-use super::decoder::{
+use super::common::{
     check_azimuth_order, to_xyz, DecodeError, Model, PacketSummary, Return, ReturnMode, SimReturn,
 };
 use super::trig::sin_cos_turn;

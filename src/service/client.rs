@@ -5,8 +5,9 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 use std::time::Duration;
 
+use super::endpoint::Endpoint;
 use super::isotp::{self, Event, IsoTp};
-use super::transport::{CanTransport, Endpoint, TransportError};
+use super::transport::{CanTransport, TransportError};
 use super::uds::{
     did, rid, security_key, sid, DecodeError, ExtrinsicRecord, IntrinsicsRecord, Nrc, Outcome,
     QualityRecord, RequestRepr, ResponseRepr, SensorTable, Session, StateRecord, SEED_LEN,

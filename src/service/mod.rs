@@ -23,6 +23,8 @@ pub mod client;
 #[cfg(feature = "daemon")]
 pub mod driver;
 #[cfg(feature = "daemon")]
+pub mod endpoint;
+#[cfg(feature = "daemon")]
 pub mod socketcan;
 #[cfg(feature = "daemon")]
 pub mod socketcand;

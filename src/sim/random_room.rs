@@ -1,5 +1,5 @@
-//! Randomised calibration rooms for the LiDAR board detector's study (issue 14): rooms the
-//! detector was not tuned on, drawn from a seed.
+//! Randomised calibration rooms for the LiDAR board detector's study (`tests/holes_study.rs`,
+//! docs/accuracy.md): rooms the detector was not tuned on, drawn from a seed.
 //!
 //! A room draws its board (size 0.8–1.6 m and one of five hole layouts: the design's room
 //! file, the paper's board with the holes in its corners, OpenCalib's 1.2 m board with
@@ -12,7 +12,7 @@
 //! board, the scan lines through each hole and so whether the board is *placeable* (two
 //! holes crossed by at least [`PLACEABLE_LINES`] scan lines each).
 //!
-//! [`issue_room`] is the fixed room of issue 14 (seven 1.4 × 1.1 m boards, the middle row
+//! [`issue_room`] is the study's fixed room (seven 1.4 × 1.1 m boards, the middle row
 //! in a Pandar64's band, 4.4–4.6 m away).
 
 use crate::geometry::{Mat3, Se3, Vec3};
@@ -36,7 +36,7 @@ pub enum HoleLayout {
     Corners,
     /// OpenCalib's 1.2 m square board, 0.11 m holes on a 0.6 m square.
     OpenCalib,
-    /// Issue 14's 1.4 × 1.1 m board, 0.1 m holes at (±0.55, ±0.38).
+    /// The fixed room's 1.4 × 1.1 m board, 0.1 m holes at (±0.55, ±0.38).
     Issue,
     /// Any size, any hole radius, holes on a random rectangle.
     Random,
@@ -145,7 +145,7 @@ pub fn random_room(
     ))
 }
 
-/// The room of issue 14: seven 1.4 × 1.1 m boards (0.1 m squares, 0.1 m holes at
+/// The study's fixed room: seven 1.4 × 1.1 m boards (0.1 m squares, 0.1 m holes at
 /// (±0.55, ±0.38)), the middle row of three in a Pandar64's band, tilted up to 30° about
 /// their vertical axis and 20° about their horizontal one, 4.4–4.6 m away, walls, floor
 /// and ceiling around; `noise_seed` draws the range noise (σ `range_noise_m`).
@@ -195,7 +195,7 @@ pub fn issue_room(noise_seed: u64, range_noise_m: f64) -> RandomRoom {
     )
 }
 
-/// Issue 14's board.
+/// The fixed room's board: 1.4 × 1.1 m, 0.1 m holes at (±0.55, ±0.38).
 pub fn issue_board() -> BoardSpec {
     board_with(1.4, 1.1, 0.1, &[[-0.55, -0.38], [0.55, -0.38], [-0.55, 0.38], [0.55, 0.38]])
 }

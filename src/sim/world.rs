@@ -309,8 +309,19 @@ mod tests {
     use super::*;
 
     fn world() -> World {
-        let mut board = crate::sim::random_room::issue_board();
-        board.checker_offset = [0.013, -0.021];
+        // A 1.4 × 1.1 m board with four 0.1 m holes and a 5 × 3 checker off its centre.
+        let holes = [[-0.55, -0.38], [0.55, -0.38], [-0.55, 0.38], [0.55, 0.38]];
+        let board = BoardSpec {
+            width: 1.4,
+            height: 1.1,
+            inner_corners: [5, 3],
+            square: 0.1,
+            hole_radius: 0.1,
+            holes: holes.into_iter().collect(),
+            count: 1,
+            checker_offset: [0.013, -0.021],
+        };
+        board.validate().expect("a valid board");
         World::new(&board, Vec::new(), &mut Rng::new(1))
     }
 
