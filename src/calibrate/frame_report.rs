@@ -10,7 +10,7 @@ use crate::target::Room;
 
 use super::{
     calibrate_detecting, identify_detections, CalibrateOptions, CameraBoard, Detectors,
-    FrameDetections, FrameIdentities,
+    FrameDetections, FrameIdentities, LidarBoard,
 };
 
 /// One frame's detections, the refused planes and the detections' identities.
@@ -86,20 +86,34 @@ impl FrameReport {
         for (i, board) in self.frame.camera.iter().enumerate() {
             let id = ids.and_then(|ids| ids.camera[i]);
             out.boards.push(BoardDetection {
-                corners_px: board.corners.iter().map(|c| [c.x, c.y]).collect(),
                 surveyed_board: id.map(|id| id.board as u32),
                 half_turned: id.is_some_and(|id| id.half_turned),
-                ..BoardDetection::default()
+                ..board.detection()
             });
         }
         for (l, board) in self.frame.lidar.iter().enumerate() {
             out.boards.push(BoardDetection {
-                holes_lidar: board.holes.iter().map(|h| [h.x, h.y, h.z]).collect(),
                 surveyed_board: ids.and_then(|ids| ids.lidar[l]).map(|k| k as u32),
-                ..BoardDetection::default()
+                ..board.detection()
             });
         }
         out
+    }
+}
+
+impl CameraBoard {
+    /// The board as the detections file holds it: its corners (px), in the detector's order.
+    pub fn detection(&self) -> BoardDetection {
+        let corners_px = self.corners.iter().map(|c| [c.x, c.y]).collect();
+        BoardDetection { corners_px, ..BoardDetection::default() }
+    }
+}
+
+impl LidarBoard {
+    /// The board as the detections file holds it: its hole centres (LiDAR frame, m).
+    pub fn detection(&self) -> BoardDetection {
+        let holes_lidar = self.holes.iter().map(|h| [h.x, h.y, h.z]).collect();
+        BoardDetection { holes_lidar, ..BoardDetection::default() }
     }
 }
 

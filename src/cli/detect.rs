@@ -8,7 +8,7 @@ use clap::Args;
 
 use roomcal::calibrate::{detect_frame, Detectors, Identification};
 use roomcal::detect::holes::RefusedBoard;
-use roomcal::result::{BoardDetection, Detections};
+use roomcal::result::Detections;
 use roomcal::rig::Rig;
 
 use super::io::{load_cloud, load_image, result_json};
@@ -153,13 +153,7 @@ fn rig_detections_json(rig: &Rig, inputs: &RigInputs, detections: &RigDetections
         if inputs.images[c].is_empty() {
             continue;
         }
-        let boards = boards
-            .iter()
-            .map(|b| BoardDetection {
-                corners_px: b.corners.iter().map(|p| [p.x, p.y]).collect(),
-                ..BoardDetection::default()
-            })
-            .collect();
+        let boards = boards.iter().map(|b| b.detection()).collect();
         let value = serde_json::to_value(Detections { boards }).expect("detections serialise");
         sensors.insert(rig.cameras[c].name.to_string(), value);
     }
@@ -167,13 +161,7 @@ fn rig_detections_json(rig: &Rig, inputs: &RigInputs, detections: &RigDetections
         if inputs.clouds[l].is_empty() {
             continue;
         }
-        let boards = boards
-            .iter()
-            .map(|b| BoardDetection {
-                holes_lidar: b.holes.iter().map(|h| [h.x, h.y, h.z]).collect(),
-                ..BoardDetection::default()
-            })
-            .collect();
+        let boards = boards.iter().map(|b| b.detection()).collect();
         let value = serde_json::to_value(Detections { boards }).expect("detections serialise");
         sensors.insert(rig.lidars[l].name.to_string(), value);
     }
