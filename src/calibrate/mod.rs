@@ -20,11 +20,14 @@
 //! boards identified against the survey (`identify.rs`) and the room solved as one rigid
 //! target (`solve::room`), then held by the survey's joint covariance when the room file
 //! has one (`modes.rs`, `solve::room_modes`). Files: `detectors.rs`, `association.rs`,
-//! `free.rs` (the free-board model), `identify.rs`, `surveyed.rs`, `modes.rs`, `gate.rs`.
+//! `free.rs` (the free-board model), `identify.rs`, `surveyed.rs`, `modes.rs`, `gate.rs`;
+//! `frame_report.rs` is `roomcal detect`'s report of one frame.
 
 mod association;
 mod detectors;
+mod frame_report;
 mod free;
+pub use frame_report::{detect_frame, FrameReport, Identification};
 pub use free::{corner_start, CornerStart};
 mod gate;
 pub mod identify;

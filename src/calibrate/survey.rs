@@ -374,6 +374,19 @@ impl Survey {
         spec.covariance = gauge::file_covariance(&self.state, &self.covariance, &g);
         spec
     }
+
+    /// The room file `roomcal survey` writes: `room` with this survey as its `[survey]`
+    /// table, checked against the room's `board.count`. In a room with a LiDAR the survey
+    /// is first moved into the parking frame ([`Survey::in_parking_frame`], the parking
+    /// box's reference, not the survey's own frame, the boards' mean); `self.spec` becomes
+    /// the table written, so that what is reported is what the file holds.
+    pub fn surveyed_room(&mut self, room: Room) -> Result<Room, crate::target::RoomError> {
+        if let Some(lidar) = &room.lidar {
+            self.spec = self.in_parking_frame(lidar);
+        }
+        self.spec.validate(room.board.count)?;
+        Ok(Room { survey: Some(self.spec.clone()), ..room })
+    }
 }
 
 /// The mean of rigid motions: rotations averaged in the tangent space of the first, then

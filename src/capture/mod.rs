@@ -70,6 +70,15 @@ pub fn mean_pixels(frames: &[&[u8]]) -> Option<Vec<u8>> {
     sum.into_mean().map(|m| m.pixels)
 }
 
+/// The rounded per-pixel mean of a standing vehicle's frames read from files (each
+/// already checked to be the camera's size), as [`FrameSum`] averages the daemon's;
+/// `None` if there are none or their sizes differ.
+pub fn mean_image(images: &[crate::detect::GreyImage]) -> Option<crate::detect::GreyImage> {
+    let pixels: Vec<&[u8]> = images.iter().map(|i| i.data.as_slice()).collect();
+    let data = mean_pixels(&pixels)?;
+    Some(crate::detect::GreyImage { width: images[0].width, height: images[0].height, data })
+}
+
 /// The running per-pixel sum of a static scene's frames: their rounded mean without
 /// keeping the frames. The daemon sums each camera's frames as they arrive (a run's five
 /// 1920×1200 frames of two cameras held 23 MB as frames) and turns the sums into means

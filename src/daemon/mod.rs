@@ -767,7 +767,8 @@ fn start_solve<C: Calibrator>(
         else {
             return CalibrationOutcome::Failed("a camera delivered no frame".into());
         };
-        let clouds: Vec<Vec<Point>> = run.sweeps.into_iter().map(accumulated).collect();
+        let clouds: Vec<Vec<Point>> =
+            run.sweeps.into_iter().map(crate::lidar::accumulate_sweeps).collect();
         let Ok(mut c) = cal.lock() else {
             return CalibrationOutcome::Failed("calibrator poisoned by an earlier panic".into());
         };
@@ -779,18 +780,6 @@ fn start_solve<C: Calibrator>(
             }
         }
     })
-}
-
-/// A LiDAR's sweeps of a standing vehicle as one cloud; a single sweep is moved, not copied.
-fn accumulated(mut sweeps: Vec<Vec<Point>>) -> Vec<Point> {
-    if sweeps.len() == 1 {
-        return sweeps.pop().unwrap_or_default();
-    }
-    let mut cloud = Vec::with_capacity(sweeps.iter().map(Vec::len).sum());
-    for sweep in sweeps {
-        cloud.extend_from_slice(&sweep);
-    }
-    cloud
 }
 
 /// Stores the outcome (accepted → new generation; rejected → kept aside) and reports it;

@@ -57,6 +57,21 @@ pub use decoder::{
 };
 pub use sweep::{Sweep, SweepAssembler, SweepConfig, SweepStats};
 
+/// One LiDAR's sweeps of a standing vehicle as one cloud, in the order given: the daemon's
+/// run, `calibrate --standing` and a rig's repeated `NAME=` clouds all accumulate this way.
+/// A single sweep is moved, not copied.
+#[cfg(feature = "std")]
+pub fn accumulate_sweeps(mut sweeps: Vec<Vec<Point>>) -> Vec<Point> {
+    if sweeps.len() == 1 {
+        return sweeps.pop().unwrap_or_default();
+    }
+    let mut cloud = Vec::with_capacity(sweeps.iter().map(Vec::len).sum());
+    for sweep in sweeps {
+        cloud.extend_from_slice(&sweep);
+    }
+    cloud
+}
+
 /// Decodes every return of every data payload (zero-range returns and identical dual echoes
 /// dropped), in order; payloads that are not valid data packets of the calibration's model
 /// (512-byte position packets, truncated, corrupted...) are skipped and counted in the stats.

@@ -1,0 +1,378 @@
+//! `roomcal calibrate`: image/cloud pairs (or a standing vehicle's frames and sweeps, or a
+//! rig's `NAME=PATH` inputs) → the result file, its YAML, the report picture and exports;
+//! exit 0 accepted, 3 rejected.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{anyhow, Context};
+use clap::Args;
+
+use roomcal::calibrate::rig::{calibrate_rig, LidarInput};
+use roomcal::calibrate::{calibrate_detecting, CalibrateOptions, Detectors, FrameDetections};
+use roomcal::detect::holes::RefusedBoard;
+use roomcal::detect::GreyImage;
+use roomcal::lidar::Point;
+use roomcal::result::{RigResult, Status};
+use roomcal::rig::Rig;
+use roomcal::target::Room;
+
+use super::detect::refused_message;
+use super::io::{load_cloud, load_image, result_json, write_result};
+use super::progress::Progress;
+use super::rig::{RigDetections, RigInputs};
+use super::{bad_input, rejected, summary, Failure};
+
+#[derive(Args)]
+pub struct CalibrateArgs {
+    /// The room file.
+    #[arg(long)]
+    room: PathBuf,
+    /// A camera frame (PNG or JPEG); repeat for several. Image i pairs with cloud i.
+    #[arg(long, required = true)]
+    image: Vec<PathBuf>,
+    /// A LiDAR cloud (PCD, or a pcap/pcapng capture of the room's model); repeat for several.
+    #[arg(long)]
+    cloud: Vec<PathBuf>,
+    /// The result file (JSON); an OpenCV-style YAML is written beside it.
+    #[arg(long, default_value = "result.json")]
+    out: PathBuf,
+    /// Draw the overlay report (PNG): LiDAR points, corners, both sensors' hole centres.
+    #[arg(long)]
+    report: Option<PathBuf>,
+    /// Intrinsics from the corners first, then the extrinsic with them fixed.
+    #[arg(long)]
+    two_stage: bool,
+    /// Ignore the room's `[survey]`: every board gets its own pose (the free-board model).
+    #[arg(long)]
+    free_boards: bool,
+    /// Leave the LiDAR's board-plane points out of the solve (the paper's cost alone).
+    #[arg(long)]
+    without_planes: bool,
+    /// The LiDAR unit's angle corrections (Hesai CSV or Velodyne YAML) for clouds given as
+    /// packet captures (default: the model's nominal tables).
+    #[arg(long)]
+    lidar_calibration: Option<PathBuf>,
+    /// The calibration in force (a result file or the store's current.json), for the
+    /// quality gate's change limits; with `--rig` a rig's result file (every camera's
+    /// intrinsics and every sensor's mounting are checked against it).
+    #[arg(long)]
+    current: Option<PathBuf>,
+    /// The images are frames, and the clouds sweeps, of one standing vehicle: the frames
+    /// are averaged and the sweeps accumulated into one frame as the daemon does (any
+    /// number of each), instead of image i pairing with cloud i.
+    #[arg(long)]
+    standing: bool,
+    /// Also write the calibration for other stacks into this directory (accepted runs
+    /// only): camera.camera_info.yaml (ROS), sensor_kit_calibration.yaml (Autoware),
+    /// calib.txt (KITTI).
+    #[arg(long, value_name = "DIR")]
+    export: Option<PathBuf>,
+    /// Print the result file to stdout instead of the summary.
+    #[arg(long, conflicts_with = "quiet")]
+    json: bool,
+    /// Print only the status line (no progress line, no refused-plane sentences).
+    #[arg(long)]
+    quiet: bool,
+    /// A rig file: the vehicle's cameras and LiDARs by name; every --image and --cloud is
+    /// then NAME=PATH (several per name: frames of a standing vehicle).
+    #[arg(long, value_name = "RIG")]
+    rig: Option<PathBuf>,
+}
+
+/// `roomcal calibrate`: one pair's images and clouds, or with `--rig` every sensor's.
+pub fn run(args: CalibrateArgs) -> Result<(), Failure> {
+    let room = roomcal::room::load(&args.room).map_err(bad_input)?;
+    if let Some(rig_path) = &args.rig {
+        return run_rig(&room, rig_path, &args);
+    }
+    check_pairs(&args, &room)?;
+    let current = match &args.current {
+        Some(path) => Some(roomcal::result::load(path).map_err(bad_input)?),
+        None => None,
+    };
+    let mut progress = Progress::on_stderr("calibrate", steps(&args), args.quiet);
+    let (images, clouds) = load_inputs(&args, &room, &mut progress)?;
+    let mut detectors = Detectors::new(&room).map_err(bad_input)?;
+    let mut frames = Vec::new();
+    for (i, image) in images.iter().enumerate() {
+        progress.step(&format!("detecting boards, frame {} of {}", i + 1, images.len()));
+        let camera = detectors.detect_image(image).map_err(bad_input)?;
+        frames.push(FrameDetections { camera, lidar: Vec::new() });
+    }
+    // Room without a LiDAR, or images only: intrinsics only.
+    let mut room = room;
+    if args.cloud.is_empty() {
+        room.lidar = None;
+    }
+    let sweeps: Vec<&[Point]> = clouds.iter().map(Vec::as_slice).collect();
+    progress.step("solving");
+    // The LiDAR's boards are found by the calibration: in a surveyed room where the room
+    // expects them, from the camera's room pose.
+    let options = CalibrateOptions {
+        two_stage: args.two_stage,
+        current,
+        current_rig: None,
+        without_planes: args.without_planes,
+        free_boards: args.free_boards,
+        corner_start: None,
+    };
+    let (run, refused) = calibrate_detecting(&room, &mut frames, &sweeps, &mut detectors, &options);
+    if !args.quiet {
+        note_refused(&args, &refused, &mut progress);
+    }
+    progress.step("writing the results");
+    let mut written = write_result(&args.out, &run.result)?;
+    if let Some(report) = &args.report {
+        let first_refused = refused.first().map_or(&[][..], Vec::as_slice);
+        write_report(report, &images, &clouds, &run, first_refused)?;
+        written.push(report.display().to_string());
+    }
+    let accepted = run.result.status == Status::Accepted;
+    if let Some(dir) = args.export.as_ref().filter(|_| accepted) {
+        let files = roomcal::export::write_dir(dir, &roomcal::export::files(&run.result))
+            .map_err(bad_input)?;
+        written.extend(files.iter().map(|f| f.display().to_string()));
+    }
+    progress.finish(); // the line is cleared before the summary
+    if args.json {
+        say_raw!("{}", result_json(&run.result));
+    } else if args.quiet {
+        say!("{}", summary::status_line(&run.result));
+    } else {
+        let refused_count = refused.iter().map(Vec::len).sum();
+        for line in summary::lines(&room, &frames, &run, refused_count, &written) {
+            say!("{line}");
+        }
+        if let Some(dir) = args.export.as_ref().filter(|_| !accepted) {
+            say!("  not written {}: a rejected calibration is not exported", dir.display());
+        }
+    }
+    verdict(run.result.status)
+}
+
+/// Image i pairs with cloud i (unless standing), and clouds need the room's LiDAR.
+fn check_pairs(args: &CalibrateArgs, room: &Room) -> Result<(), Failure> {
+    if !args.standing && !args.cloud.is_empty() && args.cloud.len() != args.image.len() {
+        return Err(bad_input(anyhow!(
+            "{} images and {} clouds: image i pairs with cloud i, give as many of each",
+            args.image.len(),
+            args.cloud.len()
+        )));
+    }
+    if !args.cloud.is_empty() && room.lidar.is_none() {
+        return Err(bad_input(anyhow!(
+            "{}: clouds given but the room has no [lidar] table",
+            args.room.display()
+        )));
+    }
+    Ok(())
+}
+
+/// The steps `calibrate` shows progress for: each file read, each frame's detection (a
+/// standing vehicle's frames are one), the solve and the writing.
+fn steps(args: &CalibrateArgs) -> usize {
+    let frames = if args.standing { 1 } else { args.image.len() };
+    args.image.len() + args.cloud.len() + frames + 2
+}
+
+/// Every image and cloud read; a standing vehicle's as one frame (images averaged, sweeps
+/// accumulated).
+fn load_inputs(
+    args: &CalibrateArgs,
+    room: &Room,
+    progress: &mut Progress,
+) -> Result<(Vec<GreyImage>, Vec<Vec<Point>>), Failure> {
+    let images = args
+        .image
+        .iter()
+        .map(|path| {
+            progress.step(&format!("reading {}", path.display()));
+            load_image(room, path)
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let clouds = args
+        .cloud
+        .iter()
+        .map(|path| {
+            progress.step(&format!("reading {}", path.display()));
+            load_cloud(room, path, args.lidar_calibration.as_deref())
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    if !args.standing {
+        return Ok((images, clouds));
+    }
+    let image = roomcal::capture::mean_image(&images);
+    let cloud = roomcal::lidar::accumulate_sweeps(clouds);
+    let clouds = if cloud.is_empty() { Vec::new() } else { vec![cloud] };
+    Ok((image.into_iter().collect(), clouds))
+}
+
+/// Each refused LiDAR plane as a sentence that stays above the progress line.
+fn note_refused(args: &CalibrateArgs, refused: &[Vec<RefusedBoard>], progress: &mut Progress) {
+    for (i, planes) in refused.iter().enumerate() {
+        let name = match args.standing {
+            true => "the accumulated sweeps".to_string(),
+            false => args.cloud[i].display().to_string(),
+        };
+        for plane in planes {
+            progress.note(&refused_message(&name, plane));
+        }
+    }
+}
+
+/// The report picture of the first frame (see `roomcal::report::calibration_report`).
+fn write_report(
+    path: &Path,
+    images: &[GreyImage],
+    clouds: &[Vec<Point>],
+    run: &roomcal::calibrate::Calibration,
+    refused: &[RefusedBoard],
+) -> Result<(), Failure> {
+    let Some(first) = images.first() else { return Ok(()) };
+    let cloud: Vec<&[Point]> = clouds.first().map(|c| c.as_slice()).into_iter().collect();
+    roomcal::report::calibration_report(&first.data, &cloud, run, refused)
+        .save(path)
+        .with_context(|| format!("writing the report {}", path.display()))
+        .map_err(bad_input)
+}
+
+/// The exit of a run: 0 accepted, 3 rejected (the output has said why).
+fn verdict(status: Status) -> Result<(), Failure> {
+    match status {
+        Status::Accepted => Ok(()),
+        Status::Rejected => Err(rejected()),
+    }
+}
+
+/// `calibrate --rig`: every sensor of the rig by name; writes the rig's result file (and
+/// its exports and report pictures).
+fn run_rig(room: &Room, rig_path: &Path, args: &CalibrateArgs) -> Result<(), Failure> {
+    let rig = roomcal::rig::load(rig_path).map_err(bad_input)?;
+    if !rig.lidars.is_empty() && room.board.holes.is_empty() {
+        return Err(bad_input(anyhow!(
+            "{}: the rig has LiDARs but the room's boards have no holes (`board.holes`)",
+            args.room.display()
+        )));
+    }
+    let current_rig = match &args.current {
+        Some(path) => Some(roomcal::result::load_rig(path).map_err(bad_input)?),
+        None => None,
+    };
+    let inputs = super::rig::inputs(&rig, rig_path, &args.image, &args.cloud, true)?;
+    let angles = args.lidar_calibration.as_deref();
+    let detections = super::rig::detect_all(room, &rig, &inputs, angles, args.free_boards)?;
+    let options = CalibrateOptions {
+        two_stage: args.two_stage,
+        current: None,
+        current_rig,
+        without_planes: args.without_planes,
+        free_boards: args.free_boards,
+        // The first camera's start, made to find the LiDARs' boards, is not made again.
+        corner_start: detections.first_start.clone(),
+    };
+    let lidars: Vec<LidarInput<'_>> =
+        detections.lidars.iter().map(|(boards, cloud)| LidarInput { boards, cloud }).collect();
+    let run = calibrate_rig(room, &rig, &detections.cameras, &lidars, &options);
+    let result = &run.result;
+    let json = result_json(result);
+    let out = &args.out;
+    std::fs::write(out, &json).map_err(|e| bad_input(anyhow!("writing {}: {e}", out.display())))?;
+    let accepted = result.pair.status == Status::Accepted;
+    let mut written = Vec::new();
+    if let Some(dir) = args.export.as_deref().filter(|_| accepted) {
+        written = roomcal::export::write_dir(dir, &roomcal::export::rig_files(result))
+            .map_err(bad_input)?;
+    }
+    if let Some(report) = &args.report {
+        written.extend(write_rig_reports(report, &rig, &inputs, &detections, result)?);
+    }
+    if args.json {
+        say_raw!("{json}");
+    } else {
+        print_rig_summary(result, args.quiet, out, &written);
+    }
+    verdict(result.pair.status)
+}
+
+/// The rig's status line; unless `quiet`, a line per sensor and per extrinsic and the
+/// files written.
+fn print_rig_summary(result: &RigResult, quiet: bool, out: &Path, written: &[PathBuf]) {
+    match result.pair.status {
+        Status::Accepted => {
+            say!("roomcal calibrate: accepted (rig of {} sensors)", result.sensors.len())
+        }
+        Status::Rejected => say!(
+            "roomcal calibrate: rejected: {}",
+            result.pair.reason.as_deref().unwrap_or("rejected")
+        ),
+    }
+    if quiet {
+        return;
+    }
+    for (name, sensor) in &result.sensors {
+        let verdict = match sensor.status {
+            Status::Accepted => "accepted".to_string(),
+            Status::Rejected => format!("rejected: {}", sensor.reason.as_deref().unwrap_or("")),
+        };
+        match (&sensor.camera, &sensor.uncertainty) {
+            (Some(c), Some(u)) => say!(
+                "  camera {name}: fx {:.2} ± {:.2} fy {:.2} cx {:.2} ± {:.2} cy {:.2} ± {:.2} px; {verdict}",
+                c.fx, u.fx, c.fy, c.cx, u.cx, c.cy, u.cy
+            ),
+            _ => say!("  lidar {name}: {verdict}"),
+        }
+    }
+    for e in &result.extrinsics {
+        let t = e.translation;
+        say!(
+            "  {} → {}: translation [{:.4}, {:.4}, {:.4}] m (σ {:.1} mm), σ rotation {:.3}°",
+            e.from,
+            e.to,
+            t[0],
+            t[1],
+            t[2],
+            e.sigma_translation_m * 1000.0,
+            e.sigma_rotation_deg
+        );
+    }
+    say!("  wrote {}", out.display());
+    for path in written {
+        say!("  wrote {}", path.display());
+    }
+}
+
+/// The rig's report pictures, one per camera ([`roomcal::report::camera_path`]: `report.png`
+/// → `report-front.png`): the camera's frame (its frames averaged) with every LiDAR's sweep
+/// and hole centres drawn through the solved rig, its corners and the verdicts
+/// ([`roomcal::report::rig_camera_report`]). A camera without a solved model is left out.
+/// Returns the files written.
+fn write_rig_reports(
+    report: &Path,
+    rig: &Rig,
+    inputs: &RigInputs,
+    detections: &RigDetections,
+    result: &RigResult,
+) -> Result<Vec<PathBuf>, Failure> {
+    let sweeps: Vec<&[Point]> = detections.lidars.iter().map(|(_, c)| c.as_slice()).collect();
+    let lidar_boards: Vec<&[roomcal::calibrate::LidarBoard]> =
+        detections.lidars.iter().map(|(b, _)| b.as_slice()).collect();
+    let mut written = Vec::new();
+    for (c, camera) in rig.cameras.iter().enumerate() {
+        let Some(frame) = super::rig::camera_frame(rig, c, &inputs.images[c])? else { continue };
+        let marks = roomcal::report::RigMarks {
+            corners: &detections.cameras[c],
+            sweeps: &sweeps,
+            lidar_boards: &lidar_boards,
+        };
+        let Some(picture) = roomcal::report::rig_camera_report(rig, result, c, &frame.data, &marks)
+        else {
+            continue;
+        };
+        let path = roomcal::report::camera_path(report, &camera.name);
+        picture
+            .save(&path)
+            .map_err(|e| bad_input(anyhow!("writing the report {}: {e}", path.display())))?;
+        written.push(path);
+    }
+    Ok(written)
+}
