@@ -215,6 +215,27 @@ mod tests {
     use super::*;
     use crate::detect::holes::test_board;
 
+    /// The mask cell by cell from its definition: solid board 1, hole −1, beyond 0.
+    fn mask_by_definition(spec: &BoardSpec, step: f64) -> Vec<i8> {
+        let m = Mask::new(spec, step);
+        let r2 = spec.hole_radius * spec.hole_radius;
+        let mut cells = Vec::new();
+        for row in 0..m.rows {
+            for col in 0..m.cols {
+                let x = m.origin[0] + (col as f64 + 0.5) * step;
+                let y = m.origin[1] + (row as f64 + 0.5) * step;
+                let inside = x.abs() <= spec.width / 2.0 && y.abs() <= spec.height / 2.0;
+                let hole = spec.holes.iter().any(|h| (x - h[0]).powi(2) + (y - h[1]).powi(2) < r2);
+                cells.push(match (inside, hole) {
+                    (true, false) => 1,
+                    (true, true) => -1,
+                    _ => 0,
+                });
+            }
+        }
+        cells
+    }
+
     /// The mask filled hole by hole is the mask by definition: this board, an asymmetric
     /// one whose holes overlap its edge and each other, and odd steps.
     #[test]

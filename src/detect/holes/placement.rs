@@ -248,6 +248,26 @@ mod tests {
     use super::*;
     use crate::detect::holes::test_board;
 
+    /// Scan lines across `spec` at board heights `rows` (plane frame = board frame),
+    /// returns every `spacing` from a phase of their own, none in the holes: `flat` and
+    /// `lines` as [`Projection::flatten`] leaves them.
+    fn scanned(spec: &BoardSpec, rows: &[f64], spacing: f64) -> Projection {
+        let mut projection = Projection::default();
+        let (hw, r) = (spec.width / 2.0, spec.hole_radius);
+        for (k, &y) in rows.iter().enumerate() {
+            let phase = (k as f64 * 0.618).fract() * spacing;
+            let mut x = -hw + phase;
+            while x < hw {
+                if spec.holes.iter().all(|h| (x - h[0]).hypot(y - h[1]) > r) {
+                    projection.lines.push((k as f64 * 0.01, projection.flat.len() as u32));
+                    projection.flat.push([x, y]);
+                }
+                x += spacing;
+            }
+        }
+        projection
+    }
+
     /// The edge crossings pin the board's turn through the holes and sides they reach:
     /// lines 4 cm apart over both rows of holes leave the yaw to about a tenth of a degree
     /// (the sides' ends, 7 mm each, on levers up to 0.46 m); lines over the lower row
