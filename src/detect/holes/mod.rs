@@ -513,18 +513,13 @@ impl HoleDetector {
                 return;
             }
         };
-        // The plateau's spread, or what the edge crossings allow where that is more.
-        let Some(edges) = self.placement.edge_covariance(&fit, &mut self.projection, &self.spec)
-        else {
-            self.refused.push(refuse(Refusal::Unconstrained { sigma_m: f64::INFINITY }));
-            return;
+        let edges = match self.pinned(&fit) {
+            Ok(edges) => edges,
+            Err(reason) => {
+                self.refused.push(refuse(reason));
+                return;
+            }
         };
-        let sigma_xy = fit.cov[0].max(fit.cov[4]).max(edges[0]).max(edges[4]).sqrt();
-        if sigma_xy > self.config.max_sigma_m || fit.at_window_edge {
-            let sigma_m = if fit.at_window_edge { f64::INFINITY } else { sigma_xy };
-            self.refused.push(refuse(Refusal::Unconstrained { sigma_m }));
-            return;
-        }
         if may_refit {
             let board = (&self.spec, &self.config);
             if let Some(plane) =
@@ -634,6 +629,23 @@ impl HoleDetector {
             return Err(Unplaced { reason, lines: heapless::Vec::new(), guess: None });
         }
         Ok(lines)
+    }
+
+    /// The covariance the edge crossings allow at `fit` ([`Placement::edge_covariance`]),
+    /// when they and the plateau pin the board's position within
+    /// [`HoleConfig::max_sigma_m`]: the plateau's spread, or what the edge crossings allow
+    /// where that is more.
+    fn pinned(&mut self, fit: &Fit) -> Result<[f64; 9], Refusal> {
+        let Some(edges) = self.placement.edge_covariance(fit, &mut self.projection, &self.spec)
+        else {
+            return Err(Refusal::Unconstrained { sigma_m: f64::INFINITY });
+        };
+        let sigma_xy = fit.cov[0].max(fit.cov[4]).max(edges[0]).max(edges[4]).sqrt();
+        if sigma_xy > self.config.max_sigma_m || fit.at_window_edge {
+            let sigma_m = if fit.at_window_edge { f64::INFINITY } else { sigma_xy };
+            return Err(Refusal::Unconstrained { sigma_m });
+        }
+        Ok(edges)
     }
 
     /// The board's diagonal plus the size tolerance on either side (m): the most a board's
