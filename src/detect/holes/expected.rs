@@ -2,8 +2,8 @@
 //! pose and the LiDAR's nominal mounting predict every board's pose in the sweep, so the
 //! board is looked for there instead of among every plane of the sweep (no voxel planes,
 //! no segments, no mask search on walls and clutter). The placement and its checks are the
-//! global detector's own ([`HoleDetector::examine`]): an expectation narrows where to
-//! look, never what counts as a board.
+//! global detector's own: an expectation narrows where to look, never what counts as a
+//! board.
 //!
 //! The mask search tries only the yaws within [`super::EXPECTED_YAW_DEG`] of the expected
 //! board's (either way round): a third of the global search's, which is most of what the
@@ -14,7 +14,10 @@
 //! two at the board): the board's own plane is the densest band about it within
 //! [`EXPECTED_BAND_M`], then refitted and gathered again until it settles.
 
-use super::{point_of, HoleDetector, LidarBoard, Point, Region, Se3, Vec3};
+use crate::geometry::{Se3, Vec3};
+
+use super::sweep::{point_of, Sweep};
+use super::HoleConfig;
 
 /// How far (m) a board may lie from where it is expected, beyond its half diagonal.
 pub const EXPECTED_REACH_M: f64 = 0.3;
@@ -23,50 +26,23 @@ const EXPECTED_BAND_M: f64 = 0.3;
 /// Bin of the offsets along the expected normal (m).
 const OFFSET_BIN_M: f64 = 0.01;
 
-impl HoleDetector {
-    /// Places the board expected at each of `expected` (board → LiDAR) in `points`: `out[i]`
-    /// is the board placed within its half diagonal and 0.3 m of `expected[i]`, or `None` (the
-    /// reason, if a plane was there, in [`HoleDetector::refused`]).
-    pub fn detect_expected(
-        &mut self,
-        points: &[Point],
-        expected: &[Se3],
-        out: &mut Vec<Option<LidarBoard>>,
-    ) {
-        out.clear();
-        self.refused.clear();
-        self.load(points);
-        let reach = self.board_diagonal() / 2.0 + EXPECTED_REACH_M;
-        self.keep_in_sight(expected, reach);
-        let mut placed = Vec::with_capacity(1);
-        for pose in expected {
-            placed.clear();
-            let centre = pose.translation;
-            // Where two expected boards stand close, each point is the nearer one's: the
-            // search about one board never fuses it with its neighbour's face.
-            self.rivals.clear();
-            let close = |c: &Vec3| c != &centre && (c - centre).norm() < 2.0 * reach;
-            self.rivals.extend(expected.iter().map(|e| e.translation).filter(close));
-            if let Some(start) = self.densest_band(pose, reach) {
-                if let Some(plane) = self.settled_plane(Region::Ball(centre, reach), start) {
-                    self.expected_axis = Some(pose.rotation.column(0).into_owned());
-                    self.examine(plane, &mut placed);
-                    self.expected_axis = None;
-                }
-            }
-            let near = |b: &LidarBoard| (b.pose.translation - centre).norm() <= reach;
-            out.push(placed.pop().filter(near));
-        }
-    }
+/// The expected search's workspace, reused from board to board.
+#[derive(Debug, Default)]
+pub(super) struct Expected {
+    /// The other expected boards' centres near the one searched.
+    rivals: Vec<Vec3>,
+    /// Points per offset bin along the expected normal.
+    hist: Vec<u32>,
+}
 
+impl Expected {
     /// Keeps only the points a search about `expected` (within `reach` of a centre) can
-    /// use: those whose beam passes within `reach` plus half the board's diagonal of an
+    /// use: those whose beam passes within `reach` plus half the board's `diagonal` of an
     /// expected centre, which covers the board's own points and what its holes show behind
-    /// it ([`HoleDetector::find_see_through`]). The placements are the same as on the whole
-    /// sweep; every later pass over the points reads a few thousand instead of the sweep.
-    /// The points' voxel keys are dropped (the expected search uses none).
-    fn keep_in_sight(&mut self, expected: &[Se3], reach: f64) {
-        let sight = reach + self.board_diagonal() / 2.0;
+    /// it (the see-through points). The placements are the same as on the whole sweep;
+    /// every later pass over the points reads a few thousand instead of the sweep.
+    pub(super) fn keep_in_sight(sweep: &mut Sweep, expected: &[Se3], reach: f64, diagonal: f64) {
+        let sight = reach + diagonal / 2.0;
         // Per expected centre: its direction and the cosine of the cone it subtends.
         let cones: Vec<(Vec3, f64)> = expected
             .iter()
@@ -78,23 +54,37 @@ impl HoleDetector {
                 }
             })
             .collect();
-        self.pts.retain(|p| {
+        sweep.keep_points(|p| {
             let p = point_of(p);
             let range = p.norm();
             cones.iter().any(|(towards, cos)| towards.dot(&p) >= cos * range)
         });
-        self.keys.clear();
+    }
+
+    /// Notes the centres of the other `expected` boards within twice `reach` of `centre`:
+    /// where two expected boards stand close, each point is the nearer one's, so the search
+    /// about one board never fuses it with its neighbour's face.
+    pub(super) fn set_rivals(&mut self, expected: &[Se3], centre: Vec3, reach: f64) {
+        self.rivals.clear();
+        let close = |c: &Vec3| c != &centre && (c - centre).norm() < 2.0 * reach;
+        self.rivals.extend(expected.iter().map(|e| e.translation).filter(close));
     }
 
     /// The plane parallel to the expected board's through the densest band
     /// (twice the plane tolerance wide) of offsets within [`EXPECTED_BAND_M`] of it, among
     /// the points within `reach` of the expected centre; `None` when no point is there.
-    fn densest_band(&mut self, pose: &Se3, reach: f64) -> Option<(Vec3, Vec3)> {
+    pub(super) fn densest_band(
+        &mut self,
+        pose: &Se3,
+        reach: f64,
+        sweep: &Sweep,
+        config: &HoleConfig,
+    ) -> Option<(Vec3, Vec3)> {
         let (c, n) = (pose.translation, pose.rotation.column(2).into_owned());
         let bins = (2.0 * EXPECTED_BAND_M / OFFSET_BIN_M) as usize;
         self.hist.clear();
         self.hist.resize(bins, 0);
-        for p in self.pts.iter().map(point_of) {
+        for p in sweep.points().iter().map(point_of) {
             let d = p - c;
             let offset = n.dot(&d);
             let within = d.norm_squared() <= reach * reach && nearest_to(&self.rivals, &p, &c);
@@ -103,7 +93,7 @@ impl HoleDetector {
                 self.hist[bin.min(bins - 1)] += 1;
             }
         }
-        let width = ((2.0 * self.config.plane_tolerance_m / OFFSET_BIN_M) as usize).clamp(1, bins);
+        let width = ((2.0 * config.plane_tolerance_m / OFFSET_BIN_M) as usize).clamp(1, bins);
         let (mut count, mut best) = (self.hist[..width].iter().sum::<u32>(), (0, 0));
         for start in 0..=bins - width {
             if start > 0 {
@@ -122,15 +112,22 @@ impl HoleDetector {
 
     /// Collects into `seg` every point within the plane tolerance of the plane (`c`, `n`)
     /// and within `radius` of `centre`, nearer it than any other expected board's.
-    pub(super) fn gather_in_ball(&mut self, centre: Vec3, radius: f64, (c, n): (Vec3, Vec3)) {
-        let tol = self.config.plane_tolerance_m;
-        self.seg.clear();
+    pub(super) fn gather(
+        &self,
+        (centre, radius): (Vec3, f64),
+        (c, n): (Vec3, Vec3),
+        sweep: &Sweep,
+        config: &HoleConfig,
+        seg: &mut Vec<Vec3>,
+    ) {
+        let tol = config.plane_tolerance_m;
+        seg.clear();
         let rivals = &self.rivals;
         let within = |p: &Vec3| {
             (p - centre).norm_squared() <= radius * radius && nearest_to(rivals, p, &centre)
         };
-        let points = self.pts.iter().map(point_of);
-        self.seg.extend(points.filter(|p| within(p) && n.dot(&(*p - c)).abs() < tol));
+        let points = sweep.points().iter().map(point_of);
+        seg.extend(points.filter(|p| within(p) && n.dot(&(*p - c)).abs() < tol));
     }
 }
 
@@ -138,4 +135,38 @@ impl HoleDetector {
 fn nearest_to(rivals: &[Vec3], p: &Vec3, centre: &Vec3) -> bool {
     let own = (p - centre).norm_squared();
     rivals.iter().all(|r| own <= (p - r).norm_squared())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Mat3;
+    use crate::lidar::Point;
+
+    /// The band about the board's own plane, 5 cm behind where it is expected, is found
+    /// among the returns of a sparser wall 20 cm behind it.
+    #[test]
+    fn the_densest_band_finds_the_board_off_its_expected_plane() {
+        let mut points = Vec::new();
+        for (x, share) in [(5.05, 1), (5.2, 3)] {
+            for i in -20..=20 {
+                for j in (-20..=20).step_by(share) {
+                    let (y, z) = (0.02 * i as f64, 0.02 * j as f64);
+                    let p = Point { x: x as f32, y: y as f32, z: z as f32, ..Point::default() };
+                    points.push(p);
+                }
+            }
+        }
+        let mut sweep = Sweep::default();
+        let config = HoleConfig::default();
+        sweep.load(&points, &config);
+        // Board z (its normal) along the LiDAR's x, 5 m ahead.
+        let rotation = Mat3::new(0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0);
+        let pose = Se3 { rotation, translation: Vec3::new(5.0, 0.0, 0.0) };
+        let mut expected = Expected::default();
+        expected.set_rivals(&[pose], pose.translation, 1.0);
+        let (c, n) = expected.densest_band(&pose, 1.0, &sweep, &config).expect("a band");
+        assert!((n - Vec3::x()).norm() < 1e-12);
+        assert!((c.x - 5.05).abs() < config.plane_tolerance_m, "band at {:.3} m", c.x);
+    }
 }

@@ -1,0 +1,221 @@
+//! The sweep as the detector keeps it: the returns within range, a census of the sensor's
+//! scan lines (elevation bins holding returns: no ring numbers or beam table needed) and
+//! every return indexed by scan line and azimuth, which tells what a stretch of a line
+//! returned ([`Sweep::returns_in_front`]).
+
+use crate::geometry::Vec3;
+use crate::lidar::Point;
+
+use super::scan_lines::LINE_GAP_RAD;
+use super::HoleConfig;
+
+/// Elevation bins of the sweep's scan-line census.
+const RING_BIN_DEG: f64 = 0.05;
+const RING_BINS: usize = (180.0 / RING_BIN_DEG) as usize + 1;
+
+/// The sweep's workspace, sized by the largest sweep seen.
+#[derive(Debug, Default)]
+pub(super) struct Sweep {
+    /// The returns within range, as the sweep holds them (f32: half a `Vec3`'s memory for
+    /// the largest buffer a rig's daemon makes; [`point_of`] gives the same f64 values the
+    /// sweep's f32 would).
+    pts: Vec<[f32; 3]>,
+    /// Returns per elevation bin ([`RING_BIN_DEG`]): the census of the scan lines.
+    rings: Vec<u32>,
+    /// Every return as (azimuth, range, elevation), by elevation bin (bin `k` at
+    /// `beams[bin_start[k]..bin_start[k + 1]]`), each bin by azimuth.
+    beams: Vec<(f32, f32, f32)>,
+    bin_start: Vec<u32>,
+    /// The next free slot of each bin while `beams` is filled.
+    bin_fill: Vec<u32>,
+}
+
+impl Sweep {
+    /// Keeps the points within the range limits and learns the sweep's scan lines from them.
+    pub(super) fn load(&mut self, points: &[Point], config: &HoleConfig) {
+        let (near, far) = config.range_m;
+        self.pts.clear();
+        // Exactly the sweep's size, not a doubling's slack (the daemon frees it after each
+        // run, `release_workspace`).
+        self.pts.reserve_exact(points.len());
+        for p in points {
+            let r = p.position().norm();
+            if !r.is_finite() || r < near || r > far {
+                continue;
+            }
+            self.pts.push([p.x, p.y, p.z]);
+        }
+        self.learn_rings();
+        self.index_beams();
+    }
+
+    /// The returns within range.
+    pub(super) fn points(&self) -> &[[f32; 3]] {
+        &self.pts
+    }
+
+    /// Keeps only the returns `keep` accepts; the scan-line census and the beam index stay
+    /// the whole sweep's.
+    pub(super) fn keep_points(&mut self, keep: impl FnMut(&[f32; 3]) -> bool) {
+        self.pts.retain(keep);
+    }
+
+    /// Frees the buffers sized by the sweep (the census's fixed bins stay).
+    pub(super) fn release(&mut self) {
+        self.pts = Vec::new();
+        self.beams = Vec::new();
+        self.bin_start = Vec::new();
+        self.bin_fill = Vec::new();
+    }
+
+    /// Returns of the scan line at elevation `e` between azimuths `lo` and `hi` (open
+    /// interval, rad) that lie more than `margin` in front of the plane (`c`, `n`, `n·c > 0`).
+    pub(super) fn returns_in_front(
+        &self,
+        e: f64,
+        (lo, hi): (f64, f64),
+        (c, n): (Vec3, Vec3),
+        margin: f64,
+    ) -> usize {
+        let d = n.dot(&c);
+        let (lo, hi) = (lo as f32, hi as f32);
+        let mut front = 0usize;
+        for bin in ring_bin(e - LINE_GAP_RAD)..=ring_bin(e + LINE_GAP_RAD) {
+            let beams = &self.beams[self.bin_start[bin] as usize..self.bin_start[bin + 1] as usize];
+            let from = beams.partition_point(|q| q.0 <= lo);
+            for &(az, range, el) in beams[from..].iter().take_while(|q| q.0 < hi) {
+                let (el, az) = (f64::from(el), f64::from(az));
+                if (el - e).abs() >= LINE_GAP_RAD {
+                    continue;
+                }
+                let u = Vec3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
+                let to_plane = d / n.dot(&u);
+                if to_plane > 0.0 && f64::from(range) < to_plane - margin {
+                    front += 1;
+                }
+            }
+        }
+        front
+    }
+
+    /// The sensor's scan lines with an elevation between `lo` and `hi` (rad): runs of
+    /// occupied census bins, each with a few returns (not a stray point).
+    pub(super) fn lines_between(&self, lo: f64, hi: f64) -> usize {
+        let mut lines = 0;
+        let mut inside = false;
+        for b in ring_bin(lo)..=ring_bin(hi) {
+            let occupied = self.rings[b] >= 3;
+            if occupied && !inside {
+                lines += 1;
+            }
+            inside = occupied;
+        }
+        lines
+    }
+
+    /// The sensor's scan lines as seen in this sweep: elevation bins (0.05°) holding
+    /// returns, so no ring numbers or beam table are needed.
+    #[inline(never)]
+    fn learn_rings(&mut self) {
+        self.rings.clear();
+        self.rings.resize(RING_BINS, 0);
+        for p in self.pts.iter().map(point_of) {
+            self.rings[ring_bin(elevation(&p))] += 1;
+        }
+    }
+
+    /// Fills `beams` from `pts`: a counting sort by elevation bin (`rings` holds the
+    /// counts), then each bin by azimuth (an unstable sort: it allocates nothing). A
+    /// counting sort first, as the sweep's bins are few and large, instead of one sort of
+    /// every return on (bin, azimuth).
+    #[inline(never)]
+    fn index_beams(&mut self) {
+        self.bin_start.clear();
+        self.bin_start.push(0);
+        for &count in &self.rings {
+            let last = *self.bin_start.last().unwrap_or(&0);
+            self.bin_start.push(last + count);
+        }
+        self.beams.clear();
+        self.beams.resize(self.pts.len(), (0.0, 0.0, 0.0));
+        self.bin_fill.clear();
+        self.bin_fill.extend_from_slice(&self.bin_start);
+        for p in self.pts.iter().map(point_of) {
+            let e = elevation(&p);
+            let slot = &mut self.bin_fill[ring_bin(e)];
+            self.beams[*slot as usize] = (p.y.atan2(p.x) as f32, p.norm() as f32, e as f32);
+            *slot += 1;
+        }
+        for k in 0..RING_BINS {
+            let (from, to) = (self.bin_start[k] as usize, self.bin_start[k + 1] as usize);
+            self.beams[from..to].sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        }
+    }
+}
+
+/// A return as the detector keeps it, in the solver's type (the same values as the
+/// sweep's f32 converted directly).
+pub(super) fn point_of(p: &[f32; 3]) -> Vec3 {
+    Vec3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))
+}
+
+/// Elevation angle of `p` seen from the sensor (rad): what tells its scan line.
+pub(super) fn elevation(p: &Vec3) -> f64 {
+    p.z.atan2(p.x.hypot(p.y))
+}
+
+/// The elevation bin ([`RING_BIN_DEG`]) of elevation `e` (rad).
+fn ring_bin(e: f64) -> usize {
+    (((e.to_degrees() + 90.0) / RING_BIN_DEG) as usize).min(RING_BINS - 1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Returns on `rings` elevations (degrees), `per_ring` each, 5 m ahead.
+    fn rings(elevations: &[f64], per_ring: usize) -> Vec<Point> {
+        let mut points = Vec::new();
+        for &e in elevations {
+            let e = e.to_radians();
+            for k in 0..per_ring {
+                let az = (k as f64 * 0.2 - 10.0).to_radians();
+                let p = Vec3::new(e.cos() * az.cos(), e.cos() * az.sin(), e.sin()) * 5.0;
+                points.push(Point {
+                    x: p.x as f32,
+                    y: p.y as f32,
+                    z: p.z as f32,
+                    ..Point::default()
+                });
+            }
+        }
+        points
+    }
+
+    /// The census counts the lines between two elevations, not a stray return.
+    #[test]
+    fn the_census_counts_scan_lines_between_elevations() {
+        let mut points = rings(&[-2.0, -1.0, 0.0, 1.0, 4.0], 50);
+        points.extend(rings(&[2.5], 1));
+        let mut sweep = Sweep::default();
+        sweep.load(&points, &HoleConfig::default());
+        assert_eq!(sweep.points().len(), points.len());
+        let between = |lo: f64, hi: f64| sweep.lines_between(lo.to_radians(), hi.to_radians());
+        assert_eq!(between(-1.5, 3.0), 3);
+        assert_eq!(between(-3.0, 5.0), 5);
+    }
+
+    /// Returns of a line in front of a plane count within the azimuths asked, those on it
+    /// and beyond do not.
+    #[test]
+    fn returns_in_front_count_the_line_between_two_azimuths() {
+        let mut sweep = Sweep::default();
+        sweep.load(&rings(&[0.0], 101), &HoleConfig::default());
+        // The plane x = 6 m: the returns, 5 m away, lie about 1 m in front of it.
+        let plane = (Vec3::new(6.0, 0.0, 0.0), Vec3::new(1.0, 0.0, 0.0));
+        let (lo, hi) = ((-1.05f64).to_radians(), 1.05f64.to_radians());
+        assert_eq!(sweep.returns_in_front(0.0, (lo, hi), plane, 0.5), 11);
+        assert_eq!(sweep.returns_in_front(0.0, (lo, hi), plane, 1.5), 0);
+        assert_eq!(sweep.returns_in_front(0.5f64.to_radians(), (lo, hi), plane, 0.5), 0);
+    }
+}
