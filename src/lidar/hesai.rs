@@ -294,7 +294,7 @@ impl<T: AsRef<[u8]>> Packet<T> {
         }
         let mode = self.return_mode_byte();
         let mode = mode_of(mode).ok_or(DecodeError::BadReturnMode(mode))?;
-        if mode == ReturnMode::Dual && l.blocks % 2 != 0 {
+        if mode == ReturnMode::Dual && !l.blocks.is_multiple_of(2) {
             return Err(DecodeError::BadReturnMode(self.return_mode_byte()));
         }
         Ok(())

@@ -1021,7 +1021,7 @@ impl NgState {
         let e = self.endian.ok_or(StepError::Malformed("no section header block"))?;
         let block_type = e.u32(head, 0);
         let len = e.u32(head, 4) as usize;
-        if len < 12 || len % 4 != 0 || len > MAX_RECORD {
+        if len < 12 || !len.is_multiple_of(4) || len > MAX_RECORD {
             return Err(StepError::Malformed("bad block length"));
         }
         let block = rest.get(..len).ok_or(StepError::Truncated("block"))?;

@@ -142,7 +142,7 @@ fn parse_frame<'a>(mut words: impl Iterator<Item = &'a str>) -> Option<CanFrame>
     let mut frame = parse_id(words.next()?)?;
     let _timestamp = words.next()?;
     let hex = words.next().unwrap_or("");
-    if hex.len() % 2 != 0 || words.next().is_some() {
+    if !hex.len().is_multiple_of(2) || words.next().is_some() {
         return None;
     }
     for i in (0..hex.len()).step_by(2) {

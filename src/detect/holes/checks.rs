@@ -17,17 +17,15 @@ use crate::geometry::{Se3, Vec3};
 use crate::target::{BoardSpec, MAX_HOLES};
 
 use super::plane::BoardPlane;
-use super::projection::{Frame, Projection};
-use super::scan_lines::{line_end, median_step, scan_lines, LINE_GAP_RAD};
+use super::projection::{Frame, Projection, HOLE_BAND, OUTLINE_CLUTTER};
+use super::scan_lines::{line_end, median_step, scan_lines};
 use super::search::{to_board, Fit};
-use super::sweep::{elevation, Sweep};
+use super::sweep::{elevation, Sweep, LINE_GAP_RAD};
 use super::Refusal;
 
 /// Scan lines that cross each hole, in the room's hole order.
 pub(super) type HoleLines = heapless::Vec<u16, MAX_HOLES>;
 
-/// How far outside a hole's edge a scan line's last return before the hole may lie (m).
-pub(super) const HOLE_BAND: f64 = 0.06;
 /// How far a scan line's gap may miss a hole and still count as crossing it (m): the
 /// pose's own error on a grazing line. A line that misses the hole leaves no gap, so a
 /// generous slack counts no false crossings.
@@ -35,12 +33,10 @@ pub(super) const SLACK: f64 = 0.02;
 /// How far outside the fitted outline a scan line may end (m): the pose's own error and a
 /// beam's footprint over the edge.
 const OUTLINE_TOLERANCE: f64 = 0.03;
-/// Scan-line ends farther outside the outline than this are clutter beside the board (m).
-pub(super) const OUTLINE_CLUTTER: f64 = 0.12;
 /// Largest distance (m) of the next return along a scan line for the line to run on rather
 /// than end ([`runs_on`]): a few of a line's spacings (2–3 cm at 7 m, more on a surface
 /// seen at a slant) plus range noise; a board's edge against what stands behind it is a
-/// jump of more than [`super::projection::BEHIND_M`].
+/// jump of more than [`super::scan_lines::BEHIND_M`].
 const RUN_ON_M: f64 = 0.1;
 /// The least gap along a scan line that cuts returns past a board's side off from the
 /// board ([`board_ends`]): wider than a line's spacing on any board the room file allows

@@ -20,18 +20,19 @@
 use crate::geometry::Vec3;
 use crate::target::BoardSpec;
 
-use super::checks::{HOLE_BAND, OUTLINE_CLUTTER};
-use super::scan_lines::{line_end, LINE_GAP_RAD};
-use super::sweep::{elevation, point_of, Sweep};
+use super::scan_lines::{line_end, BEHIND_M};
+use super::sweep::{elevation, point_of, Sweep, LINE_GAP_RAD};
 use super::HoleConfig;
 
 /// A plane frame: a point on the plane (its origin), the in-plane axes x and y (y as
 /// close to the LiDAR's down as the plane allows) and the normal.
 pub(super) type Frame = (Vec3, Vec3, Vec3, Vec3);
 
-/// How far beyond the plane along its beam a return must lie to be a see-through point
-/// (m): well over the range noise (2 cm σ) and the plane's thickness.
-pub(super) const BEHIND_M: f64 = 0.15;
+/// How far outside a hole's edge a scan line's last return before the hole may lie (m).
+pub(super) const HOLE_BAND: f64 = 0.06;
+/// Scan-line ends farther outside the outline than this are clutter beside the board (m).
+pub(super) const OUTLINE_CLUTTER: f64 = 0.12;
+
 /// How near the examined plane (m) a return must lie to be kept in `aside`.
 const ASIDE_M: f64 = 0.3;
 /// Least part of the board's width the points must span: a board partly hidden behind

@@ -14,12 +14,12 @@ use core::f64::consts::PI;
 use crate::geometry::Vec3;
 use crate::target::BoardSpec;
 
-use super::projection::BEHIND_M;
-use super::sweep::{elevation, Sweep};
+use super::sweep::{elevation, Sweep, LINE_GAP_RAD};
 use super::HoleConfig;
 
-/// Largest elevation step (rad) between returns of one scan line ([`line_end`]).
-pub(super) const LINE_GAP_RAD: f64 = 0.06 * (PI / 180.0);
+/// How far beyond the plane along its beam a return must lie to be a see-through point
+/// (m): well over the range noise (2 cm σ) and the plane's thickness.
+pub(super) const BEHIND_M: f64 = 0.15;
 
 /// Shortest scan-line run kept on a board, as a fraction of its width: a line through a
 /// corner hole of a rolled board leaves through the bottom edge soon after, and one across

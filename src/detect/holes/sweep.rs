@@ -3,11 +3,15 @@
 //! every return indexed by scan line and azimuth, which tells what a stretch of a line
 //! returned ([`Sweep::returns_in_front`]).
 
+use core::f64::consts::PI;
+
 use crate::geometry::Vec3;
 use crate::lidar::Point;
 
-use super::scan_lines::LINE_GAP_RAD;
 use super::HoleConfig;
+
+/// Largest elevation step (rad) between returns of one scan line ([`line_end`]).
+pub(super) const LINE_GAP_RAD: f64 = 0.06 * (PI / 180.0);
 
 /// Elevation bins of the sweep's scan-line census.
 const RING_BIN_DEG: f64 = 0.05;
