@@ -237,8 +237,8 @@ mod tests {
     use super::*;
     use nalgebra::SMatrix;
 
-    /// `r(x) = eˣ − 2`, cost `½ r²`; steps refused (not positive definite) below
-    /// `refuse_below`.
+    /// Residuals `eˣ − 2` and a constant ½ (so the minimum cost is not zero); steps
+    /// refused (not positive definite) below `refuse_below`.
     struct Exp {
         a: SMatrix<f64, 1, 1>,
         g: f64,
@@ -251,7 +251,7 @@ mod tests {
         fn linearize(&mut self, x: &f64) -> Result<f64, SolveError> {
             let (j, r) = (libm::exp(*x), libm::exp(*x) - 2.0);
             (self.a, self.g) = (SMatrix::<f64, 1, 1>::new(j * j), j * r);
-            Ok(0.5 * r * r)
+            self.cost(x)
         }
         fn solve_step(&mut self, lambda: f64) -> Result<(), SolveError> {
             if lambda < self.refuse_below {
@@ -264,7 +264,8 @@ mod tests {
             x + self.delta
         }
         fn cost(&self, x: &f64) -> Result<f64, SolveError> {
-            Ok(0.5 * (libm::exp(*x) - 2.0) * (libm::exp(*x) - 2.0))
+            let r = libm::exp(*x) - 2.0;
+            Ok(0.5 * r * r + 0.125)
         }
     }
 
@@ -274,15 +275,15 @@ mod tests {
 
     #[test]
     fn converges_on_the_cost_and_raises_lambda_past_refused_steps() {
-        let settings = Settings { cost_tolerance: 1e-12, ..Settings::MARQUARDT };
+        let settings = Settings::MARQUARDT;
         let mut x = 0.0;
         let report = minimize(&mut exp(0.0), &mut x, &settings).unwrap();
         assert_eq!(report.termination, Termination::CostConverged);
-        assert!((x - libm::log(2.0)).abs() < 1e-6, "{x}");
+        assert!((x - libm::log(2.0)).abs() < 1e-3, "{x}");
         let mut y = 0.0;
         let refused = minimize(&mut exp(1e-2), &mut y, &settings).unwrap();
         assert_eq!(refused.termination, Termination::CostConverged);
-        assert!((y - libm::log(2.0)).abs() < 1e-6, "{y}");
+        assert!((y - libm::log(2.0)).abs() < 1e-3, "{y}");
     }
 
     #[test]
