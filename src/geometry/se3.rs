@@ -303,3 +303,24 @@ impl Se3 {
         Se3 { rotation: so3_plus(&self.rotation, &dw), translation: self.translation + dt }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn point_jacobian_matches_central_differences_of_the_left_perturbation() {
+        let pose = Se3::from_rvec_t(&Vec3::new(0.3, -1.1, 0.7), &Vec3::new(0.2, -0.4, 2.5));
+        let p = Vec3::new(0.45, -0.35, 0.1);
+        let analytic = point_jacobian(&(pose.rotation * p));
+        let h = 1e-6;
+        for c in 0..6 {
+            let mut d = Vec6::zeros();
+            d[c] = h;
+            let numeric =
+                (pose.perturb_left(&d).act(&p) - pose.perturb_left(&(-d)).act(&p)) / (2.0 * h);
+            let err = (numeric - analytic.column(c)).norm();
+            assert!(err < 1e-8, "column {c}: {numeric} vs {}", analytic.column(c));
+        }
+    }
+}
