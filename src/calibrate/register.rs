@@ -16,7 +16,7 @@
 use nalgebra::{SMatrix, SVector};
 
 use crate::calibrate::detectors::face_points;
-use crate::geometry::se3::{so3_exp, so3_log};
+use crate::geometry::se3::{so3_log, so3_plus};
 use crate::geometry::{Se3, Vec3};
 use crate::lidar::Point;
 use crate::solve::linalg::Cholesky;
@@ -120,9 +120,8 @@ fn step(faces: &[((Vec3, f64), Vec<Vec3>)], extrinsic: &Se3, nominal: &Se3) -> O
     }
     let delta = -Cholesky::new(&h).ok()?.solve(&g);
     // Left-perturbed, as the solver's: R ← exp(δω) R, t ← t + δt.
-    let turn = so3_exp(&Vec3::new(delta[0], delta[1], delta[2]));
     let moved = Se3 {
-        rotation: turn * extrinsic.rotation,
+        rotation: so3_plus(&extrinsic.rotation, &Vec3::new(delta[0], delta[1], delta[2])),
         translation: extrinsic.translation + Vec3::new(delta[3], delta[4], delta[5]),
     };
     delta.iter().all(|x| x.is_finite()).then_some(moved)
@@ -147,6 +146,7 @@ fn face_rms(faces: &[((Vec3, f64), Vec<Vec3>)], extrinsic: &Se3) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::se3::so3_exp;
     use crate::geometry::Mat3;
     use crate::sim::rng::Rng as Noise;
 

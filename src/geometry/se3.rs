@@ -66,6 +66,22 @@ pub fn so3_log(r: &Mat3) -> Vec3 {
     axis * (sign * theta)
 }
 
+/// The rotation manifold's update, the one every solver uses: `R ⊞ δ = exp(δ) R`, a
+/// small rotation vector applied on the left (camera/target side). Its tangent at `δ = 0`
+/// moves a rotated point `R p` by `−[R p]× δ` ([`act_jacobian_local`]).
+pub fn so3_plus(rotation: &Mat3, delta: &Vec3) -> Mat3 {
+    so3_exp(delta) * rotation
+}
+
+/// `∂(R p + t)/∂[δω; δt]` under [`Se3::perturb_left`] at `δ = 0`, given the rotated point
+/// `R p`: `[−[R p]×  I]`.
+pub fn point_jacobian(rotated: &Vec3) -> nalgebra::SMatrix<f64, 3, 6> {
+    let mut j = nalgebra::SMatrix::<f64, 3, 6>::zeros();
+    j.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-skew(rotated)));
+    j.fixed_view_mut::<3, 3>(0, 3).copy_from(&Mat3::identity());
+    j
+}
+
 /// The skew-symmetric matrix `[v]×` with `[v]× u = v × u`.
 pub fn skew(v: &Vec3) -> Mat3 {
     Mat3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
@@ -284,6 +300,27 @@ impl Se3 {
     pub fn perturb_left(&self, delta: &Vec6) -> Se3 {
         let dw = Vec3::new(delta[0], delta[1], delta[2]);
         let dt = Vec3::new(delta[3], delta[4], delta[5]);
-        Se3 { rotation: so3_exp(&dw) * self.rotation, translation: self.translation + dt }
+        Se3 { rotation: so3_plus(&self.rotation, &dw), translation: self.translation + dt }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn point_jacobian_matches_central_differences_of_the_left_perturbation() {
+        let pose = Se3::from_rvec_t(&Vec3::new(0.3, -1.1, 0.7), &Vec3::new(0.2, -0.4, 2.5));
+        let p = Vec3::new(0.45, -0.35, 0.1);
+        let analytic = point_jacobian(&(pose.rotation * p));
+        let h = 1e-6;
+        for c in 0..6 {
+            let mut d = Vec6::zeros();
+            d[c] = h;
+            let numeric =
+                (pose.perturb_left(&d).act(&p) - pose.perturb_left(&(-d)).act(&p)) / (2.0 * h);
+            let err = (numeric - analytic.column(c)).norm();
+            assert!(err < 1e-8, "column {c}: {numeric} vs {}", analytic.column(c));
+        }
     }
 }

@@ -6,9 +6,10 @@
 use nalgebra::{SMatrix, SVector, SymmetricEigen};
 
 use super::linalg::{nearest_rotation, Cholesky};
+use super::minimize::{damp, minimize, Problem, Settings, StepTest};
 use super::problem::{JointParams, JointProblem};
 use super::{Projector, SolveError};
-use crate::geometry::se3::skew;
+use crate::geometry::se3::point_jacobian;
 use crate::geometry::{Mat3, Se3, Vec2, Vec3};
 
 /// Intrinsics from Zhang's closed form, with how well the homographies determined them.
@@ -226,8 +227,9 @@ pub fn board_pose<P: Projector>(
     Ok(pose)
 }
 
-/// Levenberg–Marquardt refinement of a pose (object → camera) on the pixel reprojection
-/// error, with left-perturbation updates. Returns the final RMS pixel error.
+/// Levenberg–Marquardt ([`minimize`], [`POSE_SETTINGS`] with `max_iterations`)
+/// refinement of a pose (object → camera) on the pixel reprojection error, with
+/// left-perturbation updates. Returns the final RMS pixel error.
 pub fn refine_pose<P: Projector>(
     camera: &P,
     object: &[Vec3],
@@ -241,40 +243,73 @@ pub fn refine_pose<P: Projector>(
     if object.len() < 3 {
         return Err(SolveError::TooFewPoints { needed: 3, got: object.len() });
     }
-    let mut cost =
-        pose_cost(camera, object, pixels, pose).ok_or(SolveError::NotProjectable { board: 0 })?;
-    let mut lambda = 1e-4;
-    for _ in 0..max_iterations {
-        let (jtj, jtr) = pose_normal(camera, object, pixels, pose);
-        let mut improved = false;
-        while lambda < 1e10 {
-            let mut a = jtj;
-            for i in 0..6 {
-                a[(i, i)] += lambda * jtj[(i, i)].max(1e-9);
-            }
-            let Ok(ch) = Cholesky::new(&a) else {
-                lambda *= 10.0;
-                continue;
-            };
-            let delta = -ch.solve(&jtr);
-            let trial = perturb(pose, &delta);
-            match pose_cost(camera, object, pixels, &trial) {
-                Some(c) if c < cost => {
-                    let converged = (cost - c) <= 1e-12 * cost || delta.norm() < 1e-12;
-                    *pose = trial;
-                    cost = c;
-                    lambda = (lambda * 0.1).max(1e-12);
-                    improved = !converged;
-                    break;
-                }
-                _ => lambda *= 10.0,
-            }
-        }
-        if !improved {
-            break;
-        }
+    let mut fit = PoseFit {
+        camera,
+        object,
+        pixels,
+        jtj: SMatrix::zeros(),
+        jtr: SVector::zeros(),
+        delta: SVector::zeros(),
+    };
+    let report = minimize(&mut fit, pose, &POSE_SETTINGS.with_max_iterations(max_iterations))?;
+    Ok(libm::sqrt(report.final_cost / object.len() as f64))
+}
+
+/// How a board pose is refined: Marquardt's schedule, but λ kept between 10⁻¹² and below
+/// 10¹⁰ (the cap is the largest double under 10¹⁰), a relative cost decrease of 10⁻¹²
+/// and an accepted step of at most 10⁻¹² (rad, m; [`StepTest::OnAcceptance`] with
+/// `|x| = 0`): six parameters and a few dozen corners make an iteration cheap, and the pose
+/// seeds the joint solve, so it is polished to rounding.
+pub const POSE_SETTINGS: Settings = Settings {
+    max_iterations: 20,
+    cost_tolerance: 1e-12,
+    step_tolerance: Some(1e-6),
+    step_test: StepTest::OnAcceptance,
+    max_lambda: 9_999_999_999.999_998,
+    min_lambda: 1e-12,
+    ..Settings::MARQUARDT
+};
+
+/// One board's pose fit as [`minimize`] drives it: the pixels' `JᵀJ`, `Jᵀr` and the step.
+struct PoseFit<'a, P> {
+    camera: &'a P,
+    object: &'a [Vec3],
+    pixels: &'a [Vec2],
+    jtj: SMatrix<f64, 6, 6>,
+    jtr: SVector<f64, 6>,
+    delta: SVector<f64, 6>,
+}
+
+impl<P: Projector> Problem for PoseFit<'_, P> {
+    type Params = Se3;
+
+    fn linearize(&mut self, pose: &Se3) -> Result<f64, SolveError> {
+        let cost = self.cost(pose)?;
+        (self.jtj, self.jtr) = pose_normal(self.camera, self.object, self.pixels, pose);
+        Ok(cost)
     }
-    Ok(libm::sqrt(cost / object.len() as f64))
+
+    fn solve_step(&mut self, lambda: f64) -> Result<(), SolveError> {
+        let mut a = self.jtj;
+        damp(&mut a, lambda);
+        self.delta = -Cholesky::new(&a)?.solve(&self.jtr);
+        Ok(())
+    }
+
+    fn apply(&self, pose: &Se3) -> Se3 {
+        pose.perturb_left(&self.delta)
+    }
+
+    /// Sum of squared pixel errors.
+    fn cost(&self, pose: &Se3) -> Result<f64, SolveError> {
+        pose_cost(self.camera, self.object, self.pixels, pose)
+            .ok_or(SolveError::NotProjectable { board: 0 })
+    }
+
+    /// `(|δ|, 0)`: the pose's step test is absolute (`|δ| ≤ tol²`).
+    fn step_size(&self, _: &Se3) -> (f64, f64) {
+        (self.delta.norm(), 0.0)
+    }
 }
 
 /// Rigid motion `to ≈ R · from + t` (no scale) from paired 3-D points by Kabsch's SVD
@@ -411,19 +446,6 @@ fn zhang_for<const B: usize>(
         }
     }
     zhang_intrinsics(&hs, width, height)
-}
-
-/// `(R, t) ← (exp(δω) R, t + δt)`: the solver's left perturbation.
-pub(crate) fn perturb(pose: &Se3, delta: &SVector<f64, 6>) -> Se3 {
-    pose.perturb_left(delta)
-}
-
-/// `∂(R p + t)/∂[δω; δt]` for the left perturbation: `[−[R p]×  I]`.
-pub(crate) fn point_jacobian(rotated: &Vec3) -> SMatrix<f64, 3, 6> {
-    let mut j = SMatrix::<f64, 3, 6>::zeros();
-    j.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-skew(rotated)));
-    j.fixed_view_mut::<3, 3>(0, 3).copy_from(&Mat3::identity());
-    j
 }
 
 /// Sum of squared pixel errors; `None` if a point does not project.

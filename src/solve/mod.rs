@@ -4,6 +4,14 @@
 //! complement, and the covariance of the shared parameters; the surveyed room as one
 //! rigid target ([`room`]) and a whole rig of cameras and LiDARs in it ([`rig`]).
 //!
+//! One solver: every problem implements [`minimize::Problem`] and is solved by the one
+//! [`minimize::minimize`] (one damping, one termination rule; each problem states its
+//! [`minimize::Settings`]); the problems with pose blocks share the one Schur system
+//! ([`schur`]). Each module imports only modules before it in `linalg`, `minimize`,
+//! `problem`, `schur`, `lm`, `covariance`, `room`, `rig`, `room_modes` (no import
+//! circle); `init` (closed forms and pose refinement) imports `linalg`, `minimize` and
+//! `problem`, and no module imports it.
+//!
 //! Everything here works on fixed-size `nalgebra` matrices and caller-owned slices;
 //! capacities are const generics (`B`: most board observations in one problem). Memory
 //! does not grow with the number of corners: residuals are streamed from the caller's
@@ -11,8 +19,10 @@
 //!
 //! Parameterisation (shared by the residual Jacobians, the LM update and the covariance):
 //! intrinsics are updated additively; every rigid motion `p ↦ R p + t` (extrinsic and
-//! board poses) by the left perturbation `R ← exp(δω) R`, `t ← t + δt`, so the rotation
-//! covariance is that of a small rotation vector applied on the left (camera/target side).
+//! board poses) by the left perturbation `R ← exp(δω) R`, `t ← t + δt` (the rotation
+//! manifold of [`crate::geometry::se3::so3_plus`] and [`crate::geometry::Se3::perturb_left`],
+//! written once), so the rotation covariance is that of a small rotation vector applied
+//! on the left (camera/target side).
 //!
 //! A run, from detections to uncertainties:
 //!
@@ -58,10 +68,12 @@ pub mod covariance;
 pub mod init;
 pub mod linalg;
 pub mod lm;
+pub mod minimize;
 pub mod problem;
 pub mod rig;
 pub mod room;
 pub mod room_modes;
+pub mod schur;
 
 use core::fmt;
 
@@ -74,7 +86,8 @@ pub use init::{
     board_pose, homography, initialise, kabsch, pose_from_homography, refine_pose,
     zhang_intrinsics, InitReport, IntrinsicsSeed, ZhangIntrinsics,
 };
-pub use lm::{solve, LmOptions, SolveReport, Termination};
+pub use lm::{solve, LmOptions, SolveReport};
+pub use minimize::{minimize, Problem, Settings, StepTest, Termination};
 pub use problem::{
     hole_sigma_px, BoardObservation, JointParams, JointProblem, Loss, Noise, ParamMask, PlanePoints,
 };

@@ -20,10 +20,9 @@
 
 use nalgebra::SMatrix;
 
-use super::init::point_jacobian;
 use super::linalg::Cholesky;
 use super::{Projector, SolveError, EXT_ROTATION, INTRINSICS, SHARED};
-use crate::geometry::se3::skew;
+use crate::geometry::se3::{point_jacobian, skew};
 use crate::geometry::{Mat3, Se3, Vec2, Vec3};
 
 /// What one board observation (one board in one frame) measured. Slices are the
@@ -402,6 +401,46 @@ impl Loss {
     }
 }
 
+/// A factor per residual kind (corners, holes, board planes) for
+/// [`super::lm::NormalEquations::build_weighted`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct KindWeights {
+    pub corner: f64,
+    pub hole: f64,
+    pub plane: f64,
+}
+
+impl KindWeights {
+    /// Every kind as the problem weights it.
+    pub const ALL: Self = KindWeights { corner: 1.0, hole: 1.0, plane: 1.0 };
+    /// Every kind left out (zero for each).
+    pub const NONE: Self = KindWeights { corner: 0.0, hole: 0.0, plane: 0.0 };
+    /// One kind alone (the kind of `kind`; its index is ignored).
+    pub fn only(kind: ResidualKind) -> Self {
+        let mut w = KindWeights { corner: 0.0, hole: 0.0, plane: 0.0 };
+        *w.of_mut(kind) = 1.0;
+        w
+    }
+
+    /// The factor of `kind`.
+    pub fn of(&self, kind: ResidualKind) -> f64 {
+        match kind {
+            ResidualKind::Corner(_) => self.corner,
+            ResidualKind::Hole(_) => self.hole,
+            ResidualKind::Plane(_) => self.plane,
+        }
+    }
+
+    /// The factor of `kind`, to set.
+    pub fn of_mut(&mut self, kind: ResidualKind) -> &mut f64 {
+        match kind {
+            ResidualKind::Corner(_) => &mut self.corner,
+            ResidualKind::Hole(_) => &mut self.hole,
+            ResidualKind::Plane(_) => &mut self.plane,
+        }
+    }
+}
+
 /// Which shared parameters (`[fx fy cx cy d0..d4 | δω δt]`, indices 0..15) stay fixed.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct ParamMask {
@@ -539,7 +578,7 @@ impl<'a, const B: usize> JointProblem<'a, B> {
     /// the problem re-weighted so that each kind's residuals fit as their σ says. The
     /// corners' σ comes from the detector and the LiDAR's from its data sheet; weighted
     /// by wrong ones the kinds pull the estimate in the wrong proportions.
-    pub fn rescale_sigmas(&mut self, variances: super::lm::KindWeights) {
+    pub fn rescale_sigmas(&mut self, variances: KindWeights) {
         let scale = |v: f64| if v.is_finite() && v > 0.0 { libm::sqrt(v) } else { 1.0 };
         let (corner, hole, plane) =
             (scale(variances.corner), scale(variances.hole), scale(variances.plane));

@@ -1,5 +1,5 @@
 //! The rig problem: every camera and every LiDAR of one vehicle in a surveyed room, one
-//! joint least-squares problem (issue 17, item 2).
+//! joint least-squares problem.
 //!
 //! Unknowns (shared, in this order, [`RigLayout`]): per camera its intrinsics and
 //! distortion (9); per camera but the first its mounting first camera → camera (6); per
@@ -35,12 +35,11 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use super::init::perturb;
+use super::covariance::kinds_covariance;
 use super::linalg::max_eigenvalue3;
 use super::problem::{BoardObservation, Loss, Noise, ResidualKind};
-use super::room::{
-    chain, kinds_covariance, prior_residual, schur_lm, BlockPrior, SchurProblem, SchurSystem,
-};
+use super::room::{self, chain, prior_residual, BlockPrior};
+use super::schur::{self, SchurProblem, SchurSystem};
 use super::{Projector, SolveError, EXT_ROTATION, INTRINSICS};
 use crate::geometry::se3::skew;
 use crate::geometry::{Se3, Vec2};
@@ -468,7 +467,8 @@ impl<
     }
 }
 
-/// Levenberg–Marquardt on the rig problem from `params` (updated in place).
+/// Levenberg–Marquardt on the rig problem from `params` (updated in place), with the
+/// room problem's settings ([`room::SETTINGS`]): the same survey priors and measurements.
 pub fn solve_rig<
     K: Projector + Clone,
     const C: usize,
@@ -482,13 +482,14 @@ pub fn solve_rig<
     params: &mut RigParams<K, C, L, F, B>,
     max_iterations: usize,
 ) -> Result<RigReport<C, L>, SolveError> {
-    let report = schur_lm(problem, params, max_iterations)?;
+    let (report, residuals) =
+        schur::solve(problem, params, &room::SETTINGS.with_max_iterations(max_iterations))?;
     let (corner_rms_px, hole_rms_px) = problem.rms_px(params)?;
     Ok(RigReport {
         iterations: report.iterations,
         initial_cost: report.initial_cost,
         final_cost: report.final_cost,
-        residuals: report.residuals,
+        residuals,
         corner_rms_px,
         hole_rms_px,
     })
@@ -546,16 +547,16 @@ pub fn apply_rig_step<
         camera.set_params(&k);
     }
     for (c, pose) in out.first_to_camera.iter_mut().enumerate().skip(1) {
-        *pose = perturb(pose, &six(at.camera_pose(c)));
+        *pose = pose.perturb_left(&six(at.camera_pose(c)));
     }
     for (l, pose) in out.lidar_to_first.iter_mut().enumerate() {
-        *pose = perturb(pose, &six(at.lidar_pose(l)));
+        *pose = pose.perturb_left(&six(at.lidar_pose(l)));
     }
     for (f, pose) in out.room_to_first.iter_mut().enumerate() {
-        *pose = perturb(pose, &six(at.frame_pose(f)));
+        *pose = pose.perturb_left(&six(at.frame_pose(f)));
     }
     for (pose, d) in out.blocks.iter_mut().zip(blocks.iter()) {
-        *pose = perturb(pose, d);
+        *pose = pose.perturb_left(d);
     }
     out
 }

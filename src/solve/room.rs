@@ -16,16 +16,16 @@
 //! with that pose. Its in-plane rotation and shift are seen by nothing but their prior.
 //!
 //! Shared parameters (21): intrinsics (9), extrinsic `[δω δt]` (6), room→camera `[δω δt]`
-//! (6). Blocks are eliminated by the Schur complement as in [`super::lm`]. Fixed size:
+//! (6). Blocks are eliminated by the Schur complement ([`super::schur`]). Fixed size:
 //! nothing here allocates.
 
 use nalgebra::{SMatrix, SVector};
 
-use super::covariance::{shared_inverse, variance_factor, Sandwich, StreamedInverse, SystemBlocks};
-use super::init::perturb;
-use super::linalg::{Cholesky, Touched};
-use super::lm::KindWeights;
+use super::covariance::kinds_covariance;
+use super::minimize::Settings;
 use super::problem::{BoardObservation, JointParams, JointProblem, Loss, ResidualKind};
+use super::schur;
+pub use super::schur::{SchurProblem, SchurSystem};
 use super::{Projector, SolveError, EXT_ROTATION, EXT_TRANSLATION, INTRINSICS, SHARED};
 use crate::geometry::se3::{skew, so3_left_jacobian_inv, so3_log};
 use crate::geometry::{Mat3, Se3, Vec3};
@@ -345,236 +345,8 @@ pub(crate) fn chain(a: &Se3, b: &Se3) -> (SMatrix<f64, 6, 6>, SMatrix<f64, 6, 6>
     (to_a, to_b)
 }
 
-/// The undamped normal equations of a problem of `N` shared parameters and up to `B`
-/// blocks of 6 (poses eliminated by the Schur complement), as [`super::lm::NormalEquations`]
-/// keeps them for the free-board problem: per block `U_k` (6×6), `W_k` (N×6) and `g_k`;
-/// one `V` (N×N) and `g` over the shared parameters. The room and the rig problems
-/// ([`super::rig`]) accumulate into it and share its reduction, step and LM loop.
-#[derive(Clone, Debug)]
-pub struct SchurSystem<const N: usize, const B: usize> {
-    pub blocks: usize,
-    pub u: [SMatrix<f64, 6, 6>; B],
-    pub w: [SMatrix<f64, N, 6>; B],
-    pub g_block: [SVector<f64, 6>; B],
-    pub v: SMatrix<f64, N, N>,
-    pub g_shared: SVector<f64, N>,
-    pub cost: f64,
-    pub residuals: usize,
-}
-
-impl<const N: usize, const B: usize> SchurSystem<N, B> {
-    /// The blocks as [`InverseBlocks`] reads them.
-    pub(crate) fn system(&self) -> SystemBlocks<'_, N> {
-        SystemBlocks { v: &self.v, w: &self.w[..self.blocks], u: &self.u[..self.blocks] }
-    }
-}
-
 /// The room problem's normal equations (21 shared parameters).
 pub type RoomNormalEquations<const B: usize> = SchurSystem<ROOM_SHARED, B>;
-
-/// A least-squares problem over `N` shared parameters and blocks of 6 that
-/// [`schur_lm`] and [`kinds_covariance`] solve (`P`: its parameters).
-pub trait SchurProblem<P, const N: usize, const B: usize> {
-    /// The undamped normal equations at `params`.
-    fn normal_equations(&self, params: &P) -> Result<SchurSystem<N, B>, SolveError>;
-    /// The robust cost `½ Σ ρ` (measurements and priors) at `params`.
-    fn cost(&self, params: &P) -> Result<f64, SolveError>;
-    /// `params ⊕ (shared, blocks)`.
-    fn apply(&self, params: &P, shared: &SVector<f64, N>, blocks: &[SVector<f64, 6>; B]) -> P;
-    /// Shared parameters the data cannot move whatever they are (unused intrinsics,
-    /// absent sensors); [`SchurSystem::mask`] adds those nothing touched.
-    fn structural_mask(&self, params: &P) -> [bool; N];
-}
-
-impl<const N: usize, const B: usize> SchurSystem<N, B> {
-    /// Empty equations for `blocks` blocks, `prior_rows` scalar prior residuals counted.
-    pub fn new(blocks: usize, prior_rows: usize) -> Self {
-        SchurSystem {
-            blocks,
-            u: [SMatrix::zeros(); B],
-            w: [SMatrix::zeros(); B],
-            g_block: [SVector::zeros(); B],
-            v: SMatrix::zeros(),
-            g_shared: SVector::zeros(),
-            cost: 0.0,
-            residuals: prior_rows,
-        }
-    }
-
-    /// Adds one whitened 2-row block `r` of block `k` under `loss` (IRLS weight), standing
-    /// for `rows` scalar measurements.
-    pub fn add(
-        &mut self,
-        k: usize,
-        loss: Loss,
-        r: &SVector<f64, 2>,
-        js: &SMatrix<f64, 2, N>,
-        jb: &SMatrix<f64, 2, 6>,
-        rows: usize,
-    ) {
-        self.add_weighted(k, (loss, 1.0), r, js, jb, rows);
-    }
-
-    /// [`Self::add`] with the block's weight and cost multiplied by `factor`.
-    pub fn add_weighted(
-        &mut self,
-        k: usize,
-        (loss, factor): (Loss, f64),
-        r: &SVector<f64, 2>,
-        js: &SMatrix<f64, 2, N>,
-        jb: &SMatrix<f64, 2, 6>,
-        rows: usize,
-    ) {
-        let (rho, weight) = loss.eval(r.norm_squared());
-        let weight = weight * factor;
-        self.cost += 0.5 * rho * factor;
-        self.residuals += rows;
-        self.u[k].gemm_tr(weight, jb, jb, 1.0);
-        self.g_block[k].gemv_tr(weight, jb, r, 1.0);
-        // Only the columns a measurement touches are accumulated ([`Touched`]): the dense
-        // products were a tenth of a rig's run.
-        let touched = Touched::of(js);
-        if 2 * touched.columns().len() > N {
-            self.w[k].gemm_tr(weight, js, jb, 1.0);
-            self.v.gemm_tr(weight, js, js, 1.0);
-            self.g_shared.gemv_tr(weight, js, r, 1.0);
-            return;
-        }
-        touched.add_products((&mut self.v, &mut self.w[k]), weight, js, jb);
-        for &a in touched.columns() {
-            let (a0, a1) = (weight * js[(0, a)], weight * js[(1, a)]);
-            self.g_shared[a] += a0 * r[0] + a1 * r[1];
-        }
-    }
-
-    /// Adds a whitened prior on block `k` (its rows are counted by [`Self::new`]).
-    pub fn add_prior(&mut self, k: usize, r: &SVector<f64, 6>, j: &SMatrix<f64, 6, 6>) {
-        self.cost += 0.5 * r.norm_squared();
-        self.u[k].gemm_tr(1.0, j, j, 1.0);
-        self.g_block[k].gemv_tr(1.0, j, r, 1.0);
-    }
-
-    /// The equations, or [`SolveError::NonFinite`] if the cost overflowed.
-    pub fn finite(self) -> Result<Self, SolveError> {
-        if self.cost.is_finite() {
-            Ok(self)
-        } else {
-            Err(SolveError::NonFinite)
-        }
-    }
-
-    /// `structural` plus every shared parameter nothing touches.
-    pub fn mask(&self, structural: &[bool; N]) -> [bool; N] {
-        let mut fixed = *structural;
-        for (i, f) in fixed.iter_mut().enumerate() {
-            *f |= self.v[(i, i)] <= 0.0;
-        }
-        fixed
-    }
-
-    /// The reduced system after eliminating the blocks, damped by `λ`; fixed parameters
-    /// get a unit row/column and a zero right-hand side.
-    pub fn reduce(
-        &self,
-        lambda: f64,
-        fixed: &[bool; N],
-    ) -> Result<(SMatrix<f64, N, N>, SVector<f64, N>), SolveError> {
-        let mut s = self.v;
-        damp(&mut s, lambda);
-        let mut rhs = -self.g_shared;
-        for k in 0..self.blocks {
-            let ch = Cholesky::new(&damped(&self.u[k], lambda))?;
-            let y_t = ch.solve_matrix(&self.w[k].transpose());
-            s.gemm(-1.0, &self.w[k], &y_t, 1.0);
-            rhs.gemv_tr(1.0, &y_t, &self.g_block[k], 1.0);
-        }
-        for (i, _) in fixed.iter().enumerate().filter(|(_, f)| **f) {
-            s.row_mut(i).fill(0.0);
-            s.column_mut(i).fill(0.0);
-            s[(i, i)] = 1.0;
-            rhs[i] = 0.0;
-        }
-        Ok((s, rhs))
-    }
-
-    /// The damped step: shared and per block.
-    pub fn step(
-        &self,
-        lambda: f64,
-        fixed: &[bool; N],
-    ) -> Result<(SVector<f64, N>, [SVector<f64, 6>; B]), SolveError> {
-        let (s, rhs) = self.reduce(lambda, fixed)?;
-        let shared = Cholesky::new(&s)?.solve(&rhs);
-        let mut blocks = [SVector::<f64, 6>::zeros(); B];
-        for (k, out) in blocks.iter_mut().enumerate().take(self.blocks) {
-            let ch = Cholesky::new(&damped(&self.u[k], lambda))?;
-            let mut rhs_k = -self.g_block[k];
-            rhs_k.gemv_tr(-1.0, &self.w[k], &shared, 1.0);
-            *out = ch.solve(&rhs_k);
-        }
-        Ok((shared, blocks))
-    }
-}
-
-/// What a [`schur_lm`] run did.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct SchurReport {
-    pub iterations: usize,
-    pub initial_cost: f64,
-    pub final_cost: f64,
-    /// Scalar residuals (measurements and prior rows).
-    pub residuals: usize,
-}
-
-/// Levenberg–Marquardt with the Schur complement from `params` (updated in place): λ
-/// raised tenfold until a step lowers the cost, lowered tenfold after; stops when an
-/// accepted step lowers the cost by less than 10⁻⁹ of it, or no damping helps.
-pub fn schur_lm<P: Clone, const N: usize, const B: usize>(
-    problem: &impl SchurProblem<P, N, B>,
-    params: &mut P,
-    max_iterations: usize,
-) -> Result<SchurReport, SolveError> {
-    const COST_TOLERANCE: f64 = 1e-9;
-    let mut ne = problem.normal_equations(params)?;
-    let fixed = ne.mask(&problem.structural_mask(params));
-    let initial_cost = ne.cost;
-    let mut lambda = 1e-4;
-    let mut iterations = 0;
-    'outer: while iterations < max_iterations {
-        iterations += 1;
-        loop {
-            if lambda > 1e16 {
-                break 'outer;
-            }
-            let (shared, blocks) = match ne.step(lambda, &fixed) {
-                Ok(s) => s,
-                Err(SolveError::NotPositiveDefinite { .. }) => {
-                    lambda *= 10.0;
-                    continue;
-                }
-                Err(e) => return Err(e),
-            };
-            let trial = problem.apply(params, &shared, &blocks);
-            match problem.cost(&trial) {
-                Ok(c) if c < ne.cost => {
-                    let done = ne.cost - c <= COST_TOLERANCE * ne.cost;
-                    *params = trial;
-                    ne = problem.normal_equations(params)?;
-                    lambda = (lambda * 0.1).max(1e-15);
-                    if done {
-                        break 'outer;
-                    }
-                    break;
-                }
-                Ok(_) | Err(SolveError::NotProjectable { .. }) | Err(SolveError::NonFinite) => {
-                    lambda *= 10.0
-                }
-                Err(e) => return Err(e),
-            }
-        }
-    }
-    Ok(SchurReport { iterations, initial_cost, final_cost: ne.cost, residuals: ne.residuals })
-}
 
 impl<C: Projector + Clone, const B: usize> SchurProblem<RoomParams<C, B>, ROOM_SHARED, B>
     for RoomProblem<'_, B>
@@ -606,19 +378,26 @@ impl<C: Projector + Clone, const B: usize> SchurProblem<RoomParams<C, B>, ROOM_S
     }
 }
 
-/// Levenberg–Marquardt on the room problem from `params` (updated in place).
+/// How the room, rig and room-modes problems are solved: Marquardt's schedule; stop when
+/// an accepted step lowers the cost by at most 10⁻⁹ of it, the tolerance the surveyed-room
+/// and rig results were validated with. No gradient or step test: the cost test and the λ
+/// cap end every solve.
+pub const SETTINGS: Settings = Settings { cost_tolerance: 1e-9, ..Settings::MARQUARDT };
+
+/// Levenberg–Marquardt ([`SETTINGS`]) on the room problem from `params` (updated in place).
 pub fn solve_room<C: Projector + Clone, const B: usize>(
     problem: &RoomProblem<'_, B>,
     params: &mut RoomParams<C, B>,
     max_iterations: usize,
 ) -> Result<RoomReport, SolveError> {
-    let report = schur_lm(problem, params, max_iterations)?;
+    let (report, residuals) =
+        schur::solve(problem, params, &SETTINGS.with_max_iterations(max_iterations))?;
     let (corner_rms_px, hole_rms_px) = problem.rms_px(params)?;
     Ok(RoomReport {
         iterations: report.iterations,
         initial_cost: report.initial_cost,
         final_cost: report.final_cost,
-        residuals: report.residuals,
+        residuals,
         corner_rms_px,
         hole_rms_px,
     })
@@ -644,91 +423,6 @@ pub fn room_covariance<C: Projector + Clone, const B: usize>(
     )
 }
 
-/// The covariance of a Schur problem's `N` shared parameters at `params` with each
-/// measurement kind scaled by its own variance factor ([`variance_factor`]) and the priors
-/// as they are: `H⁻¹ (Σₖ fₖ Hₖ + H_p) H⁻¹`, `H` as the solve weighed it.
-/// One pooled factor would let the kind that fits best (corners, weighed by the detector's
-/// σ, fit 0.2× their variance) shrink every other kind's σ, and the kind that fits worst
-/// inflate the corners'.
-///
-/// `measurements` calls its argument once per measurement (block, kind, loss, whitened
-/// residual, ∂r/∂shared, ∂r/∂block, rows), `priors` once per block prior (block, whitened
-/// residual, Jacobian). The measurements are streamed twice (the factors, then the
-/// sandwich) instead of being gathered into a system per kind, and `H⁻¹`'s blocks made one
-/// at a time ([`StreamedInverse`]): a rig's system (84 shared parameters, 32 blocks) is
-/// 0.2 MB, and a calibration runs on a 2 MiB worker thread.
-pub(crate) fn kinds_covariance<P, Q, const N: usize, const B: usize>(
-    problem: &Q,
-    params: &P,
-    measurements: impl Fn(&mut Measurements<'_, N>) -> Result<(), SolveError>,
-    priors: impl FnOnce(&mut dyn FnMut(usize, &SVector<f64, 6>, &SMatrix<f64, 6, 6>)),
-) -> Result<SMatrix<f64, N, N>, SolveError>
-where
-    Q: SchurProblem<P, N, B>,
-{
-    let ne = problem.normal_equations(params)?;
-    let fixed = ne.mask(&problem.structural_mask(params));
-    let pooled = pooled_variance(&ne, &fixed)?;
-    let mut inverse = StreamedInverse::new(reduced_inverse(&ne, &fixed)?, ne.system())?;
-    // Per kind: rows, robust cost ½Σρ and the parameters it determines, tr(H⁻¹Hₖ).
-    let (mut rows, mut cost, mut determined) =
-        (KindWeights::NONE, KindWeights::NONE, KindWeights::NONE);
-    measurements(&mut |k, kind, loss, r, js, jb, n| {
-        let (rho, weight) = loss.eval(r.norm_squared());
-        *rows.of_mut(kind) += n as f64;
-        *cost.of_mut(kind) += 0.5 * rho;
-        *determined.of_mut(kind) += weight * inverse.leverage(k, js, jb);
-    })?;
-    let mut factors = KindWeights::ALL;
-    for kind in [ResidualKind::Corner(0), ResidualKind::Hole(0), ResidualKind::Plane(0)] {
-        *factors.of_mut(kind) =
-            variance_factor(rows.of(kind), cost.of(kind), determined.of(kind), pooled);
-    }
-    let mut sandwich = Sandwich::new();
-    measurements(&mut |k, kind, loss, r, js, jb, _| {
-        let (_, weight) = loss.eval(r.norm_squared());
-        sandwich.add(&mut inverse, k, weight * factors.of(kind), js, jb);
-    })?;
-    priors(&mut |k, _, j| sandwich.add_prior(&mut inverse, k, j));
-    Ok(sandwich.finish(&mut inverse))
-}
-
-/// The residual variance `2·cost/dof` of `ne` (its free parameters those not `fixed` and
-/// 6 per block); an error when the measurements do not outnumber them.
-pub(crate) fn pooled_variance<const N: usize, const B: usize>(
-    ne: &SchurSystem<N, B>,
-    fixed: &[bool; N],
-) -> Result<f64, SolveError> {
-    let free = fixed.iter().filter(|f| !**f).count() + 6 * ne.blocks;
-    if ne.residuals <= free {
-        return Err(SolveError::TooFewPoints { needed: free + 1, got: ne.residuals });
-    }
-    Ok(2.0 * ne.cost / (ne.residuals - free) as f64)
-}
-
-/// `Σ_ss` of `ne` with the `fixed` parameters' rows and columns zero (a function of its
-/// own: the reduced matrix and its factor are off the stack when it returns).
-#[inline(never)]
-pub(crate) fn reduced_inverse<const N: usize, const B: usize>(
-    ne: &SchurSystem<N, B>,
-    fixed: &[bool; N],
-) -> Result<SMatrix<f64, N, N>, SolveError> {
-    let (s, _) = ne.reduce(0.0, fixed)?;
-    shared_inverse(&s, |i| fixed[i])
-}
-
-/// What [`kinds_covariance`] is handed for each measurement: block, kind, loss, whitened
-/// residual, ∂r/∂shared, ∂r/∂block, rows.
-pub(crate) type Measurements<'m, const N: usize> = dyn FnMut(
-        usize,
-        ResidualKind,
-        Loss,
-        &SVector<f64, 2>,
-        &SMatrix<f64, 2, N>,
-        &SMatrix<f64, 2, 6>,
-        usize,
-    ) + 'm;
-
 /// `params ⊕ step`: additive intrinsics, left-perturbed extrinsic, room pose and blocks.
 pub fn apply_room_step<C: Projector + Clone, const B: usize>(
     params: &RoomParams<C, B>,
@@ -742,25 +436,13 @@ pub fn apply_room_step<C: Projector + Clone, const B: usize>(
     }
     out.camera.set_params(&k);
     out.lidar_to_camera =
-        perturb(&params.lidar_to_camera, &shared.fixed_rows::<6>(EXT_ROTATION).into_owned());
+        params.lidar_to_camera.perturb_left(&shared.fixed_rows::<6>(EXT_ROTATION).into_owned());
     out.room_to_camera =
-        perturb(&params.room_to_camera, &shared.fixed_rows::<6>(ROOM_ROTATION).into_owned());
+        params.room_to_camera.perturb_left(&shared.fixed_rows::<6>(ROOM_ROTATION).into_owned());
     for (pose, d) in out.blocks.iter_mut().zip(blocks.iter()) {
-        *pose = perturb(pose, d);
+        *pose = pose.perturb_left(d);
     }
     out
-}
-
-fn damped<const N: usize>(a: &SMatrix<f64, N, N>, lambda: f64) -> SMatrix<f64, N, N> {
-    let mut d = *a;
-    damp(&mut d, lambda);
-    d
-}
-
-fn damp<const N: usize>(a: &mut SMatrix<f64, N, N>, lambda: f64) {
-    for i in 0..N {
-        a[(i, i)] += lambda * a[(i, i)].max(super::lm::DIAG_FLOOR);
-    }
 }
 
 // The shared layout: intrinsics, extrinsic rotation, translation, then the room pose.

@@ -25,12 +25,10 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use super::covariance::variance_factor;
+use super::covariance::{pooled_variance, reduced_inverse, variance_factor};
 use super::problem::ResidualKind;
-use super::room::{
-    apply_room_step, pooled_variance, reduced_inverse, schur_lm, RoomParams, RoomProblem,
-    SchurProblem, SchurSystem, ROOM_SHARED,
-};
+use super::room::{self, apply_room_step, RoomParams, RoomProblem, ROOM_SHARED};
+use super::schur::{self, SchurProblem, SchurSystem};
 use super::{Projector, SolveError};
 
 /// Most modes a room is moved by (the largest of the survey's covariance; the rest,
@@ -185,7 +183,8 @@ pub fn solve_modes<C: Projector + Clone, const B: usize>(
     params: &mut ModesParams<C, B>,
     max_iterations: usize,
 ) -> Result<usize, SolveError> {
-    Ok(schur_lm(problem, params, max_iterations)?.iterations)
+    let settings = room::SETTINGS.with_max_iterations(max_iterations);
+    Ok(schur::solve(problem, params, &settings)?.0.iterations)
 }
 
 /// Covariance of the 21 shared parameters at `params` (normally the solution), every

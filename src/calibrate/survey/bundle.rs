@@ -27,6 +27,7 @@ use nalgebra::{DMatrix, DVector, SMatrix, SVector};
 use crate::geometry::se3::{skew, so3_exp};
 use crate::geometry::{Camera, Mat3, Se3, Vec2, Vec3};
 use crate::solve::linalg::{max_eigenvalue3, Cholesky};
+use crate::solve::minimize::{damp, damped, minimize, Problem, Settings};
 use crate::solve::problem::ResidualKind;
 use crate::solve::{
     BoardObservation, JointParams, JointProblem, Loss, ParamMask, PlanePoints, SolveError,
@@ -451,8 +452,8 @@ impl Workspace {
     /// (`S δg = rhs`).
     fn reduce(&mut self, lambda: f64) -> Result<(), SolveError> {
         self.s.copy_from(&self.hgg);
+        damp(&mut self.s, lambda);
         for i in 0..self.global {
-            self.s[(i, i)] += lambda * self.s[(i, i)].max(DIAG_FLOOR);
             self.rhs[i] = -self.gg[i];
         }
         for v in 0..self.hvv.len() {
@@ -511,61 +512,65 @@ impl Workspace {
     }
 }
 
-/// Runs Levenberg–Marquardt from `state` (updated in place to the best estimate found).
+/// How the bundle is solved: Marquardt's schedule; stop when an accepted step lowers the
+/// cost by at most 10⁻¹⁰ of it, the tolerance the survey results were validated with (a
+/// survey is solved once per room, and its boards are every later calibration's target).
+/// No gradient or step test.
+pub const SETTINGS: Settings = Settings { cost_tolerance: 1e-10, ..Settings::MARQUARDT };
+
+/// Runs Levenberg–Marquardt ([`SETTINGS`] with `max_iterations`) from `state` (updated in
+/// place to the best estimate found).
 pub fn solve(
     problem: &SurveyProblem<'_>,
     state: &mut SurveyState,
     max_iterations: usize,
 ) -> Result<BundleReport, SolveError> {
-    let mut ws = Workspace::new(problem);
-    ws.build(problem, state)?;
-    let initial_cost = ws.cost;
-    let mut visit_steps = vec![SVector::<f64, VISIT>::zeros(); problem.visits.len()];
-    let mut global = DVector::<f64>::zeros(problem.global_len());
-    let mut lambda = 1e-4;
-    let mut iterations = 0;
-    'outer: while iterations < max_iterations {
-        iterations += 1;
-        loop {
-            if lambda > 1e16 {
-                break 'outer;
-            }
-            match ws.step(lambda, &mut visit_steps, &mut global) {
-                Ok(()) => {}
-                Err(SolveError::NotPositiveDefinite { .. }) => {
-                    lambda *= 10.0;
-                    continue;
-                }
-                Err(e) => return Err(e),
-            }
-            let trial = state.updated(&visit_steps, &global);
-            match problem.cost(&trial) {
-                Ok(cost) if cost < ws.cost => {
-                    let converged = ws.cost - cost <= 1e-10 * ws.cost;
-                    *state = trial;
-                    ws.build(problem, state)?;
-                    lambda = (lambda * 0.1).max(1e-15);
-                    if converged {
-                        break 'outer;
-                    }
-                    break;
-                }
-                Ok(_) | Err(SolveError::NotProjectable { .. }) | Err(SolveError::NonFinite) => {
-                    lambda *= 10.0;
-                }
-                Err(e) => return Err(e),
-            }
-        }
-    }
+    let mut bundle = Bundle {
+        problem,
+        ws: Workspace::new(problem),
+        visit_steps: vec![SVector::<f64, VISIT>::zeros(); problem.visits.len()],
+        global: DVector::<f64>::zeros(problem.global_len()),
+    };
+    let report = minimize(&mut bundle, state, &SETTINGS.with_max_iterations(max_iterations))?;
+    let ws = &bundle.ws;
     let parameters =
         ws.masks.iter().map(|m| m.free_count() + 6).sum::<usize>() + problem.global_len();
     Ok(BundleReport {
-        iterations,
-        initial_cost,
-        final_cost: ws.cost,
+        iterations: report.iterations,
+        initial_cost: report.initial_cost,
+        final_cost: report.final_cost,
         residuals: ws.residuals,
         parameters,
     })
+}
+
+/// The bundle as [`minimize`] drives it: the workspace and the step, allocated once.
+struct Bundle<'p, 'a> {
+    problem: &'p SurveyProblem<'a>,
+    ws: Workspace,
+    visit_steps: Vec<SVector<f64, VISIT>>,
+    global: DVector<f64>,
+}
+
+impl Problem for Bundle<'_, '_> {
+    type Params = SurveyState;
+
+    fn linearize(&mut self, state: &SurveyState) -> Result<f64, SolveError> {
+        self.ws.build(self.problem, state)?;
+        Ok(self.ws.cost)
+    }
+
+    fn solve_step(&mut self, lambda: f64) -> Result<(), SolveError> {
+        self.ws.step(lambda, &mut self.visit_steps, &mut self.global)
+    }
+
+    fn apply(&self, state: &SurveyState) -> SurveyState {
+        state.updated(&self.visit_steps, &self.global)
+    }
+
+    fn cost(&self, state: &SurveyState) -> Result<f64, SolveError> {
+        self.problem.cost(state)
+    }
 }
 
 /// σ of every room board (board 0: zero, it is the frame) and plane at `state`, from the
@@ -600,9 +605,6 @@ pub fn sigmas(
         .collect();
     Ok((boards, planes))
 }
-
-/// Smallest diagonal used for Marquardt scaling (the joint solver's).
-const DIAG_FLOOR: f64 = crate::solve::lm::DIAG_FLOOR;
 
 /// A visit's free-board parameters with its board poses composed from the room's.
 fn composed_params(
@@ -699,14 +701,6 @@ fn room_plane_blocks(
             rows: if k == 0 { points.count - half } else { half },
         });
     }
-}
-
-fn damped(a: &SMatrix<f64, VISIT, VISIT>, lambda: f64) -> SMatrix<f64, VISIT, VISIT> {
-    let mut d = *a;
-    for i in 0..VISIT {
-        d[(i, i)] += lambda * d[(i, i)].max(DIAG_FLOOR);
-    }
-    d
 }
 
 /// Lower Cholesky factor of a symmetric positive-definite matrix, in place (the upper

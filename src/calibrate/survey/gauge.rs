@@ -15,7 +15,7 @@
 
 use nalgebra::{DMatrix, DVector, SVector};
 
-use crate::geometry::se3::{so3_exp, so3_log};
+use crate::geometry::se3::{so3_log, so3_plus};
 use crate::geometry::{Mat3, Se3, Vec3};
 use crate::solve::linalg::max_eigenvalue3;
 
@@ -38,7 +38,7 @@ pub fn mean_pose(boards: &[Se3]) -> Se3 {
             .map(|b| so3_log(&(b.rotation * rotation.transpose())))
             .fold(Vec3::zeros(), |a, w| a + w)
             / n;
-        rotation = so3_exp(&step) * rotation;
+        rotation = so3_plus(&rotation, &step);
         if step.norm() < 1e-15 {
             break;
         }
