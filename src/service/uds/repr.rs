@@ -72,7 +72,10 @@ impl RequestRepr {
             },
             sid::READ_DATA_BY_IDENTIFIER => {
                 let ids = &bytes[1..];
-                if ids.is_empty() || !ids.len().is_multiple_of(2) || ids.len() / 2 > MAX_DIDS_PER_REQUEST {
+                if ids.is_empty()
+                    || !ids.len().is_multiple_of(2)
+                    || ids.len() / 2 > MAX_DIDS_PER_REQUEST
+                {
                     return Err(Nrc::IncorrectMessageLengthOrInvalidFormat);
                 }
                 let mut dids = heapless::Vec::new();
