@@ -300,22 +300,6 @@ impl Camera {
         }
     }
 
-    /// Largest angle (radians) between the optical axis and a ray the model accepts.
-    pub fn max_field_angle(&self) -> f64 {
-        match self.model {
-            CameraModel::PinholeRadtan => libm::atan(self.max_valid_radius()),
-            CameraModel::Fisheye => self.max_valid_radius(),
-        }
-    }
-
-    /// Whether a pixel lies on the image (OpenCV convention: pixel centres at integers).
-    pub fn in_image(&self, px: &Vec2) -> bool {
-        px.x >= -0.5
-            && px.y >= -0.5
-            && px.x < f64::from(self.width) - 0.5
-            && px.y < f64::from(self.height) - 0.5
-    }
-
     /// Distorted normalised coordinates → pixel.
     pub fn to_pixel(&self, d: &Vec2) -> Vec2 {
         Vec2::new(d.x * self.fx + self.cx, d.y * self.fy + self.cy)

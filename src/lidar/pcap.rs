@@ -581,10 +581,6 @@ impl<T: AsRef<[u8]>> VlanTag<T> {
         Ok(Self::new_unchecked(buffer))
     }
 
-    pub fn vlan_id(&self) -> u16 {
-        be16(self.buffer.as_ref(), Self::TCI) & 0x0fff
-    }
-
     pub fn ethertype(&self) -> u16 {
         be16(self.buffer.as_ref(), Self::ETHERTYPE)
     }
@@ -655,11 +651,6 @@ impl<T: AsRef<[u8]>> Sll2Header<T> {
 
     pub fn protocol(&self) -> u16 {
         be16(self.buffer.as_ref(), Self::PROTOCOL)
-    }
-
-    pub fn interface_index(&self) -> u32 {
-        let b = &self.buffer.as_ref()[Self::IFINDEX];
-        u32::from_be_bytes([b[0], b[1], b[2], b[3]])
     }
 }
 

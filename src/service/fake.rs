@@ -106,11 +106,6 @@ impl FakeBackend {
             ..Self::calibrated()
         }
     }
-
-    /// True while a run is in progress.
-    pub fn is_running(&self) -> bool {
-        self.running.is_some()
-    }
 }
 
 impl Backend for FakeBackend {

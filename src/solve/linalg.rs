@@ -99,14 +99,6 @@ impl<const N: usize> Cholesky<N> {
     }
 }
 
-/// `x` with `A x = b` for a symmetric positive-definite `A`.
-pub fn spd_solve<const N: usize>(
-    a: &SMatrix<f64, N, N>,
-    b: &SVector<f64, N>,
-) -> Result<SVector<f64, N>, NotPositiveDefinite> {
-    Ok(Cholesky::new(a)?.solve(b))
-}
-
 /// `A⁻¹` for a symmetric positive-definite `A`.
 pub fn spd_inverse<const N: usize>(
     a: &SMatrix<f64, N, N>,

@@ -474,11 +474,6 @@ impl ParamMask {
         self.fix_range(0, INTRINSICS)
     }
 
-    /// Holds the distortion coefficients fixed.
-    pub const fn fix_distortion(self) -> Self {
-        self.fix_range(4, INTRINSICS)
-    }
-
     /// Holds the extrinsic fixed (intrinsics-only runs fix it automatically).
     pub const fn fix_extrinsic(self) -> Self {
         self.fix_range(EXT_ROTATION, SHARED)

@@ -25,8 +25,8 @@
 use nalgebra::{DMatrix, DVector, SMatrix, SVector};
 
 use crate::geometry::se3::{skew, so3_exp};
-use crate::geometry::{Camera, Mat3, Se3, Vec2, Vec3};
-use crate::solve::linalg::{max_eigenvalue3, Cholesky};
+use crate::geometry::{Camera, Se3, Vec2, Vec3};
+use crate::solve::linalg::Cholesky;
 use crate::solve::minimize::{damp, damped, minimize, Problem, Settings};
 use crate::solve::problem::ResidualKind;
 use crate::solve::{
@@ -571,39 +571,6 @@ impl Problem for Bundle<'_, '_> {
     fn cost(&self, state: &SurveyState) -> Result<f64, SolveError> {
         self.problem.cost(state)
     }
-}
-
-/// σ of every room board (board 0: zero, it is the frame) and plane at `state`, from the
-/// inverse of the reduced normal equations.
-pub fn sigmas(
-    problem: &SurveyProblem<'_>,
-    state: &SurveyState,
-) -> Result<(Vec<Sigma>, Vec<Sigma>), SolveError> {
-    let mut ws = Workspace::new(problem);
-    ws.build(problem, state)?;
-    let cov = ws.global_covariance()?;
-    let block3 = |at: usize| Mat3::from_fn(|i, j| cov[(at + i, at + j)]);
-    let boards = (0..problem.boards)
-        .map(|b| match problem.board_column(b) {
-            None => Sigma { m: 0.0, deg: 0.0 },
-            Some(at) => Sigma {
-                m: max_eigenvalue3(&block3(at + 3)).max(0.0).sqrt(),
-                deg: max_eigenvalue3(&block3(at)).max(0.0).sqrt().to_degrees(),
-            },
-        })
-        .collect();
-    let planes = (0..problem.planes)
-        .map(|p| {
-            let at = problem.plane_column(p);
-            let turn = nalgebra::Matrix2::from_fn(|i, j| cov[(at + i, at + j)]);
-            let worst = nalgebra::SymmetricEigen::new(turn).eigenvalues.max();
-            Sigma {
-                m: cov[(at + 2, at + 2)].max(0.0).sqrt(),
-                deg: worst.max(0.0).sqrt().to_degrees(),
-            }
-        })
-        .collect();
-    Ok((boards, planes))
 }
 
 /// A visit's free-board parameters with its board poses composed from the room's.
