@@ -14,6 +14,7 @@
 //! rawmode) and SocketCAN, an async driver that runs the server on a transport, and the
 //! UDS client behind `roomcal query`.
 
+#[cfg(feature = "fake")]
 pub mod fake;
 pub mod isotp;
 pub mod uds;
