@@ -287,3 +287,85 @@ fn number(v: f64) -> String {
         text + ".0"
     }
 }
+
+/// The camera as an OpenCV FileStorage YAML (`cv::FileStorage` / `cv2.FileStorage` read it):
+/// image size, `camera_model`, `camera_matrix`, `distortion_coefficients`. The one writer of
+/// this form: the result file's YAML, the store's `camera.yaml`, a rig's `camera-NAME.yaml`.
+pub fn camera_yaml(camera: &CameraResult) -> String {
+    let c = camera;
+    let model = match c.model {
+        CameraModel::PinholeRadtan => "pinhole-radtan",
+        CameraModel::Fisheye => "fisheye",
+    };
+    let k = [c.fx, 0.0, c.cx, 0.0, c.fy, c.cy, 0.0, 0.0, 1.0];
+    format!(
+        "%YAML:1.0\n---\nimage_width: {}\nimage_height: {}\ncamera_model: \"{model}\"\n{}{}",
+        c.width,
+        c.height,
+        opencv_matrix("camera_matrix", 3, 3, &k, ""),
+        opencv_matrix("distortion_coefficients", 1, c.distortion.len(), &c.distortion, ""),
+    )
+}
+
+/// The camera and its LiDAR → camera transform (as `lidar_to_camera`, 4×4) in one OpenCV
+/// FileStorage YAML: what `roomcal calibrate` writes beside the result file.
+pub fn result_yaml(result: &CalibrationResult) -> String {
+    let mut yaml = camera_yaml(&result.camera);
+    if let Some(e) = &result.lidar_to_camera {
+        yaml +=
+            &opencv_matrix("lidar_to_camera", 4, 4, &homogeneous(&e.rotation, &e.translation), "");
+    }
+    yaml
+}
+
+/// The LiDAR → camera transform as OpenCV FileStorage YAML (the 4×4 matrix, and its rotation
+/// and translation apart); `None` without one.
+pub fn extrinsic_yaml(result: &CalibrationResult) -> Option<String> {
+    let e = result.lidar_to_camera.as_ref()?;
+    let rotation: Vec<f64> = e.rotation.iter().flatten().copied().collect();
+    Some(format!(
+        "%YAML:1.0\n---\n# p_camera = R * p_lidar + t\n{}{}{}",
+        opencv_matrix("lidar_to_camera", 4, 4, &homogeneous(&e.rotation, &e.translation), ""),
+        opencv_matrix("rotation", 3, 3, &rotation, ""),
+        opencv_matrix("translation", 3, 1, &e.translation, ""),
+    ))
+}
+
+/// A rig's extrinsics as OpenCV FileStorage YAML: `first_camera` and a sequence of maps
+/// (`from`, `to`, the 4×4 `transform` with `p_to = R · p_from + t`, worst-axis σ).
+pub fn rig_extrinsics_yaml(rig: &RigResult) -> String {
+    let mut text = format!(
+        "%YAML:1.0\n---\n# every sensor's pose on the vehicle: p_to = R * p_from + t (to = the first camera)\n\
+         first_camera: \"{}\"\nextrinsics:\n",
+        rig.first_camera().unwrap_or("")
+    );
+    for e in &rig.extrinsics {
+        text += &format!(
+            "   -\n      from: \"{}\"\n      to: \"{}\"\n{}      sigma_rotation_deg: {:e}\n      sigma_translation_m: {:e}\n",
+            e.from,
+            e.to,
+            opencv_matrix("transform", 4, 4, &homogeneous(&e.rotation, &e.translation), "      "),
+            e.sigma_rotation_deg,
+            e.sigma_translation_m
+        );
+    }
+    text
+}
+
+/// `[R t; 0 0 0 1]`, row-major.
+fn homogeneous(r: &[[f64; 3]; 3], t: &[f64; 3]) -> [f64; 16] {
+    [
+        r[0][0], r[0][1], r[0][2], t[0], r[1][0], r[1][1], r[1][2], t[1], r[2][0], r[2][1],
+        r[2][2], t[2], 0.0, 0.0, 0.0, 1.0,
+    ]
+}
+
+/// One `!!opencv-matrix` entry (doubles, in `{:e}` so they read back exactly), `indent`ed.
+fn opencv_matrix(name: &str, rows: usize, cols: usize, data: &[f64], indent: &str) -> String {
+    let values: Vec<String> = data.iter().map(|v| format!("{v:e}")).collect();
+    format!(
+        "{indent}{name}: !!opencv-matrix\n{indent}   rows: {rows}\n{indent}   cols: {cols}\n\
+         {indent}   dt: d\n{indent}   data: [ {} ]\n",
+        values.join(", ")
+    )
+}

@@ -262,39 +262,10 @@ impl CalibrationResult {
 
     /// The camera and the extrinsic as an OpenCV FileStorage YAML (`camera_matrix`,
     /// `distortion_coefficients`, and `lidar_to_camera` as a 4×4 matrix when present),
-    /// readable with `cv::FileStorage` / `cv2.FileStorage`.
+    /// readable with `cv::FileStorage` / `cv2.FileStorage` ([`crate::export::result_yaml`]).
     pub fn to_opencv_yaml(&self) -> String {
-        let c = &self.camera;
-        let model = match c.model {
-            CameraModel::PinholeRadtan => "pinhole-radtan",
-            CameraModel::Fisheye => "fisheye",
-        };
-        let mut yaml = format!(
-            "%YAML:1.0\n---\nimage_width: {}\nimage_height: {}\ncamera_model: \"{model}\"\n",
-            c.width, c.height
-        );
-        let k = [c.fx, 0.0, c.cx, 0.0, c.fy, c.cy, 0.0, 0.0, 1.0];
-        yaml += &opencv_matrix("camera_matrix", 3, 3, &k);
-        yaml += &opencv_matrix("distortion_coefficients", 1, c.distortion.len(), &c.distortion);
-        if let Some(e) = &self.lidar_to_camera {
-            let r = &e.rotation;
-            let t = &e.translation;
-            let m = [
-                r[0][0], r[0][1], r[0][2], t[0], r[1][0], r[1][1], r[1][2], t[1], r[2][0], r[2][1],
-                r[2][2], t[2], 0.0, 0.0, 0.0, 1.0,
-            ];
-            yaml += &opencv_matrix("lidar_to_camera", 4, 4, &m);
-        }
-        yaml
+        crate::export::result_yaml(self)
     }
-}
-
-fn opencv_matrix(name: &str, rows: usize, cols: usize, data: &[f64]) -> String {
-    let values: Vec<String> = data.iter().map(|v| format!("{v:e}")).collect();
-    format!(
-        "{name}: !!opencv-matrix\n   rows: {rows}\n   cols: {cols}\n   dt: d\n   data: [ {} ]\n",
-        values.join(", ")
-    )
 }
 
 /// A rig's result file (DESIGN.md "Vehicles with several sensors"): the one-pair fields

@@ -44,10 +44,9 @@ use std::sync::{Arc, Mutex, MutexGuard};
 
 use serde::{Deserialize, Serialize};
 
-use crate::geometry::CameraModel;
-use crate::result::{
-    CalibrationResult, CameraResult, RigExtrinsic, RigResult, SensorResult, Status,
-};
+pub use crate::export::{camera_yaml, extrinsic_yaml, rig_extrinsics_yaml};
+
+use crate::result::{CalibrationResult, RigExtrinsic, RigResult, SensorResult, Status};
 
 /// Generations and rejected runs kept by default.
 pub const DEFAULT_KEEP: usize = 16;
@@ -803,80 +802,6 @@ fn prune(files: &[PathBuf], dir: &Path, keep: usize) -> Result<(), StoreError> {
 
 fn rig_part(rig: &RigResult) -> RigPart {
     RigPart { sensors: rig.sensors.clone(), extrinsics: rig.extrinsics.clone() }
-}
-
-/// OpenCV FileStorage YAML of a camera (as `cv::FileStorage` reads it).
-pub fn camera_yaml(camera: &CameraResult) -> String {
-    let c = camera;
-    let model = match c.model {
-        CameraModel::PinholeRadtan => "pinhole-radtan",
-        CameraModel::Fisheye => "fisheye",
-    };
-    let k = [c.fx, 0.0, c.cx, 0.0, c.fy, c.cy, 0.0, 0.0, 1.0];
-    format!(
-        "%YAML:1.0\n---\nimage_width: {}\nimage_height: {}\nmodel: \"{model}\"\n{}{}",
-        c.width,
-        c.height,
-        yaml_matrix("camera_matrix", 3, 3, &k),
-        yaml_matrix("distortion_coefficients", 1, c.distortion.len(), &c.distortion),
-    )
-}
-
-/// OpenCV FileStorage YAML of the LiDAR → camera transform; `None` without one.
-pub fn extrinsic_yaml(result: &CalibrationResult) -> Option<String> {
-    let e = result.lidar_to_camera.as_ref()?;
-    let r = &e.rotation;
-    let t = &e.translation;
-    let m = [
-        r[0][0], r[0][1], r[0][2], t[0], r[1][0], r[1][1], r[1][2], t[1], r[2][0], r[2][1],
-        r[2][2], t[2], 0.0, 0.0, 0.0, 1.0,
-    ];
-    let rot: Vec<f64> = r.iter().flatten().copied().collect();
-    Some(format!(
-        "%YAML:1.0\n---\n# p_camera = R * p_lidar + t\n{}{}{}",
-        yaml_matrix("lidar_to_camera", 4, 4, &m),
-        yaml_matrix("rotation", 3, 3, &rot),
-        yaml_matrix("translation", 3, 1, t),
-    ))
-}
-
-/// OpenCV FileStorage YAML of a rig's extrinsics: `first_camera` and a sequence of maps
-/// (`from`, `to`, the 4×4 `transform` with `p_to = R · p_from + t`, worst-axis σ).
-pub fn rig_extrinsics_yaml(rig: &RigResult) -> String {
-    let mut text = format!(
-        "%YAML:1.0\n---\n# every sensor's pose on the vehicle: p_to = R * p_from + t (to = the first camera)\n\
-         first_camera: \"{}\"\nextrinsics:\n",
-        rig.first_camera().unwrap_or("")
-    );
-    for e in &rig.extrinsics {
-        let (r, t) = (&e.rotation, &e.translation);
-        let m = [
-            r[0][0], r[0][1], r[0][2], t[0], r[1][0], r[1][1], r[1][2], t[1], r[2][0], r[2][1],
-            r[2][2], t[2], 0.0, 0.0, 0.0, 1.0,
-        ];
-        text += &format!(
-            "   -\n      from: \"{}\"\n      to: \"{}\"\n{}      sigma_rotation_deg: {:e}\n      sigma_translation_m: {:e}\n",
-            e.from,
-            e.to,
-            indented_matrix("transform", 4, 4, &m, "      "),
-            e.sigma_rotation_deg,
-            e.sigma_translation_m
-        );
-    }
-    text
-}
-
-fn yaml_matrix(name: &str, rows: usize, cols: usize, data: &[f64]) -> String {
-    indented_matrix(name, rows, cols, data, "")
-}
-
-fn indented_matrix(name: &str, rows: usize, cols: usize, data: &[f64], indent: &str) -> String {
-    let values: Vec<String> = data.iter().map(|v| format!("{v:e}")).collect();
-    format!(
-        "{indent}{name}: !!opencv-matrix\n{indent}   rows: {rows}\n{indent}   cols: {cols}\n\
-         {indent}   dt: d\n{indent}   data: [ {} ]\n",
-        values.join(", ")
-    )
 }
 
 #[cfg(test)]
