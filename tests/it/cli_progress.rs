@@ -28,7 +28,7 @@ fn two_frame_args(dir: &Path, extra: &[&str]) -> Vec<String> {
 /// Runs the binary with stdout and stderr on a pseudo-terminal (`script -qec`); returns what
 /// the terminal received, or `None` when `script` is missing.
 fn on_a_terminal(args: &[String]) -> Option<String> {
-    let quoted: Vec<String> = std::iter::once(env!("CARGO_BIN_EXE_roomcal").to_string())
+    let quoted: Vec<String> = std::iter::once(crate::common::BIN.to_string())
         .chain(args.iter().cloned())
         .map(|a| format!("'{}'", a.replace('\'', r"'\''")))
         .collect();
@@ -41,7 +41,7 @@ fn on_a_terminal(args: &[String]) -> Option<String> {
 #[test]
 fn a_pipe_gets_no_progress() {
     let dir = Scratch::new("progress-pipe");
-    let out = Command::new(env!("CARGO_BIN_EXE_roomcal"))
+    let out = Command::new(crate::common::BIN)
         .args(two_frame_args(&dir, &[]))
         .output()
         .expect("roomcal runs");

@@ -36,7 +36,7 @@ fn config(dir: &Path, port: u16) -> PathBuf {
 
 fn spawn(config: &Path) -> Daemon {
     Daemon(
-        Command::new(env!("CARGO_BIN_EXE_roomcal"))
+        Command::new(crate::common::BIN)
             .args(["daemon", "--config", config.to_str().unwrap()])
             .stdout(Stdio::null())
             .stderr(Stdio::null())

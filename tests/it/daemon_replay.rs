@@ -34,7 +34,7 @@ fn config_with_lidar(dir: &Path, room: &Path, lidar: &str) -> PathBuf {
 }
 
 fn run_once(config: &Path) -> String {
-    let out = Command::new(env!("CARGO_BIN_EXE_roomcal"))
+    let out = Command::new(crate::common::BIN)
         .args(["daemon", "--config", config.to_str().unwrap(), "--once"])
         .output()
         .unwrap();

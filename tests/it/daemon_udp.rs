@@ -142,7 +142,7 @@ fn run_case(name: &str, imp: Impairments, seed: u64, limit: Duration) -> Outcome
     );
     let config = dir.join("roomcal.toml");
     std::fs::write(&config, text).unwrap();
-    let binary = std::env::var("ROOMCAL_UDP_BIN").unwrap_or(env!("CARGO_BIN_EXE_roomcal").into());
+    let binary = std::env::var("ROOMCAL_UDP_BIN").unwrap_or(crate::common::BIN.into());
     let mut child = Command::new(binary)
         .args(["daemon", "--config", config.to_str().unwrap(), "--once"])
         .stdout(Stdio::piped())

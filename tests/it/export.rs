@@ -260,7 +260,7 @@ fn the_store_writes_the_exports_beside_current_json() {
 fn calibrate_exports_accepted_runs_only() {
     let dir = Scratch::new("export-cli");
     let run = |room: &str, out: &Path, export: &Path| {
-        Command::new(env!("CARGO_BIN_EXE_roomcal"))
+        Command::new(crate::common::BIN)
             .args([
                 "calibrate",
                 "--room",

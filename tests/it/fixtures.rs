@@ -153,7 +153,7 @@ const SURVEYED_SEED: u64 = 13;
 fn calibrate_fixture(name: &str) -> roomcal::result::CalibrationResult {
     let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("fixtures-{name}.json"));
     let dir = fixture(name);
-    let run = std::process::Command::new(env!("CARGO_BIN_EXE_roomcal"))
+    let run = std::process::Command::new(crate::common::BIN)
         .arg("calibrate")
         .arg("--room")
         .arg(dir.join("room.toml"))

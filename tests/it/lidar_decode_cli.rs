@@ -12,7 +12,7 @@ use pcap_data::{data_dir, file_with};
 use crate::common::scratch::Scratch;
 
 fn decode(args: &[&std::ffi::OsStr]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_roomcal")).arg("decode").args(args).output().unwrap()
+    Command::new(crate::common::BIN).arg("decode").args(args).output().unwrap()
 }
 
 #[test]

@@ -449,7 +449,7 @@ fn study(survey: Option<SurveyOf<'_>>, honest_sigma: bool) {
 fn the_binary_calibrates_a_simulated_rig_in_a_surveyed_room() {
     let dir = Scratch::new("rig-surveyed");
     let roomcal = |args: &[&str]| {
-        let out = std::process::Command::new(env!("CARGO_BIN_EXE_roomcal"))
+        let out = std::process::Command::new(crate::common::BIN)
             .args(args)
             .output()
             .expect("roomcal runs");
