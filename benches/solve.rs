@@ -3,7 +3,7 @@
 //! step, and how the per-iteration cost scales with the number of boards. Figures are
 //! printed as medians and ratios; nothing is asserted. Run: `cargo bench --bench solve`.
 
-#[path = "../tests/solve_common/mod.rs"]
+#[path = "../tests/common/solve_common.rs"]
 mod solve_common;
 
 use std::hint::black_box;

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Oracle for tests/solve_opencv.rs: OpenCV's corners and calibration of the real
+"""Oracle for tests/it/solve_opencv.rs: OpenCV's corners and calibration of the real
 `chessboard/opencv-left` views (../shared/data), so roomcal's solver can be compared with
 OpenCV on identical corners. Not needed by `cargo test` (its output is committed).
 

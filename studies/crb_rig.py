@@ -13,7 +13,7 @@ the survey's σ as priors — takes a central-difference Jacobian of the whitene
 and inverts JᵀJ. Measurements: every corner of every complete, unoccluded board a camera
 sees (σ px per axis); with `--lidars`, each LiDAR's 4 hole centres (σ mm per axis) and its
 face points of every board it places (two holes crossed by ≥ 2 scan lines, as
-`tests/rig_calibrate.rs` detects), and its points on the surveyed floor, walls and
+`tests/it/rig_calibrate.rs` detects), and its points on the surveyed floor, walls and
 ceiling (crb_bound's six-point summary; both with the range noise times the beam's
 incidence cosine, the points moved along their beam onto the true surface so the
 residuals vanish at the truth). Without `--lidars` the LiDARs and planes are left out:

@@ -6,7 +6,7 @@ lenses. Each room: `roomcal simulate --visits`, `roomcal survey` from its first
 `--survey-visits` visits, then every later visit (a new vehicle) calibrated from one frame
 in the surveyed room. Renders are `--supersample 1` by default (the renderer integrates the
 checker over each sample's footprint: corners within 0.007 px of the truth noise-free,
-`tests/sim_scene.rs`).
+`tests/it/sim_scene.rs`).
 
 What must hold in every room: the survey is made or refused with a reason, and every
 calibration is either refused or within 3σ of the truth in every quantity (fx, cx, cy one

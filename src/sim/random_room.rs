@@ -1,4 +1,4 @@
-//! Randomised calibration rooms for the LiDAR board detector's study (`tests/holes_study.rs`,
+//! Randomised calibration rooms for the LiDAR board detector's study (`tests/it/holes_study.rs`,
 //! docs/accuracy.md): rooms the detector was not tuned on, drawn from a seed.
 //!
 //! A room draws its board (size 0.8–1.6 m and one of five hole layouts: the design's room

@@ -27,7 +27,7 @@ const MAX_RANGE_M: f64 = 200.0;
 /// The angle table the simulated unit of `model` has: for the Pandar64 a real unit's
 /// elevations ([`calibration::PANDAR64_UNIT_ELEVATION`]; decoding its packets needs the
 /// angle file the capture comes with) with every azimuth offset 0, as the simulator has
-/// always cast it (the fixtures' truth depends on it; tests/sim_capture.rs also casts and
+/// always cast it (the fixtures' truth depends on it; tests/it/sim_capture.rs also casts and
 /// decodes the unit's real offsets); the nominal tables, offsets included, for the VLP-32C,
 /// VLP-16 and Pandar40P.
 pub fn calibration(model: LidarModel) -> Option<Calibration> {

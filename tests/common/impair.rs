@@ -1,4 +1,4 @@
-//! Impairments for packet streams (tests/lidar_sweep.rs, tests/daemon_udp.rs): a seeded
+//! Impairments for packet streams (tests/it/lidar_sweep.rs, tests/it/daemon_udp.rs): a seeded
 //! generator and garbage made from a real Pandar64 packet, as a corrupted sender makes it.
 #![allow(dead_code)]
 

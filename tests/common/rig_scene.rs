@@ -1,7 +1,7 @@
 //! A synthetic rig in a surveyed room for the rig solver's tests (`solve::rig`): two
 //! cameras (60° and 90°), two LiDARs (roof, bumper), two parkings of the vehicle, four
 //! boards and three room planes. Include with
-//! `#[path = "common/rig_scene.rs"] mod rig_scene;`.
+//! `use crate::common::rig_scene;`.
 //!
 //! Observations: every camera sees every board in every frame; the roof LiDAR's holes
 //! and face points of every board are seen in the first camera, the bumper's of boards

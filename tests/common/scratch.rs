@@ -10,7 +10,7 @@
 //! order, so the directory then outlives them. Names carry the test's name so parallel
 //! tests in one process never share a directory.
 //!
-//! Include with `#[path = "common/scratch.rs"] mod scratch;` and `use scratch::Scratch;`.
+//! Use with `use crate::common::scratch::Scratch;`.
 #![allow(dead_code)]
 
 use std::ops::Deref;

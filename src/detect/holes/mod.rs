@@ -42,7 +42,7 @@
 //!
 //! Several sweeps of a static scene may be concatenated into one `detect` call: the
 //! lines interleave, the gaps and the plateau narrow (the simulator's four sweeps take the
-//! mean hole error from 1.73 to 1.40 mm over three scenes, `tests/holes_sim.rs`; they
+//! mean hole error from 1.73 to 1.40 mm over three scenes, `tests/it/holes_sim.rs`; they
 //! repeat the scan pattern, so what the lines' spacing leaves unknown stays).
 //!
 //! **Frames and hole order.** `pose` maps board → LiDAR (board x right, y down, z into the
@@ -109,7 +109,7 @@ pub struct HoleConfig {
     /// be placed (at least 2). Two lines through a hole near a corner can leave the
     /// board's turn weak (the random-room study placed one such board turned by 6° at 2); 3
     /// refuses it, but also many boards that 2 lines place within a few millimetres
-    /// (`tests/holes_sim.rs`, the fixtures' calibrations), so the default is 2.
+    /// (`tests/it/holes_sim.rs`, the fixtures' calibrations), so the default is 2.
     pub min_hole_lines: u16,
 }
 

@@ -6,7 +6,7 @@
 //! too narrow when one row of holes is crossed), plus the plane's offset and tilt errors,
 //! the latter divided by the cosine of the beam's incidence (the points were moved along
 //! their beams). On the simulator the RMS of error / σ is 0.63 (Pandar64-like) and 0.52
-//! (VLP-32C-like) over 12 scenes each (`tests/holes_sim.rs`,
+//! (VLP-32C-like) over 12 scenes each (`tests/it/holes_sim.rs`,
 //! `sigma_calibration_over_many_scenes`), 0.70–0.79 over 600 random rooms per model:
 //! cautious, since many crossings together pin an edge closer than their quantisation
 //! taken as Gaussian, where the plateau alone (1.04) left 4–18 holes per 200 rooms beyond

@@ -28,7 +28,7 @@ pub(super) const BEHIND_M: f64 = 0.15;
 /// them and with them the hole (the random-room study's Pandar40P room 231). A fifth found
 /// 1–8 more boards per model over the study's rooms 1–600 and placed none wrong; 15 % found
 /// a few more still, but placed two structures 7.5 m away in the real OpenCalib frame as
-/// boards (`tests/holes_real.rs`): their shorter runs filled the lines that
+/// boards (`tests/it/holes_real.rs`): their shorter runs filled the lines that
 /// [`super::Refusal::LinesMissing`] counts (28 of 47 lines at a fifth, 15 at a quarter, 36
 /// needed).
 const MIN_RUN: f64 = 0.2;

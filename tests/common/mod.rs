@@ -1,0 +1,43 @@
+//! Helpers shared by the test crates (`tests/it`, `tests/alloc`): each crate declares
+//! `#[path = "../common/mod.rs"] mod common;` once and its modules use `crate::common::…`.
+#![allow(dead_code)]
+
+pub mod band_room;
+pub mod gauss;
+pub mod impair;
+pub mod md5;
+pub mod opencalib;
+pub mod pcap_data;
+pub mod render;
+pub mod results;
+pub mod rig_scene;
+pub mod scratch;
+pub mod solve_common;
+pub mod stack;
+pub mod truth;
+
+use std::ffi::OsStr;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+/// The `roomcal` binary of this build.
+pub const BIN: &str = env!("CARGO_BIN_EXE_roomcal");
+
+/// Runs `roomcal ARGS` to the end; returns its exit code (-1 when a signal ended it), its
+/// stdout and its stderr.
+pub fn roomcal<S: AsRef<OsStr>>(args: &[S]) -> (i32, String, String) {
+    let out = Command::new(BIN).args(args).output().expect("roomcal runs");
+    let text = |bytes: &[u8]| String::from_utf8_lossy(bytes).into_owned();
+    (out.status.code().unwrap_or(-1), text(&out.stdout), text(&out.stderr))
+}
+
+/// A fixture file or folder: `fixtures/PATH` in the repository, e.g.
+/// `fixture("six-boards-pandar64/cloud.pcd")`.
+pub fn fixture(path: &str) -> PathBuf {
+    root().join("fixtures").join(path)
+}
+
+/// The repository (the crate's manifest folder).
+pub fn root() -> &'static Path {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+}

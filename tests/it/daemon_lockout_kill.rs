@@ -1,0 +1,102 @@
+//! The UDS SecurityAccess lockout against a real `roomcal daemon` process: three wrong keys
+//! over socketcand lock it, the process is killed with SIGKILL (no chance to save anything
+//! then), and the restarted daemon still refuses a seed (requiredTimeDelayNotExpired):
+//! the lockout is in STORE/security.json before the third refusal is sent. tests/it/daemon.rs
+//! covers the graceful stop in process.
+#![cfg(all(unix, feature = "daemon"))]
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+use roomcal::service::client::{ClientError, UdsClient};
+use roomcal::service::socketcand::SocketcandClient;
+use roomcal::service::uds::Session;
+
+use crate::common::fixture;
+use crate::common::scratch::Scratch;
+
+/// A replay daemon (manual trigger: no run starts by itself) with its service on `port`.
+fn config(dir: &Path, port: u16) -> PathBuf {
+    std::fs::write(dir.join("secret"), b"kill test secret\n").unwrap();
+    let text = format!(
+        "room = {:?}\nstore = {:?}\n[camera]\nsource = \"replay:{}\"\n[lidar]\nsource = \"replay:{}\"\n\
+         [trigger]\nmode = \"manual\"\nsweeps = 1\n[service]\ntransport = \"socketcand:127.0.0.1:{port}\"\n\
+         secret_file = {:?}\n",
+        fixture("six-boards-pandar64/room.toml"),
+        dir.join("store"),
+        fixture("six-boards-pandar64/image.png").display(),
+        fixture("six-boards-pandar64/cloud.pcd").display(),
+        dir.join("secret"),
+    );
+    let path = dir.join("roomcal.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+fn spawn(config: &Path) -> Daemon {
+    Daemon(
+        Command::new(crate::common::BIN)
+            .args(["daemon", "--config", config.to_str().unwrap()])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    )
+}
+
+/// A spawned daemon, killed when dropped: a failed assert must not leave it running.
+struct Daemon(Child);
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+async fn connect(port: u16) -> UdsClient<SocketcandClient> {
+    for _ in 0..100 {
+        if let Ok(t) = SocketcandClient::connect(&format!("127.0.0.1:{port}"), "can0").await {
+            return UdsClient::with_defaults(t);
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    panic!("no daemon listening on 127.0.0.1:{port} after 10 s");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn lockout_survives_sigkill_of_the_daemon() {
+    let dir = Scratch::new("lockout-kill");
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let config = config(&dir, port);
+
+    let mut daemon = spawn(&config);
+    let mut c = connect(port).await;
+    c.session(Session::Extended).await.unwrap();
+    let mut nrcs = Vec::new();
+    for _ in 0..3 {
+        match c.unlock(b"wrong").await {
+            Err(ClientError::Negative { service: 0x27, nrc }) => nrcs.push(nrc),
+            other => panic!("expected a negative response, got {other:?}"),
+        }
+    }
+    // invalidKey, invalidKey, exceededNumberOfAttempts.
+    assert_eq!(nrcs, [0x35, 0x35, 0x36]);
+    daemon.0.kill().unwrap(); // SIGKILL
+    let status = daemon.0.wait().unwrap();
+    assert_eq!(std::os::unix::process::ExitStatusExt::signal(&status), Some(9));
+    drop(c);
+    let record = std::fs::read_to_string(dir.join("store/security.json")).unwrap();
+    println!("security.json after SIGKILL: {record}");
+
+    let daemon = spawn(&config);
+    let mut c = connect(port).await;
+    c.session(Session::Extended).await.unwrap();
+    let answer = c.request(&[0x27, 0x01]).await;
+    drop(daemon);
+    match answer {
+        Err(ClientError::Negative { service: 0x27, nrc: 0x37 }) => {}
+        other => panic!("expected requiredTimeDelayNotExpired after SIGKILL, got {other:?}"),
+    }
+}
