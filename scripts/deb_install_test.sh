@@ -100,8 +100,8 @@ echo "== the operator provisions and edits; the daemon writes the store"
 echo "# site: this vehicle's edit" >>"$root/etc/roomcal/roomcal.toml"
 edited=$(md5sum <"$root/etc/roomcal/roomcal.toml")
 head -c 32 /dev/urandom | od -An -tx1 | tr -d ' \n' >"$root/etc/roomcal/secret"
-in_root chown root:roomcal /etc/roomcal/secret
-chmod 0640 "$root/etc/roomcal/secret"
+in_root chown roomcal:roomcal /etc/roomcal/secret
+chmod 0600 "$root/etc/roomcal/secret"
 secret=$(md5sum <"$root/etc/roomcal/secret")
 # The packaged daemon, as the service user, on the repository's fixture replayed (no camera,
 # LiDAR or CAN in a chroot): one run must land in the store the package made.

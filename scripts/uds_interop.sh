@@ -45,6 +45,7 @@ trap 'exit 130' INT TERM
 
 # A throwaway per-vehicle secret, a fresh store and a free port.
 head -c 32 /dev/urandom | od -An -tx1 | tr -d ' \n' > "$tmp/secret"
+chmod 600 "$tmp/secret"  # the daemon refuses a secret others can read
 "$venv/bin/python" scripts/uds_interop.py --seed-store "$tmp/store"
 port=$("$venv/bin/python" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 sed -e "s#\.\./#$repo/#g" \

@@ -224,7 +224,7 @@ pub(crate) async fn service_task(
     backend: DaemonBackend,
     mut stop: watch::Receiver<bool>,
 ) {
-    let secret = match crate::service::client::read_secret(&cfg.secret_file) {
+    let secret = match crate::service::client::read_vehicle_secret(&cfg.secret_file) {
         Ok(s) => s,
         Err(e) => {
             tracing::error!("service disabled: {e}");

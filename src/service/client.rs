@@ -36,6 +36,8 @@ pub enum ClientError {
     Secret { path: PathBuf, source: std::io::Error },
     #[error("secret file {0} is empty")]
     EmptySecret(PathBuf),
+    #[error("secret file {path}: {problem}; the service stays off until it is fixed")]
+    ExposedSecret { path: PathBuf, problem: String },
     #[error("`{0}` needs --secret-file")]
     NeedsSecret(&'static str),
     #[error(
@@ -405,6 +407,34 @@ pub fn read_secret(path: &Path) -> Result<Vec<u8>, ClientError> {
     Ok(secret)
 }
 
+/// The vehicle secret as the daemon may use it, refused unless only the daemon can read it:
+/// the file must belong to this process's user or to root and grant nothing to group or
+/// others (mode 0600 or 0400), as ssh demands of a private key. Anyone who can read the
+/// secret can unlock every routine of every vehicle that shares it.
+pub fn read_vehicle_secret(path: &Path) -> Result<Vec<u8>, ClientError> {
+    use std::os::unix::fs::{MetadataExt, PermissionsExt};
+    let meta = std::fs::metadata(path)
+        .map_err(|source| ClientError::Secret { path: path.to_path_buf(), source })?;
+    let exposed =
+        |problem: String| ClientError::ExposedSecret { path: path.to_path_buf(), problem };
+    let mode = meta.permissions().mode() & 0o777;
+    if mode & 0o077 != 0 {
+        return Err(exposed(format!(
+            "mode {mode:04o} lets group or others read it (chmod 600 {})",
+            path.display()
+        )));
+    }
+    // /proc/self belongs to the process's effective user (std has no geteuid).
+    let me = std::fs::metadata("/proc/self").map(|m| m.uid()).ok();
+    let owner = meta.uid();
+    if let Some(me) = me.filter(|&me| owner != 0 && owner != me) {
+        return Err(exposed(format!(
+            "it belongs to uid {owner}, not to this process's user (uid {me}) or root"
+        )));
+    }
+    read_secret(path)
+}
+
 /// Runs one query and returns the human-readable answer.
 pub async fn query(opts: &QueryOptions, cmd: QueryCommand) -> Result<String, ClientError> {
     // Read the secret before touching the bus: a missing file is the likelier mistake.
@@ -490,4 +520,28 @@ pub fn query_blocking(opts: &QueryOptions, cmd: QueryCommand) -> Result<String, 
         .build()
         .map_err(ClientError::Runtime)?;
     rt.block_on(query(opts, cmd))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_secret_others_can_read_is_refused_and_one_only_its_owner_reads_is_used() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = std::env::temp_dir().join(format!("roomcal-secret-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("secret");
+        std::fs::write(&path, b"vehicle secret\n").unwrap();
+        for mode in [0o644, 0o640, 0o604, 0o660] {
+            std::fs::set_permissions(&path, std::fs::Permissions::from_mode(mode)).unwrap();
+            let e = read_vehicle_secret(&path).unwrap_err().to_string();
+            assert!(e.contains(&format!("mode {mode:04o}")) && e.contains("chmod 600"), "{e}");
+        }
+        for mode in [0o600, 0o400] {
+            std::fs::set_permissions(&path, std::fs::Permissions::from_mode(mode)).unwrap();
+            assert_eq!(read_vehicle_secret(&path).unwrap(), b"vehicle secret");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }
