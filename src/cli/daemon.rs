@@ -77,7 +77,7 @@ async fn stop_signal() {
 /// each thread that allocates may get an arena of its own. A fixed 256 KiB threshold hands
 /// every large buffer back to the kernel when it is freed, and two arenas bound the
 /// threads' slack. The rig daemon's peak RSS (two 1920×1200 cameras, two LiDARs): 96–104 MB
-/// without, 81–83 MB with (README, "Speed and memory").
+/// without, 81–83 MB with (docs/design-notes.md, "Daemon and memory").
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
 #[allow(unsafe_code)]
 fn bound_allocator_slack() {

@@ -5,7 +5,7 @@
 //! plane by its own σ ([`super::room`]'s priors) cannot know that, and pays for it: over
 //! ten new vehicles in a 16-visit survey the Cramér–Rao analysis puts one frame's
 //! translation at 2.4 mm RMS with per-block priors against 1.8 mm with the joint
-//! covariance, the rotation at 0.029° against 0.020° (`scripts/crb_bound.py
+//! covariance, the rotation at 0.029° against 0.020° (`studies/crb_bound.py
 //! --survey-visits`, `per_block_prior_errors`).
 //!
 //! The joint prior couples every block, which the Schur complement over blocks cannot

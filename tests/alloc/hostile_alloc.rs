@@ -1,4 +1,4 @@
-//! Allocations sized from hostile input are bounded by the stated limits (README "Limits"),
+//! Allocations sized from hostile input are bounded by the stated limits (docs/limits.md),
 //! even where validation is bypassed: the hole mask of an absurd board, an image whose
 //! header claims 20000² pixels, PCD headers claiming more points than their bytes hold.
 //!

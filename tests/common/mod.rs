@@ -41,3 +41,11 @@ pub fn fixture(path: &str) -> PathBuf {
 pub fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
 }
+
+/// Writes a vehicle secret as a vehicle holds it: readable by its owner only (mode 0600; the
+/// daemon refuses a secret group or others can read).
+pub fn write_secret(path: &Path, secret: &[u8]) {
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::write(path, secret).unwrap();
+    std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o600)).unwrap();
+}

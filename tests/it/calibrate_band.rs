@@ -2,7 +2,7 @@
 //! joint solve with the board planes → gate) on the room laid out for the LiDAR's dense
 //! band: four of six boards placed by the Pandar64. The estimate must sit within its own
 //! uncertainty of the truth, and the plane term must shrink the uncertainty of the focal
-//! length and of the translation (scripts/calibration_table.py measures the same over
+//! length and of the translation (studies/calibration_table.py measures the same over
 //! more scenes and modes).
 
 use crate::common::band_room;

@@ -1,4 +1,4 @@
-//! Issue 14's room end to end through the calibration: the room someone else built (seven
+//! The detector study's fixed room end to end through the calibration: the room someone else built (seven
 //! 1.4 × 1.1 m boards, tilted up to 30° and 20°, 4.4–4.6 m away, walls, floor and ceiling;
 //! `sim::random_room::issue_room`) seen by a Pandar64 and a camera. Before the detector's
 //! work one of its boards was placed with its holes turned in its plane (one 27 cm out),
@@ -48,7 +48,7 @@ fn true_camera() -> Camera {
     }
 }
 
-/// The design's room file with issue 14's board, the camera above (nominal: no
+/// The design's room file with the 1.4 × 1.1 m board, the camera above (nominal: no
 /// distortion, the focal length 2 % off) and the LiDAR at its nominal mounting.
 fn room_of(issue: &RandomRoom) -> Room {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/room.toml");

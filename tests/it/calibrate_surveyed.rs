@@ -626,7 +626,7 @@ fn the_gate_rejects_a_parking_outside_the_box() {
     assert!(reason.contains("from the nominal spot"), "{reason}");
 }
 
-/// Issue 14 item 4, the free-board model: one LiDAR board placed wrong (its holes turned
+/// The free-board model: one LiDAR board placed wrong (its holes turned
 /// 20° in the board's plane about their centre, ~20 cm at the holes) is named, left out,
 /// and the run solved again from the others.
 #[test]

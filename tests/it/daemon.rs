@@ -340,7 +340,7 @@ async fn service_listens_on_socketcand_and_runs_a_calibration() {
          secret_file = \"secret\"\n"
     );
     let (dir, cfg) = scene("uds", &service);
-    std::fs::write(dir.join("secret"), b"bench secret\n").unwrap();
+    crate::common::write_secret(&dir.join("secret"), b"bench secret\n");
     let store = Store::open(dir.join("store"), 4).unwrap();
     store.commit(&result(800.0, Status::Accepted), 1_700_000_000).unwrap();
     let (cal, _, runs) = fake(6, Status::Accepted);
@@ -489,7 +489,7 @@ async fn security_lockout_survives_a_restart() {
          secret_file = \"secret\"\n"
     );
     let (dir, cfg) = scene("lockout", &service);
-    std::fs::write(dir.join("secret"), b"bench secret\n").unwrap();
+    crate::common::write_secret(&dir.join("secret"), b"bench secret\n");
     async fn connect(port: u16) -> UdsClient<SocketcandClient> {
         for _ in 0..50 {
             if let Ok(t) = SocketcandClient::connect(&format!("127.0.0.1:{port}"), "can0").await {

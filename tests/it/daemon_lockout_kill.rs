@@ -18,7 +18,7 @@ use crate::common::scratch::Scratch;
 
 /// A replay daemon (manual trigger: no run starts by itself) with its service on `port`.
 fn config(dir: &Path, port: u16) -> PathBuf {
-    std::fs::write(dir.join("secret"), b"kill test secret\n").unwrap();
+    crate::common::write_secret(&dir.join("secret"), b"kill test secret\n");
     let text = format!(
         "room = {:?}\nstore = {:?}\n[camera]\nsource = \"replay:{}\"\n[lidar]\nsource = \"replay:{}\"\n\
          [trigger]\nmode = \"manual\"\nsweeps = 1\n[service]\ntransport = \"socketcand:127.0.0.1:{port}\"\n\
@@ -99,4 +99,76 @@ async fn lockout_survives_sigkill_of_the_daemon() {
         Err(ClientError::Negative { service: 0x27, nrc: 0x37 }) => {}
         other => panic!("expected requiredTimeDelayNotExpired after SIGKILL, got {other:?}"),
     }
+}
+
+/// The config of [`config`] with the service moved from `port` to `other`: a second daemon
+/// on the same store.
+fn second_config(dir: &Path, config: &Path, port: u16, other: u16) -> PathBuf {
+    let text = std::fs::read_to_string(config).unwrap();
+    let text = text.replace(&format!("127.0.0.1:{port}\""), &format!("127.0.0.1:{other}\""));
+    let path = dir.join("roomcal-2.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_second_daemon_on_one_store_is_refused_naming_the_first() {
+    let dir = Scratch::new("store-lock");
+    let port = free_port();
+    let config = config(&dir, port);
+    let first = spawn(&config);
+    // Serving means the first holds the store's lock (taken before any task starts).
+    drop(connect(port).await);
+    let second = second_config(&dir, &config, port, free_port());
+    let out = Command::new(crate::common::BIN)
+        .args(["daemon", "--once", "--config", second.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "the second daemon ran: {stderr}");
+    let pid = format!("pid {}", first.0.id());
+    assert!(stderr.contains(&pid) && stderr.contains("one process at a time"), "{stderr}");
+    drop(first);
+}
+
+#[test]
+fn a_secret_others_can_read_leaves_the_service_off_and_says_why() {
+    use std::io::{BufRead, BufReader};
+    use std::os::unix::fs::PermissionsExt;
+    let dir = Scratch::new("secret-mode");
+    let port = free_port();
+    let config = config(&dir, port);
+    std::fs::set_permissions(dir.join("secret"), std::fs::Permissions::from_mode(0o644)).unwrap();
+    let mut daemon = Daemon(
+        Command::new(crate::common::BIN)
+            .args(["daemon", "--config", config.to_str().unwrap()])
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let (lines, got) = std::sync::mpsc::channel();
+    let stderr = daemon.0.stderr.take().unwrap();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            let _ = lines.send(line);
+        }
+    });
+    let deadline = std::time::Instant::now() + Duration::from_secs(20);
+    let said = loop {
+        let left = deadline.saturating_duration_since(std::time::Instant::now());
+        match got.recv_timeout(left) {
+            Ok(line) if line.contains("service disabled") => break line,
+            Ok(_) => {}
+            Err(_) => panic!("no `service disabled` line within 20 s"),
+        }
+    };
+    assert!(said.contains("mode 0644") && said.contains("chmod 600"), "{said}");
+    assert!(std::net::TcpStream::connect(("127.0.0.1", port)).is_err(), "the service listens");
+    drop(daemon);
 }

@@ -84,7 +84,7 @@ fn send(to: std::net::SocketAddr, imp: Impairments, seed: u64, stop: Arc<AtomicB
             }
             k += 1;
             // The sensor's pace, in bursts of 30 packets (10 ms).
-            if k % 30 == 0 {
+            if k.is_multiple_of(30) {
                 let due = start + period * k;
                 if let Some(wait) = due.checked_duration_since(Instant::now()) {
                     std::thread::sleep(wait);

@@ -1,5 +1,5 @@
 //! Boards where the room expects them (`HoleDetector::detect_expected`, the surveyed
-//! room's LiDAR side): over randomised rooms of issue 14's study, every board is expected
+//! room's LiDAR side): over randomised rooms of the detector study, every board is expected
 //! at its true pose moved by a LiDAR mounting error (the whole sensor frame turned and
 //! shifted, as a nominal mounting is off), and what the expectation places is compared with
 //! the truth and with the global detector on the same sweep.
@@ -60,7 +60,7 @@ fn tally(model: LidarModel, rooms: u64, (deg, m): (f64, f64), spin_deg: f64) -> 
         detector.detect(&room.cloud, &mut global);
         let error = mounting_error(seed, deg, m);
         let spin = |i: usize| {
-            let turn = if i % 2 == 0 { spin_deg } else { -spin_deg };
+            let turn = if i.is_multiple_of(2) { spin_deg } else { -spin_deg };
             Se3::from_rvec_t(&Vec3::new(0.0, 0.0, turn.to_radians()), &Vec3::zeros())
         };
         let expected: Vec<Se3> = (room.boards.iter().enumerate())

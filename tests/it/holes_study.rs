@@ -1,4 +1,4 @@
-//! The LiDAR board detector over randomised rooms it was not tuned on (issue 14): board
+//! The LiDAR board detector over randomised rooms it was not tuned on (figures: docs/accuracy.md): board
 //! sizes, hole layouts, tilts, rolls, depths, mounting heights, clutter and three LiDAR
 //! models from `roomcal::sim::random_room`. Per model it prints placeable boards found,
 //! false placements, hole error mean / worst and the refusal reasons; the issue's targets
@@ -11,7 +11,7 @@
 //! on the full study (200 rooms per model, about 80 s of CPU in release): met on rooms
 //! 1–200 and on rooms 401–600 (`HOLES_STUDY_FIRST=401`); on rooms 201–400
 //! (`HOLES_STUDY_FIRST=201`) by Pandar64 and VLP-32C, while Pandar40P finds 97.9 % (617 of
-//! 630, one board short; see README's detector study). `HOLES_STUDY_MODEL=VLP-32C` runs one
+//! 630, one board short; see docs/accuracy.md). `HOLES_STUDY_MODEL=VLP-32C` runs one
 //! model only (the full study in three processes), `HOLES_STUDY_MIN_LINES=3` measures that guard
 //! ([`HoleConfig::min_hole_lines`]). A placement is false when a hole lies more than
 //! [`FALSE_HOLE_M`] from its true centre (a wrong hole order included) or the placed board
@@ -262,7 +262,7 @@ fn assert_targets(figures: &[(&str, Figures)]) {
 }
 
 /// The reduced study as a regression guard, at what the detector reaches today. Measured
-/// on the full study (200 rooms per model, 2026-12-04): found 98.9 % / 98.3 % / 99.3 %
+/// on the full study (200 rooms per model): found 98.9 % / 98.3 % / 99.3 %
 /// (Pandar64, Pandar40P, VLP-32C) on rooms 1–200; 98.4 / 97.9 / 99.3 % on rooms 201–400
 /// (`HOLES_STUDY_FIRST=201`); 99.1 / 98.9 / 99.0 % on rooms 401–600; no false placement in
 /// any. The issue's targets are the ignored tests.
@@ -278,7 +278,7 @@ fn reduced_study_figures() {
 }
 
 #[test]
-#[ignore = "issue 14's targets on 20 rooms per model (README's detector study)"]
+#[ignore = "the detector's targets on 20 rooms per model (docs/accuracy.md)"]
 fn reduced_study_meets_the_targets() {
     assert_targets(&study(20));
 }
@@ -289,7 +289,7 @@ fn full_study_meets_the_targets() {
     assert_targets(&study(200));
 }
 
-/// Issue 14's room: every placeable board placed, none wrong (before this change: one of
+/// The study's fixed room: every placeable board placed, none wrong (before this change: one of
 /// three placed, two refused as `NoHolePattern`, the coarse search confined to a window
 /// that the coplanar edge of the neighbouring board pushed off the truth).
 #[test]

@@ -1,4 +1,4 @@
-//! Hostile input to the command line (issue 15, the input half): every case a new user
+//! Hostile input to the command line (the input limits, docs/limits.md): every case a new user
 //! found is run over the binary and must end with exit code 2 and a message naming the
 //! file, the key or field, and the problem — never a panic (101), an abort (134), a run to
 //! the quality gate (3) or a silent success (0).

@@ -349,7 +349,7 @@ impl Tally {
 /// cx, cy ≤ 1.5 px); the extrinsics' (camera→camera ≤ 0.03° / 3 mm, LiDAR→camera
 /// ≤ 0.05° / 4 mm) are printed met or missed — one frame in this survey does not hold them
 /// all, and its σ say so. No extrinsic's RMS error may be more than 10 % above the
-/// composition's (the pair runs, which since 2026-12-05 leave the surveyed planes' points to
+/// composition's (the pair runs, which leave the surveyed planes' points to
 /// the joint solve: their LiDAR errors went from within a few per cent of the joint's to
 /// 9–19 mm, top and bumper→front). Printed with `-- --nocapture`.
 #[test]

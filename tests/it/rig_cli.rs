@@ -159,7 +159,7 @@ fn a_simulated_rig_is_detected_and_calibrated_by_name() {
     let result: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
     // One frame with free boards: the gate decides, naming every sensor that fails (the
-    // joint solve of 2026-12-05 accepts it: wide→front 2.2 mm, σ 5.1; the composition
+    // joint solve accepts it: wide→front 2.2 mm, σ 5.1; the composition
     // alone was rejected on σ, wide→front 341 mm off); the result is checked against the
     // truth either way.
     match result["status"].as_str() {

@@ -74,7 +74,7 @@ fn published_calibration_draws_the_road_scene() {
     let coloured = drawn.pixels().filter(|p| p.0.iter().max() != p.0.iter().min()).count();
     println!("{coloured} coloured pixels of {}", drawn.width() * drawn.height());
     assert!(coloured > 50_000, "only {coloured} pixels carry LiDAR points");
-    // Looked at (2026-11-22): poles, tree trunks and both cars carry their points.
+    // Looked at: poles, tree trunks and both cars carry their points.
     let out = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/target/road-overlay.png"));
     drawn.save(out).unwrap();
     println!("overlay written to {}", out.display());

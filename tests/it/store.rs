@@ -1,6 +1,6 @@
 //! Store: commit, history bound, rejected runs, corruption fallback, rollback, a
 //! power-loss test (a child process writing generations, killed with SIGKILL at random
-//! instants), and the hostile cases of issue 15: temp files left by kills and full disks,
+//! instants), and the hostile cases (docs/daemon.md "The store"): temp files left by kills and full disks,
 //! generations reused or skipped, invalid records in force, restores logged before failing.
 
 use std::io::BufRead;

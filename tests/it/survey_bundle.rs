@@ -580,7 +580,7 @@ fn a_survey_of_8_simulated_visits_recovers_every_board_and_plane_within_3_sigma(
     println!("worst board: {:.3} mm, {:.4}°", worst.0 * 1e3, worst.1);
 }
 
-/// Issue 13 asks the survey for "every board face the LiDAR hits", not only the faces of
+/// The survey takes "every board face the LiDAR hits", not only the faces of
 /// the boards whose holes it placed. A visit whose LiDAR placed two boards by their holes
 /// (its other placements removed here) still gives every other calibrated board's face,
 /// cut where the camera and the free-board start's extrinsic put it; each such face lies on

@@ -1,4 +1,4 @@
-//! Where a rendered survey's error comes from (issue 13, the survey's known gap): the
+//! Where a rendered survey's error comes from (docs/design-notes.md "The simulator" and "Surveys"): the
 //! detected corners of rendered visits against the simulator's true corners (per board:
 //! mean, RMS, and how far a board's pose fitted to them turns against the same fit to the
 //! true corners), then the same survey twice — on the detected corners, and on the true

@@ -1,15 +1,14 @@
 //! Surveys and surveyed calibrations in rooms built by others, end to end through the
 //! command line (`simulate --visits`, `survey`, `calibrate`): another board (1.4 × 1.1 m,
-//! 0.1 m squares, holes of 0.1 m at (±0.55, ±0.38): issue 14's) with a VLP-32C; the design's
+//! 0.1 m squares, holes of 0.1 m at (±0.55, ±0.38): the detector study's) with a VLP-32C; the design's
 //! board with a VLP-16 seen through a fisheye. In each, a new vehicle's one frame is
 //! calibrated in the surveyed room, and whatever it reports must hold: accepted within 3σ
 //! of the truth (fx, cx, cy on their axis; rotation and translation norms against √3 × the
 //! worst-axis σ), or refused with a reason. The VLP-16's sixteen lines place no board by its
 //! holes there (too few scan-line gaps of a hole's width): the survey places each visit's
-//! LiDAR by the boards' faces and must hold the room's planes (seed 19: 6; none before
-//! session 24), and the new vehicle, placed by the surveyed faces and planes, must be
+//! LiDAR by the boards' faces and must hold the room's planes (seed 19: 6), and the new vehicle, placed by the surveyed faces and planes, must be
 //! accepted (seed 19: rotation 0.10°, translation 12 mm, within 3σ; 0.39° and 16 mm with a
-//! survey without planes). `scripts/surveyed_rooms.py` runs more rooms, with more vehicles
+//! survey without planes). `studies/surveyed_rooms.py` runs more rooms, with more vehicles
 //! each.
 
 use crate::common::BIN;

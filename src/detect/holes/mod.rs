@@ -377,8 +377,8 @@ impl HoleDetector {
     /// Frees the buffers sized by the last sweep (its points, beam index, voxels and
     /// regions: tens of MB for a rig's accumulated sweeps) until the next detection, which
     /// grows them again. The daemon calls it once a run's clouds are detected, so they do
-    /// not sit idle under its solve, its report and between visits (README, "Speed and
-    /// memory"); what was refused stays for the report.
+    /// not sit idle under its solve, its report and between visits (docs/design-notes.md, "Daemon
+    /// and memory"); what was refused stays for the report.
     pub fn release_workspace(&mut self) {
         self.sweep.release();
         self.voxels.release();
