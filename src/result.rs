@@ -259,13 +259,6 @@ impl CalibrationResult {
         }
         Ok(())
     }
-
-    /// The camera and the extrinsic as an OpenCV FileStorage YAML (`camera_matrix`,
-    /// `distortion_coefficients`, and `lidar_to_camera` as a 4×4 matrix when present),
-    /// readable with `cv::FileStorage` / `cv2.FileStorage` ([`crate::export::result_yaml`]).
-    pub fn to_opencv_yaml(&self) -> String {
-        crate::export::result_yaml(self)
-    }
 }
 
 /// A rig's result file (DESIGN.md "Vehicles with several sensors"): the one-pair fields

@@ -2,7 +2,7 @@
 //! several seeds on the corners, then the joint solve over corners, holes and board faces.
 
 use super::association::{associate, lidar_nominal};
-use super::detectors::{expected_face, EXPECTED_FACE_CUT_M};
+use super::faces::{expected_face, EXPECTED_FACE_CUT_M};
 use super::register::register_by_faces;
 use super::{
     default_fov, fov_guesses, median, nominal_camera, solver_reason, CalibrateOptions, Calibration,

@@ -25,6 +25,7 @@
 
 mod association;
 mod detectors;
+mod faces;
 mod frame_report;
 mod free;
 pub use frame_report::{detect_frame, FrameReport, Identification};
@@ -37,9 +38,8 @@ pub mod rig;
 pub mod survey;
 mod surveyed;
 
-pub use detectors::{
-    expected_in_rig_lidars, plane_points, Detectors, RigDetectors, RigExpectation,
-};
+pub use detectors::{expected_in_rig_lidars, Detectors, RigDetectors, RigExpectation};
+pub use faces::plane_points;
 pub use gate::coverage;
 pub use surveyed::{identify_detections, FrameIdentities};
 

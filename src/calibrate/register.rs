@@ -15,7 +15,7 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use crate::calibrate::detectors::face_points;
+use crate::calibrate::faces::face_points;
 use crate::geometry::se3::{so3_log, so3_plus};
 use crate::geometry::{Se3, Vec3};
 use crate::lidar::Point;

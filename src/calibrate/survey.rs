@@ -28,7 +28,7 @@ use crate::lidar::Point;
 use crate::solve::{hole_sigma_px, PlanePoints, SolveError};
 use crate::target::{BoardSpec, Room, SurveySpec, SurveyedBoard, SurveyedPlane, MAX_BOARDS};
 
-use super::detectors::{expected_face, EXPECTED_FACE_CUT_M};
+use super::faces::{expected_face, EXPECTED_FACE_CUT_M};
 use super::free::run_corner_noise_px;
 use super::{calibrate, CalibrateOptions, FrameDetections};
 use bundle::{BundleBoard, BundleVisit, Sigma, SurveyProblem, SurveyState, VisitState};

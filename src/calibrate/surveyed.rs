@@ -13,7 +13,7 @@
 //! and its σ are that solve's.
 
 use super::association::{associate, lidar_nominal, paired_extrinsic};
-use super::detectors::expected_face;
+use super::faces::expected_face;
 use super::free::{accepted, camera_start, hole_outlier, CameraStart, CornerStart};
 use super::identify::{identify, oriented, Identity};
 use super::modes::{SurveyEntry, SurveyModes};

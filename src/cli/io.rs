@@ -51,7 +51,7 @@ pub fn result_json(result: &impl serde::Serialize) -> String {
 pub fn write_result(path: &Path, result: &CalibrationResult) -> Result<Vec<String>, Failure> {
     let yaml_path = path.with_extension("yaml");
     std::fs::write(path, result_json(result))
-        .and_then(|()| std::fs::write(&yaml_path, result.to_opencv_yaml()))
+        .and_then(|()| std::fs::write(&yaml_path, roomcal::export::result_yaml(result)))
         .with_context(|| format!("writing {} and {}", path.display(), yaml_path.display()))
         .map_err(bad_input)?;
     Ok(vec![path.display().to_string(), yaml_path.display().to_string()])
