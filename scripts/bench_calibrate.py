@@ -5,7 +5,7 @@ board and searching again, from bench_chessboard.py) and runs calibrateCamera wi
 view per board; roomcal runs the whole `calibrate` command (image decode, detection,
 start, joint solve, gate, result files). Both are compared with the scene's truth.
 
-In the same run, the surveyed room against the free boards (issue 13, item 8): the
+In the same run, the surveyed room against the free boards: the
 surveyed fixture's scene (SURVEYED_DIR, its room file has a `[survey]`) calibrated in the
 surveyed room and again with `--free-boards` (today's model), the same image and cloud,
 alternating run by run; the ratio surveyed / free is the figure (target <= 1).

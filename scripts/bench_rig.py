@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Speed of a rig's calibration against a one-pair one (issue 17, item 8: a two-camera,
+"""Speed of a rig's calibration against a one-pair one (the target: a two-camera,
 two-LiDAR calibration within 2x the time of a one-pair one), in the same run.
 
 DIR is a rig parked in a surveyed room, made by the whole workflow:

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Speed of `roomcal survey` (issue 13, item 1: 32 visits in <= 10 s on two cores).
+"""Speed of `roomcal survey` (the target: 32 visits in <= 10 s on two cores).
 
 One simulation of the design's room (six boards, 1920x1200, Pandar64, --supersample 1,
 seed 1) with the largest number of visits asked for; the first N visits are surveyed for
