@@ -293,10 +293,7 @@ fn number(v: f64) -> String {
 /// this form: the result file's YAML, the store's `camera.yaml`, a rig's `camera-NAME.yaml`.
 pub fn camera_yaml(camera: &CameraResult) -> String {
     let c = camera;
-    let model = match c.model {
-        CameraModel::PinholeRadtan => "pinhole-radtan",
-        CameraModel::Fisheye => "fisheye",
-    };
+    let model = c.model.name();
     let k = [c.fx, 0.0, c.cx, 0.0, c.fy, c.cy, 0.0, 0.0, 1.0];
     format!(
         "%YAML:1.0\n---\nimage_width: {}\nimage_height: {}\ncamera_model: \"{model}\"\n{}{}",

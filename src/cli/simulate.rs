@@ -200,10 +200,7 @@ fn simulate_scene(room: &Room, options: &SimOptions, args: &SimulateArgs) -> Res
     say!(
         "simulated {} boards ({} {}x{}, fx {:.2} fy {:.2} cx {:.2} cy {:.2}){} -> {}",
         t.boards.len(),
-        match t.camera.model {
-            CameraModel::PinholeRadtan => "pinhole-radtan",
-            CameraModel::Fisheye => "fisheye",
-        },
+        t.camera.model.name(),
         t.camera.width,
         t.camera.height,
         t.camera.fx,

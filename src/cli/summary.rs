@@ -81,7 +81,7 @@ fn solution_lines(room: &Room, run: &Calibration) -> Vec<String> {
     let mut out = Vec::new();
     out.push(format!(
         "  camera      {} {}×{}: fx {:.3} fy {:.3} px (σ {:.3} {:.3}), cx {:.3} cy {:.3} px (σ {:.3} {:.3})",
-        model_name(c.model),
+        c.model.name(),
         c.width,
         c.height,
         c.fx,
@@ -207,13 +207,6 @@ fn board_lines(room: &Room, frames: &[FrameDetections], run: &Calibration) -> Ve
         out.push("  boards      none used: see the status line".to_string());
     }
     out
-}
-
-fn model_name(model: CameraModel) -> &'static str {
-    match model {
-        CameraModel::PinholeRadtan => "pinhole-radtan",
-        CameraModel::Fisheye => "fisheye",
-    }
 }
 
 /// The coefficients with their names (OpenCV's order).

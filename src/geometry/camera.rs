@@ -55,6 +55,16 @@ pub enum CameraModel {
     Fisheye,
 }
 
+impl CameraModel {
+    /// The name the room and result files use (as the serde names above).
+    pub fn name(self) -> &'static str {
+        match self {
+            CameraModel::PinholeRadtan => "pinhole-radtan",
+            CameraModel::Fisheye => "fisheye",
+        }
+    }
+}
+
 /// A calibrated camera: model, image size, intrinsics and distortion.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Camera {
