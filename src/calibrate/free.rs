@@ -177,6 +177,7 @@ pub(super) fn solve_all(
             frame: *frame,
             corners: board.corners.clone(),
             holes_lidar: pair.as_ref().map_or(Vec::new(), |p| p.holes_lidar.clone()),
+            hole_sigma_m: pair.as_ref().map_or(0.0, |p| p.sigma_m),
             lidar_face: pair.as_ref().is_some_and(|p| p.plane.is_some())
                 || faces.as_ref().is_some_and(|f| f.faces[i].is_some()),
             pose: *pose,

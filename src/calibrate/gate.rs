@@ -1,7 +1,7 @@
 //! The quality gate (`target::QualitySpec`): residuals, boards, coverage, σ, and the change
 //! from the calibration in force.
 
-use super::{CalibrateOptions, Calibration, FrameDetections, UsedBoard};
+use super::{CalibrateOptions, Calibration, FrameDetections, LidarAngles, UsedBoard};
 use crate::geometry::Camera;
 use crate::result::{CalibrationResult, CameraResult, Extrinsic, Uncertainty};
 use crate::target::{QualitySpec, Room};
@@ -38,6 +38,8 @@ pub(super) fn gate(
                 q.min_lidar_boards
             )
         })?;
+        let hole_boards = run.boards.iter().filter(|b| !b.holes_lidar.is_empty()).count();
+        angles_checked(options.lidar_angles, hole_boards)?;
         // In a surveyed room the survey gives every target its pose: the LiDAR registers
         // against boards (by their holes or their face) and planes alike, as a rig's does.
         let lidar_boards = run.boards.iter().filter(|b| b.seen_by_lidar()).count();
@@ -52,10 +54,18 @@ pub(super) fn gate(
             format!("{seen}, at least {} needed", q.min_lidar_boards)
         })?;
         holes_fit(q, r.quality.hole_rms_px)?;
+        if let Some(ext) = &run.lidar_to_camera {
+            holes_agree(&run.boards, &run.holes_board, ext)?;
+        }
         extrinsic_certain(q, &r.uncertainty)?;
     }
     if let (Some(in_room), Some(lidar)) = (&r.camera_in_room, &room.lidar) {
         check_parking(q, lidar, in_room)?;
+    }
+    if let (Some(survey), Some(in_room), Some(ext)) =
+        (super::surveyed_room(room, options), &r.camera_in_room, &run.lidar_to_camera)
+    {
+        lidar_boards_on_survey(survey, frames, &run.holes_board, &in_room.to_se3().compose(ext))?;
     }
     if let Some(current) = &options.current {
         check_change(q, current, r)?;
@@ -107,6 +117,101 @@ pub(super) fn intrinsics_certain(
 pub(super) fn holes_fit(q: &QualitySpec, rms_px: f64) -> Result<(), String> {
     check(rms_px <= q.max_hole_rms_px, || {
         format!("hole RMS {rms_px:.3} px exceeds {} px", q.max_hole_rms_px)
+    })
+}
+
+/// A LiDAR placed without a board's holes (by faces and planes alone) rests on its angle
+/// table unchecked ([`LidarAngles`]): refused when that table is the model's nominal one.
+pub(super) fn angles_checked(angles: LidarAngles, hole_boards: usize) -> Result<(), String> {
+    check(hole_boards > 0 || angles == LidarAngles::Unit, || {
+        "no board placed by its holes, and the LiDAR's packets were decoded with the model's \
+         nominal angle table, which nothing in the run checks: is the unit's angle file given \
+         (`--lidar-calibration`, or `calibration` in the daemon's [lidar])?"
+            .to_string()
+    })
+}
+
+/// The LiDAR's hole centres, carried into the camera by the solved extrinsic, against the
+/// same holes of the camera's boards in 3D: a χ² test of their differences against the
+/// holes' own σ (the detector's, checked against the truth by `tests/it/holes_sim.rs`),
+/// 6 degrees of freedom taken by the extrinsic. The solve weighs holes by their pixels,
+/// which hardly see depth; a board printed at the wrong scale, or a LiDAR table that
+/// stretches its ranges, puts the camera's boards centimetres off the LiDAR's along the
+/// line of sight, and the joint solve bends the intrinsics and the mounting to hide it.
+/// Refused beyond the χ² quantile a right run passes with probability 10⁻³.
+pub(super) fn holes_agree(
+    boards: &[UsedBoard],
+    holes_board: &[crate::geometry::Vec3],
+    lidar_to_camera: &crate::geometry::Se3,
+) -> Result<(), String> {
+    let (mut chi2, mut rows, mut worst) = (0.0, 0usize, 0.0f64);
+    for b in boards.iter().filter(|b| !b.holes_lidar.is_empty() && b.hole_sigma_m > 0.0) {
+        for (lidar, model) in b.holes_lidar.iter().zip(holes_board) {
+            let apart = lidar_to_camera.act(lidar) - b.pose.act(model);
+            chi2 += apart.norm_squared() / (b.hole_sigma_m * b.hole_sigma_m);
+            rows += 3;
+            worst = worst.max(apart.norm());
+        }
+    }
+    let dof = rows.saturating_sub(6);
+    if dof == 0 {
+        return Ok(());
+    }
+    let limit = chi2_quantile(dof as f64, HOLES_CHI2_Z);
+    check(chi2 <= limit, || {
+        format!(
+            "the LiDAR's holes and the camera's boards disagree: χ² {chi2:.0} over {dof} degrees of freedom (limit {limit:.0}), holes up to {:.0} mm apart in 3D; check the room file's board (square, holes) against the boards, and the LiDAR's angle file",
+            worst * 1e3
+        )
+    })
+}
+
+/// The standard normal quantile of `1 − 10⁻³`: a right run fails [`holes_agree`] this
+/// rarely.
+const HOLES_CHI2_Z: f64 = 3.090_232;
+
+/// The χ² quantile of `dof` degrees of freedom at the normal quantile `z` (Wilson and
+/// Hilferty's cube-root approximation, within 1 % from 10 degrees of freedom).
+fn chi2_quantile(dof: f64, z: f64) -> f64 {
+    let a = 2.0 / (9.0 * dof);
+    dof * (1.0 - a + z * a.sqrt()).powi(3)
+}
+
+/// A board the LiDAR placed by its holes lies farther than this (m) from every surveyed
+/// board when carried into the room by the solved mounting and parking: the run and the
+/// LiDAR disagree. Right runs put them within a few centimetres (the holes' σ ≈ 1 cm, the
+/// mounting's a few millimetres at the boards).
+pub(super) const OFF_SURVEY_M: f64 = 0.10;
+
+/// Every board the LiDAR placed by its holes sits on a surveyed board under the solved
+/// LiDAR → room motion `lidar_to_room`. A run whose mounting rests on surfaces taken for
+/// boards through a wrong nominal mounting leaves the LiDAR's own boards where the room
+/// has none: refused.
+pub(super) fn lidar_boards_on_survey(
+    survey: &crate::target::SurveySpec,
+    frames: &[FrameDetections],
+    holes_board: &[crate::geometry::Vec3],
+    lidar_to_room: &crate::geometry::Se3,
+) -> Result<(), String> {
+    let centre =
+        holes_board.iter().sum::<crate::geometry::Vec3>() / holes_board.len().max(1) as f64;
+    let surveyed: Vec<_> = survey.boards.iter().map(|b| b.pose().act(&centre)).collect();
+    let off_survey = |centre: &crate::geometry::Vec3| {
+        let at = lidar_to_room.act(centre);
+        surveyed.iter().map(|s| (s - at).norm()).fold(f64::INFINITY, f64::min)
+    };
+    let placed = frames.iter().flat_map(|f| &f.lidar).filter(|b| !b.holes.is_empty());
+    let (count, off) = placed
+        .map(|b| {
+            off_survey(&(b.holes.iter().sum::<crate::geometry::Vec3>() / b.holes.len() as f64))
+        })
+        .filter(|&d| d > OFF_SURVEY_M)
+        .fold((0, 0.0f64), |(n, worst), d| (n + 1, worst.max(d)));
+    check(count == 0, || {
+        format!(
+            "{count} board(s) the LiDAR placed by their holes lie up to {:.2} m from every surveyed board under the solved mounting (limit {OFF_SURVEY_M} m): the LiDAR and the run disagree; is the room's nominal LiDAR mounting right?",
+            off
+        )
     })
 }
 
@@ -218,4 +323,59 @@ pub fn coverage(camera: &Camera, boards: &[UsedBoard]) -> f64 {
         cells[j * 4 + i] = true;
     }
     cells.iter().filter(|&&c| c).count() as f64 / 16.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{Se3, Vec3};
+
+    /// Wilson–Hilferty against tabulated 0.999 quantiles of χ² (18: 42.312, 30: 59.703,
+    /// 120: 173.617).
+    #[test]
+    fn chi2_quantile_meets_the_tables() {
+        for (dof, table) in [(18.0, 42.312), (30.0, 59.703), (120.0, 173.617)] {
+            let q = chi2_quantile(dof, HOLES_CHI2_Z);
+            assert!((q / table - 1.0).abs() < 0.01, "dof {dof}: {q} against {table}");
+        }
+    }
+
+    /// Two boards 6 m ahead whose LiDAR holes are where the camera's are, then 5σ farther
+    /// along the line of sight (a board printed larger than the room file says).
+    #[test]
+    fn holes_agree_refuses_holes_off_by_five_sigma_and_passes_holes_on_the_boards() {
+        let holes_board = [
+            Vec3::new(-0.45, -0.35, 0.0),
+            Vec3::new(0.45, -0.35, 0.0),
+            Vec3::new(-0.45, 0.35, 0.0),
+            Vec3::new(0.45, 0.35, 0.0),
+        ];
+        let sigma = 0.005;
+        let board = |x: f64, depth_error: f64| {
+            let pose = Se3 {
+                rotation: crate::geometry::Mat3::identity(),
+                translation: Vec3::new(x, 0.0, 6.0),
+            };
+            let holes_lidar = holes_board
+                .iter()
+                .map(|h| pose.act(h) + Vec3::new(0.0, 0.0, depth_error))
+                .collect();
+            UsedBoard {
+                frame: 0,
+                corners: Vec::new(),
+                holes_lidar,
+                hole_sigma_m: sigma,
+                lidar_face: true,
+                pose,
+            }
+        };
+        let identity = Se3::identity();
+        let right = [board(-1.5, 0.0), board(1.5, 0.0)];
+        assert_eq!(holes_agree(&right, &holes_board, &identity), Ok(()));
+        // One board off: a common shift would be the extrinsic's, a differing one is not.
+        let wrong = [board(-1.5, 0.0), board(1.5, 5.0 * sigma)];
+        let reason = holes_agree(&wrong, &holes_board, &identity).unwrap_err();
+        assert!(reason.contains("disagree"), "{reason}");
+        assert!(reason.contains("25 mm apart"), "{reason}");
+    }
 }

@@ -98,6 +98,25 @@ pub struct CalibrateOptions {
     /// these frames in this room's camera: a start whose pose count differs from the
     /// complete boards is not used.
     pub corner_start: Option<CornerStart>,
+    /// Where the LiDARs' beam angles came from: a run that places a LiDAR by board faces
+    /// alone is refused when they are the model's nominal ones ([`LidarAngles::Nominal`]).
+    pub lidar_angles: LidarAngles,
+}
+
+/// Where a LiDAR's beam angles (its elevation and azimuth table) came from.
+///
+/// The table is the LiDAR's own intrinsic calibration and the extrinsic rests on it. A
+/// board placed by its holes checks it (a wrong table scatters the scan lines over the
+/// holes, or puts them where the camera does not); a board's face does not: a table whose
+/// azimuths are off on average turns the whole sweep, faces and all, and the solve turns
+/// the mounting with it, with σ as small as ever.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum LidarAngles {
+    /// The unit's own table (its angle file or metadata), or a cloud decoded elsewhere.
+    #[default]
+    Unit,
+    /// The model's nominal table: a packet capture decoded without the unit's file.
+    Nominal,
 }
 
 /// One board observation as the solver used it.
@@ -107,6 +126,9 @@ pub struct UsedBoard {
     pub corners: Vec<Vec2>,
     /// The LiDAR's hole centres in the room's hole order (empty when unpaired).
     pub holes_lidar: Vec<Vec3>,
+    /// The 1σ of each of those centres, in 3D (m; the detector's, its median over the
+    /// board's holes; 0 when unpaired).
+    pub hole_sigma_m: f64,
     /// Whether the LiDAR's points on its face entered the solve (with its holes, or in a
     /// surveyed room on their own, where the survey says where the face is).
     pub lidar_face: bool,
@@ -300,7 +322,7 @@ impl FindLidarBoards for SweepFinder<'_, '_> {
 }
 
 /// The survey the run uses: the room's, unless the options ask for free boards.
-fn surveyed_room<'r>(
+pub(crate) fn surveyed_room<'r>(
     room: &'r Room,
     options: &CalibrateOptions,
 ) -> Option<&'r crate::target::SurveySpec> {

@@ -99,95 +99,111 @@ pub(super) fn solve_surveyed(
         }
         None => vec![None; camera_boards.len()],
     };
-    let extrinsic = lidar.map(|l| {
-        paired_extrinsic(&pairs, &board_poses, &holes_board).unwrap_or_else(|| lidar_nominal(l))
-    });
+    // The association starts from the room's nominal mounting; a run whose solved mounting
+    // pairs more of the LiDAR's hole-placed boards (a nominal mounting degrees off leaves
+    // them unpaired, and faces found through it may be another surface's) is solved
+    // again with those pairs, once.
+    let mut reassociated = false;
+    // Boards whose LiDAR placement was left out (their holes misfit): not paired again.
+    let mut dropped: Vec<usize> = Vec::new();
+    'association: loop {
+        let extrinsic = lidar.map(|l| {
+            paired_extrinsic(&pairs, &board_poses, &holes_board).unwrap_or_else(|| lidar_nominal(l))
+        });
 
-    let mut left_out: Vec<usize> = Vec::new();
-    // A LiDAR placement whose holes fit far worse than the other boards' (as in the
-    // free-board run) is named, left out, and the room solved again, once.
-    let mut misplaced: Option<String> = None;
-    loop {
-        let mut unpair = None;
-        let keep: Vec<usize> =
-            (0..identified.len()).filter(|&i| !left_out.contains(&identified[i].2)).collect();
-        let ext = extrinsic.unwrap_or_else(Se3::identity);
-        // Plane points from the start, then again from the first solve; without a sweep
-        // (a rig's pair run) there is nothing to select again, and one solve is the run.
-        let mut planes = room_planes(survey, &surveyed, clouds, &room_to_camera, &ext, None);
-        let unpaired = |i: usize| pairs[i].is_none();
-        let mut faces =
-            unpaired_faces(spec, &surveyed, &identified, unpaired, clouds, &room_to_camera, &ext);
-        let mut params = None;
-        let passes = if clouds.iter().any(|c| !c.is_empty()) { 2 } else { 1 };
-        for pass in 2 - passes..2 {
-            // The corners weighed by the noise the start's fit shows, not by the detector's
-            // σ (twice that): against the survey's priors the weight is what matters. Ten
-            // new vehicles in a 16-visit survey (seed 4), with the survey weighted the same
-            // way: σ/bound 1.18–1.21 → 1.02–1.10, errors alike (`studies/surveyed_study.py`).
-            let mut problem: Problem<'_> = RoomProblem::new(corner_noise, 2.0, Loss::Huber(3.0));
-            let blocks = add_observations(
-                &mut problem,
-                survey,
-                &object,
-                &holes_board,
+        let mut left_out: Vec<usize> = Vec::new();
+        // A LiDAR placement whose holes fit far worse than the other boards' (as in the
+        // free-board run) is named, left out, and the room solved again, once.
+        let mut misplaced: Option<String> = None;
+        loop {
+            let (mut unpair, mut regroup) = (None, None);
+            let keep: Vec<usize> =
+                (0..identified.len()).filter(|&i| !left_out.contains(&identified[i].2)).collect();
+            let ext = extrinsic.unwrap_or_else(Se3::identity);
+            // Plane points from the start, then again from the first solve; without a sweep
+            // (a rig's pair run) there is nothing to select again, and one solve is the run.
+            let mut planes = room_planes(survey, &surveyed, clouds, &room_to_camera, &ext, None);
+            let unpaired = |i: usize| pairs[i].is_none();
+            let mut faces = unpaired_faces(
+                spec,
+                &surveyed,
                 &identified,
-                &pairs,
-                &keep,
-                &planes,
-                &faces,
-                camera.fx,
-            )?;
-            let mut p = problem.params_at_priors(camera, ext, room_to_camera);
-            if let Some(previous) = &params {
-                let previous: &Params = previous;
-                (p.camera, p.lidar_to_camera, p.room_to_camera) =
-                    (previous.camera, previous.lidar_to_camera, previous.room_to_camera);
-            }
-            let report = solve_room(&problem, &mut p, 100).map_err(solver_reason)?;
-            iterations += report.iterations;
-            if pass == 0 {
-                planes = room_planes(
+                unpaired,
+                clouds,
+                &room_to_camera,
+                &ext,
+            );
+            let mut params = None;
+            let passes = if clouds.iter().any(|c| !c.is_empty()) { 2 } else { 1 };
+            for pass in 2 - passes..2 {
+                // The corners weighed by the noise the start's fit shows, not by the detector's
+                // σ (twice that): against the survey's priors the weight is what matters. Ten
+                // new vehicles in a 16-visit survey (seed 4), with the survey weighted the same
+                // way: σ/bound 1.18–1.21 → 1.02–1.10, errors alike (`studies/surveyed_study.py`).
+                let mut problem: Problem<'_> =
+                    RoomProblem::new(corner_noise, 2.0, Loss::Huber(3.0));
+                let blocks = add_observations(
+                    &mut problem,
                     survey,
-                    &surveyed,
-                    clouds,
-                    &p.room_to_camera,
-                    &p.lidar_to_camera,
-                    Some(&planes),
-                );
-                faces = unpaired_faces(
-                    spec,
-                    &surveyed,
+                    &object,
+                    &holes_board,
                     &identified,
-                    unpaired,
-                    clouds,
-                    &p.room_to_camera,
-                    &p.lidar_to_camera,
-                );
-                params = Some(p);
-                continue;
-            }
-            if let Some((board, chi2)) = worst_moved(&problem, &p, &blocks)? {
-                if left_out.is_empty() && keep.len() > 2 {
-                    tracing::warn!(board, chi2, "board disagrees with the survey; left out");
-                    left_out.push(board);
-                    break;
+                    &pairs,
+                    &keep,
+                    &planes,
+                    &faces,
+                    camera.fx,
+                )?;
+                let mut p = problem.params_at_priors(camera, ext, room_to_camera);
+                if let Some(previous) = &params {
+                    let previous: &Params = previous;
+                    (p.camera, p.lidar_to_camera, p.room_to_camera) =
+                        (previous.camera, previous.lidar_to_camera, previous.room_to_camera);
                 }
-                return Err(format!(
+                let report = solve_room(&problem, &mut p, 100).map_err(solver_reason)?;
+                iterations += report.iterations;
+                if pass == 0 {
+                    planes = room_planes(
+                        survey,
+                        &surveyed,
+                        clouds,
+                        &p.room_to_camera,
+                        &p.lidar_to_camera,
+                        Some(&planes),
+                    );
+                    faces = unpaired_faces(
+                        spec,
+                        &surveyed,
+                        &identified,
+                        unpaired,
+                        clouds,
+                        &p.room_to_camera,
+                        &p.lidar_to_camera,
+                    );
+                    params = Some(p);
+                    continue;
+                }
+                if let Some((board, chi2)) = worst_moved(&problem, &p, &blocks)? {
+                    if left_out.is_empty() && keep.len() > 2 {
+                        tracing::warn!(board, chi2, "board disagrees with the survey; left out");
+                        left_out.push(board);
+                        break;
+                    }
+                    return Err(format!(
                     "board {board} disagrees with the survey (χ² {chi2:.0} over its 6 survey σ, limit {MOVED_BOARD_CHI2}){}: it has moved, or the survey is stale",
                     if left_out.is_empty() { String::new() } else { format!(" after leaving out board {}", left_out[0]) }
                 ));
-            }
-            // No second solve re-weighted by the kinds' variance factors here (the
-            // free-board solve has one): over ten new vehicles in a 16-visit surveyed
-            // room it moved the overlay at 10 m from 0.44 to 0.64 px RMS and the rotation
-            // from 0.016 to 0.020° (`studies/surveyed_study.py`). The σ are
-            // still each kind's own (`room_covariance`).
-            // Held by the survey's joint covariance when it has one. A covariance the solve
-            // cannot use (a hand-edited file, σ far beyond any measurement) leaves the
-            // per-block solution, said in the notes: the run is not lost to it.
-            let mut joint_note = None;
-            let joint = SurveyModes::of(survey).and_then(|modes| {
+                }
+                // No second solve re-weighted by the kinds' variance factors here (the
+                // free-board solve has one): over ten new vehicles in a 16-visit surveyed
+                // room it moved the overlay at 10 m from 0.44 to 0.64 px RMS and the rotation
+                // from 0.016 to 0.020° (`studies/surveyed_study.py`). The σ are
+                // still each kind's own (`room_covariance`).
+                // Held by the survey's joint covariance when it has one. A covariance the solve
+                // cannot use (a hand-edited file, σ far beyond any measurement) leaves the
+                // per-block solution, said in the notes: the run is not lost to it.
+                let mut joint_note = None;
+                let joint = SurveyModes::of(survey).and_then(|modes| {
                 let basis = modes.basis(survey, &blocks);
                 jointly(&problem, &modes, &basis, &p)
                     .map_err(|reason| {
@@ -195,51 +211,88 @@ pub(super) fn solve_surveyed(
                     })
                     .ok()
             });
-            let (p, report, sigma) = match joint {
-                Some((p, joint, sigma)) => {
-                    iterations += joint.iterations;
-                    (p, joint, sigma)
-                }
-                None => {
-                    let sigma = room_covariance(&problem, &p).map_err(solver_reason)?;
-                    (p, report, sigma)
-                }
-            };
-            let mut run = calibration(
-                room,
-                &problem,
-                &p,
-                &report,
-                &sigma,
-                &identified,
-                &pairs,
-                &faces,
-                planes.len(),
-                &keep,
-                &holes_board,
-                iterations,
-                &left_out,
-            );
-            if let (None, Some((j, worst, median))) = (&misplaced, hole_outlier(room, &run)) {
-                let (frame, _, board, _) = &identified[keep[j]];
-                let name = format!(
+                let (p, report, sigma) = match joint {
+                    Some((p, joint, sigma)) => {
+                        iterations += joint.iterations;
+                        (p, joint, sigma)
+                    }
+                    None => {
+                        let sigma = room_covariance(&problem, &p).map_err(solver_reason)?;
+                        (p, report, sigma)
+                    }
+                };
+                let mut run = calibration(
+                    room,
+                    &problem,
+                    &p,
+                    &report,
+                    &sigma,
+                    &identified,
+                    &pairs,
+                    &faces,
+                    planes.len(),
+                    &keep,
+                    &holes_board,
+                    iterations,
+                    &left_out,
+                );
+                if let (None, Some((j, worst, median))) = (&misplaced, hole_outlier(room, &run)) {
+                    let (frame, _, board, _) = &identified[keep[j]];
+                    let name = format!(
                     "frame {frame} surveyed board {board}: its LiDAR hole RMS {worst:.2} px is {:.0}× the other boards' median ({median:.2} px); its LiDAR placement was left out",
                     worst / median.max(1e-9)
                 );
-                tracing::warn!("{name}");
-                misplaced = Some(name);
-                unpair = Some(keep[j]);
-                break;
+                    tracing::warn!("{name}");
+                    misplaced = Some(name);
+                    unpair = Some(keep[j]);
+                    break;
+                }
+                if let Some(solved) = run.lidar_to_camera {
+                    let mut again = associate(
+                        &solved,
+                        lidar_frames,
+                        &camera_boards,
+                        &board_poses,
+                        &holes_board,
+                    );
+                    dropped.iter().for_each(|&i| again[i] = None);
+                    if paired(&again) > paired(&pairs) && reassociated {
+                        return Err(format!(
+                            "the solved mounting pairs {} of the LiDAR's hole-placed boards with the camera's, the run used {}: the LiDAR and the camera disagree; is the room's nominal LiDAR mounting right?",
+                            paired(&again),
+                            paired(&pairs)
+                        ));
+                    }
+                    if paired(&again) > paired(&pairs) {
+                        tracing::info!(
+                        before = paired(&pairs),
+                        after = paired(&again),
+                        "the solved mounting pairs more LiDAR boards than the nominal one; solved again"
+                    );
+                        regroup = Some(again);
+                        break;
+                    }
+                }
+                run.notes.extend(misplaced.take());
+                run.notes.extend(unmatched);
+                run.notes.extend(joint_note);
+                return Ok(run);
             }
-            run.notes.extend(misplaced.take());
-            run.notes.extend(unmatched);
-            run.notes.extend(joint_note);
-            return Ok(run);
-        }
-        if let Some(i) = unpair {
-            pairs[i] = None;
+            if let Some(again) = regroup {
+                (pairs, reassociated) = (again, true);
+                continue 'association;
+            }
+            if let Some(i) = unpair {
+                pairs[i] = None;
+                dropped.push(i);
+            }
         }
     }
+}
+
+/// Camera boards paired with a LiDAR board.
+fn paired(pairs: &[Option<super::association::Pair>]) -> usize {
+    pairs.iter().filter(|p| p.is_some()).count()
 }
 
 /// A board whose prediction under the re-estimated mounting lies farther than this (m)
@@ -722,6 +775,7 @@ fn calibration(
             frame: identified[i].0,
             corners: identified[i].1.corners.clone(),
             holes_lidar: pairs[i].as_ref().map_or(Vec::new(), |p| p.holes_lidar.clone()),
+            hole_sigma_m: pairs[i].as_ref().map_or(0.0, |p| p.sigma_m),
             lidar_face: face_of(pairs, faces, i).is_some(),
             pose: *pose,
         })

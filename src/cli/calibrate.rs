@@ -8,7 +8,9 @@ use anyhow::{anyhow, Context};
 use clap::Args;
 
 use roomcal::calibrate::rig::{calibrate_rig, LidarInput};
-use roomcal::calibrate::{calibrate_detecting, CalibrateOptions, Detectors, FrameDetections};
+use roomcal::calibrate::{
+    calibrate_detecting, CalibrateOptions, Detectors, FrameDetections, LidarAngles,
+};
 use roomcal::detect::holes::RefusedBoard;
 use roomcal::detect::GreyImage;
 use roomcal::lidar::Point;
@@ -115,6 +117,7 @@ pub fn run(args: CalibrateArgs) -> Result<(), Failure> {
         without_planes: args.without_planes,
         free_boards: args.free_boards,
         corner_start: None,
+        lidar_angles: lidar_angles(&args.cloud, args.lidar_calibration.as_deref()),
     };
     let (run, refused) = calibrate_detecting(&room, &mut frames, &sweeps, &mut detectors, &options);
     if !args.quiet {
@@ -148,6 +151,16 @@ pub fn run(args: CalibrateArgs) -> Result<(), Failure> {
         }
     }
     verdict(run.result.status)
+}
+
+/// The clouds' beam angles: the model's nominal table when a packet capture is decoded
+/// without the unit's angle file.
+fn lidar_angles(clouds: &[PathBuf], angle_file: Option<&Path>) -> LidarAngles {
+    let decoded_here = clouds.iter().any(|c| roomcal::lidar::is_packet_capture(c));
+    match decoded_here && angle_file.is_none() {
+        true => LidarAngles::Nominal,
+        false => LidarAngles::Unit,
+    }
 }
 
 /// Image i pairs with cloud i (unless standing), and clouds need the room's LiDAR.
@@ -269,6 +282,7 @@ fn run_rig(room: &Room, rig_path: &Path, args: &CalibrateArgs) -> Result<(), Fai
         free_boards: args.free_boards,
         // The first camera's start, made to find the LiDARs' boards, is not made again.
         corner_start: detections.first_start.clone(),
+        lidar_angles: lidar_angles(&inputs.clouds.concat(), angles),
     };
     let lidars: Vec<LidarInput<'_>> =
         detections.lidars.iter().map(|(boards, cloud)| LidarInput { boards, cloud }).collect();

@@ -26,7 +26,9 @@ pub fn run(args: DaemonArgs) -> Result<(), Failure> {
     roomcal::daemon::init_logging();
     let config = roomcal::daemon::config::load(&args.config).map_err(bad_input)?;
     let room = roomcal::room::load(&config.room).map_err(bad_input)?;
-    let mut calibrator = RoomCalibrator::new(room).map_err(bad_input)?;
+    let mut calibrator = RoomCalibrator::new(room)
+        .map_err(bad_input)?
+        .with_lidar_angles(roomcal::daemon::room_calibrator::lidar_angles(&config));
     if let Some(rig) = &config.rig {
         calibrator = calibrator.with_rig(rig.rig.clone()).map_err(bad_input)?;
     }

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use crate::calibrate::rig::{calibrate_rig, LidarInput};
 use crate::calibrate::{
     calibrate_detecting, expected_in_rig_lidars, CalibrateOptions, Detectors, FrameDetections,
-    LidarBoard, RigDetectors,
+    LidarAngles, LidarBoard, RigDetectors,
 };
 use crate::capture::GreyFrame;
 use crate::detect::holes::RefusedBoard;
@@ -17,6 +17,7 @@ use crate::result::{CalibrationResult, RigResult};
 use crate::rig::Rig;
 use crate::target::Room;
 
+use super::config::{Config, LidarSource};
 use super::{CalibrationOutcome, Calibrator};
 
 /// Detection and calibration for one room, with workspaces made once.
@@ -27,13 +28,41 @@ pub struct RoomCalibrator {
     detectors: RigDetectors,
     report: Option<PathBuf>,
     rig: Option<Rig>,
+    lidar_angles: LidarAngles,
+}
+
+/// The beam angles of `config`'s LiDARs (the rig's, or the one-pair vehicle's): the
+/// model's nominal table when any LiDAR's packets, live or a replayed capture, are
+/// decoded without the unit's angle file ([`LidarAngles`]).
+pub fn lidar_angles(config: &Config) -> LidarAngles {
+    let nominal = |source: &LidarSource, file: Option<&PathBuf>| {
+        file.is_none()
+            && match source {
+                LidarSource::Udp(_) => true,
+                LidarSource::Replay(path) => crate::lidar::is_packet_capture(path),
+            }
+    };
+    let any_nominal = match &config.rig {
+        Some(rig) => rig.lidars.iter().any(|l| nominal(&l.source, l.calibration.as_ref())),
+        None => nominal(&config.lidar, config.lidar_calibration.as_ref()),
+    };
+    match any_nominal {
+        true => LidarAngles::Nominal,
+        false => LidarAngles::Unit,
+    }
 }
 
 impl RoomCalibrator {
     /// The calibrator of `room`; fails when the room's pattern cannot be detected.
     pub fn new(room: Room) -> Result<Self, crate::detect::DetectError> {
         let detectors = RigDetectors { cameras: vec![Detectors::new(&room)?] };
-        Ok(RoomCalibrator { room, detectors, report: None, rig: None })
+        Ok(RoomCalibrator {
+            room,
+            detectors,
+            report: None,
+            rig: None,
+            lidar_angles: LidarAngles::Unit,
+        })
     }
 
     /// Also calibrates `rig` ([`Calibrator::calibrate_rig`]): its cameras' detectors made
@@ -42,6 +71,13 @@ impl RoomCalibrator {
         self.detectors = RigDetectors::new(&self.room, &rig)?;
         self.rig = Some(rig);
         Ok(self)
+    }
+
+    /// Where the LiDARs' beam angles come from ([`lidar_angles`] of the daemon's
+    /// configuration): a run placing a LiDAR by faces alone on a nominal table is refused.
+    pub fn with_lidar_angles(mut self, angles: LidarAngles) -> Self {
+        self.lidar_angles = angles;
+        self
     }
 
     /// Also writes every run's report picture (PNG, as `roomcal calibrate --report` draws
@@ -108,7 +144,11 @@ impl Calibrator for RoomCalibrator {
             };
             detections.push(FrameDetections { camera, lidar: Vec::new() });
         }
-        let options = CalibrateOptions { current: current.cloned(), ..CalibrateOptions::default() };
+        let options = CalibrateOptions {
+            current: current.cloned(),
+            lidar_angles: self.lidar_angles,
+            ..CalibrateOptions::default()
+        };
         // The run finds the LiDAR's boards (in a surveyed room where the room expects them),
         // and the sweeps' points on the surveyed planes enter the solve.
         let clouds: Vec<&[Point]> = sweeps.iter().map(Vec::as_slice).collect();
@@ -166,6 +206,7 @@ impl Calibrator for RoomCalibrator {
         let options = CalibrateOptions {
             current_rig: current.cloned(),
             corner_start: expected.map(|e| e.first_start),
+            lidar_angles: self.lidar_angles,
             ..CalibrateOptions::default()
         };
         let run = calibrate_rig(&self.room, rig, &cameras, &lidars, &options);

@@ -184,6 +184,24 @@ pub fn decode_capture_with(
     Ok((points, stats, capture_stats))
 }
 
+/// Whether `path` is a packet capture (pcap or pcapng, by its first bytes): its points are
+/// decoded here, with the unit's angle file or the model's nominal table
+/// ([`read_cloud`]).
+#[cfg(feature = "std")]
+pub fn is_packet_capture(path: &std::path::Path) -> bool {
+    first_bytes(path).is_some_and(|m| pcap::is_capture_magic(&m))
+}
+
+/// The first four bytes of `path`, if it has them.
+#[cfg(feature = "std")]
+fn first_bytes(path: &std::path::Path) -> Option<[u8; 4]> {
+    let mut first = [0u8; 4];
+    std::fs::File::open(path)
+        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut first))
+        .ok()
+        .map(|()| first)
+}
+
 /// The points of a cloud file: PCD as it is, or a pcap/pcapng capture decoded as `model`
 /// (told apart by their first bytes, not their names; a file named `.pcap`/`.pcapng`
 /// without a capture's magic is reported as not a capture). A cloud without one usable
@@ -194,11 +212,7 @@ pub fn read_cloud(
     model: Option<Model>,
     calibration_file: Option<&std::path::Path>,
 ) -> Result<Vec<Point>, CloudFileError> {
-    let mut first = [0u8; 4];
-    let magic = std::fs::File::open(path)
-        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut first))
-        .ok()
-        .map(|()| first);
+    let magic = first_bytes(path);
     let is_capture = magic.is_some_and(|m| pcap::is_capture_magic(&m));
     let named_capture = path
         .extension()

@@ -63,3 +63,4 @@ mod survey_planes;
 mod survey_room;
 mod survey_sim;
 mod surveyed_rooms;
+mod trust;

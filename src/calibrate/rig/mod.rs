@@ -36,7 +36,7 @@ use nalgebra::{DMatrix, Matrix3};
 
 use super::{
     calibrate_with_clouds, corner_start, gate, CalibrateOptions, Calibration, CameraBoard,
-    FrameDetections, LidarBoard,
+    FrameDetections, LidarAngles, LidarBoard,
 };
 use crate::geometry::{se3::so3_log, Se3, Vec3};
 use crate::lidar::Point;
@@ -210,7 +210,7 @@ pub fn calibrate_rig(
                 apply_joint(&mut result, &joint, rig, targets);
                 let lidar_runs =
                     Runs { runs: &runs, cameras: &camera_runs, lidars: &lidar_cameras };
-                judge_jointly(&mut result, &joint, room, rig, &lidar_runs);
+                judge_jointly(&mut result, &joint, (room, rig), &lidar_runs, options.lidar_angles);
             }
             Err(reason) => reject_rig(&mut result.pair, reason),
         }
@@ -343,7 +343,13 @@ struct Runs<'a> {
 /// a LiDAR the boards it places by their holes in a camera (a board's face alone leaves
 /// the LiDAR three ways to move), and a sensor the shared boards do not tie to the first
 /// camera (directly or through a LiDAR) is rejected by name.
-fn judge_jointly(result: &mut RigResult, joint: &Joint, room: &Room, rig: &Rig, runs: &Runs<'_>) {
+fn judge_jointly(
+    result: &mut RigResult,
+    joint: &Joint,
+    (room, rig): (&Room, &Rig),
+    runs: &Runs<'_>,
+    angles: LidarAngles,
+) {
     let q = &room.quality;
     let mut failures = Vec::new();
     for (c, camera) in rig.cameras.iter().enumerate() {
@@ -372,6 +378,7 @@ fn judge_jointly(result: &mut RigResult, joint: &Joint, room: &Room, rig: &Rig, 
                     format!("{seen}, at least {} needed", q.min_lidar_boards)
                 })
             })
+            .and_then(|()| gate::angles_checked(angles, e.lidar_hole_boards[l]))
             .and_then(|()| match e.lidar_hole_boards[l] {
                 0 => Ok(()),
                 _ => gate::holes_fit(q, joint.report.hole_rms_px[l]),
