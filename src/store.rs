@@ -51,6 +51,9 @@ use crate::result::{CalibrationResult, RigExtrinsic, RigResult, SensorResult, St
 /// Generations and rejected runs kept by default.
 pub const DEFAULT_KEEP: usize = 16;
 
+/// Looks at a held lock's file this many times, 10 ms apart, for the holder's pid.
+const LOCK_HOLDER_TRIES: usize = 50;
+
 /// One stored calibration: the result file plus the store's bookkeeping.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Record {
@@ -195,23 +198,32 @@ impl Store {
             .truncate(false)
             .open(&path)
             .map_err(io_error)?;
-        match file.try_lock() {
-            Ok(()) => {
-                file.set_len(0).map_err(io_error)?;
-                writeln!(file, "{}", std::process::id()).map_err(io_error)?;
-                Ok(StoreLock { _file: file })
+        // The holder writes its pid just after taking the lock: until then the file is empty
+        // or names an earlier holder that is gone, so a refusal waits a moment for a live pid.
+        let mut holder = None;
+        for _ in 0..LOCK_HOLDER_TRIES {
+            match file.try_lock() {
+                Ok(()) => {
+                    file.set_len(0).map_err(io_error)?;
+                    file.write_all(format!("{}\n", std::process::id()).as_bytes())
+                        .map_err(io_error)?;
+                    return Ok(StoreLock { _file: file });
+                }
+                Err(fs::TryLockError::WouldBlock) => {
+                    holder = fs::read_to_string(&path)
+                        .ok()
+                        .and_then(|text| text.trim().parse::<u32>().ok())
+                        .filter(|&pid| process_alive(pid));
+                    if holder.is_some() {
+                        break;
+                    }
+                    std::thread::sleep(std::time::Duration::from_millis(10));
+                }
+                Err(fs::TryLockError::Error(source)) => return Err(io_error(source)),
             }
-            Err(fs::TryLockError::WouldBlock) => {
-                let mut text = String::new();
-                let _ = io::Read::read_to_string(&mut file, &mut text);
-                let holder = match text.trim().parse::<u32>() {
-                    Ok(pid) => format!("pid {pid}"),
-                    Err(_) => "pid unknown".to_string(),
-                };
-                Err(StoreError::Locked { dir: self.dir.clone(), holder })
-            }
-            Err(fs::TryLockError::Error(source)) => Err(io_error(source)),
         }
+        let holder = holder.map_or_else(|| "pid unknown".to_string(), |pid| format!("pid {pid}"));
+        Err(StoreError::Locked { dir: self.dir.clone(), holder })
     }
 
     /// Opens (creating if needed) the store at `dir`, keeping `keep` generations and
