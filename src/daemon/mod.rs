@@ -823,9 +823,15 @@ async fn finish_run(
     let (verdict, record, failure) = match stored {
         Ok(Ok((v, Ok(record)))) => (v, record, None),
         Ok(Ok((v, Err(why)))) => (v, None, Some(DaemonError::RunFailed(why))),
+        // InForce and Pending say themselves what holds; any other error stored nothing.
         Ok(Err(e)) => {
-            tracing::error!("{e}; the run's result was not stored");
-            (Verdict::Error, None, Some(DaemonError::Store(e)))
+            let record = e.in_force().cloned();
+            match (&record, &e) {
+                (Some(_), _) | (_, StoreError::Pending { .. }) => tracing::error!("{e}"),
+                _ => tracing::error!("{e}; the run's result was not stored"),
+            }
+            let verdict = if record.is_some() { Verdict::Accepted } else { Verdict::Error };
+            (verdict, record, Some(DaemonError::Store(e)))
         }
         Err(e) => {
             tracing::error!("store task: {e}");

@@ -172,3 +172,111 @@ fn a_secret_others_can_read_leaves_the_service_off_and_says_why() {
     assert!(std::net::TcpStream::connect(("127.0.0.1", port)).is_err(), "the service listens");
     drop(daemon);
 }
+
+/// A replay daemon in `dir` (the six-board fixture, PCD cloud) with its store at `store`:
+/// it calibrates by itself (auto trigger) once the scene is still; `extra` goes into its
+/// `[trigger]` table.
+fn auto_config(dir: &Path, store: &Path, extra: &str) -> PathBuf {
+    let text = format!(
+        "room = {:?}\nstore = {:?}\n[camera]\nsource = \"replay:{}\"\n[lidar]\nsource = \"replay:{}\"\n\
+         [trigger]\nmode = \"auto\"\nsettle_s = 1.0\nsweeps = 1\nmin_boards = 6\n{extra}",
+        fixture("six-boards-pandar64/room.toml"),
+        store,
+        fixture("six-boards-pandar64/image.png").display(),
+        fixture("six-boards-pandar64/cloud.pcd").display(),
+    );
+    let path = dir.join("auto.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// Runs `daemon --once` on `config` to the end: exit code, stdout + stderr.
+fn once(config: &Path) -> (Option<i32>, String) {
+    let out = Command::new(crate::common::BIN)
+        .args(["daemon", "--once", "--config", config.to_str().unwrap()])
+        .env("RUST_LOG", "info")
+        .output()
+        .unwrap();
+    let text =
+        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+    (out.status.code(), text)
+}
+
+/// `gen-N.json` names in `store/history`.
+fn history_names(store: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(store.join("history"))
+        .map(|d| d.flatten().map(|e| e.file_name().to_string_lossy().into_owned()).collect())
+        .unwrap_or_default();
+    names.retain(|n| n.starts_with("gen-"));
+    names.sort();
+    names
+}
+
+#[test]
+fn a_full_disk_at_current_json_stores_nothing_and_the_next_start_does_not_revive_it() {
+    let dir = Scratch::new("full-current");
+    let store = dir.join("store");
+    std::fs::create_dir(&store).unwrap();
+    let config = auto_config(&dir, &store, "");
+    let child = Command::new(crate::common::BIN)
+        .args(["daemon", "--once", "--config", config.to_str().unwrap()])
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The store writes current.json through `.current.json.tmp-PID-N`; those names lead to
+    // /dev/full, so that write (and only that one) fails with ENOSPC, as on a full disk.
+    // The daemon writes nothing before its run, seconds after it starts.
+    for n in 0..64 {
+        let tmp = store.join(format!(".current.json.tmp-{}-{n}", child.id()));
+        std::os::unix::fs::symlink("/dev/full", tmp).unwrap();
+    }
+    let out = child.wait_with_output().unwrap();
+    let text =
+        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+    println!("{text}");
+    assert_eq!(out.status.code(), Some(1), "{text}");
+    assert!(text.contains("No space left on device"), "not the full disk: {text}");
+    assert!(text.contains("current.json") && text.contains("not stored"), "{text}");
+    assert!(!store.join("current.json").exists());
+    assert_eq!(history_names(&store), Vec::<String>::new(), "a run not stored is in history");
+
+    // The next start: nothing revived; its own run is the first generation.
+    let (code, text) = once(&config);
+    println!("{text}");
+    assert_eq!(code, Some(0), "{text}");
+    assert!(!text.contains("completed and in force"), "the unstored run was revived: {text}");
+    assert!(text.contains("1 accepted") && text.contains("generation 1 in force"), "{text}");
+    assert_eq!(history_names(&store), ["gen-000001.json"]);
+}
+
+#[test]
+fn a_dangling_link_or_a_file_as_the_store_is_named_and_explained() {
+    let dir = Scratch::new("store-path");
+    let link = dir.join("store-link");
+    let missing = dir.join("unmounted/roomcal");
+    std::os::unix::fs::symlink(&missing, &link).unwrap();
+    let (code, text) = once(&auto_config(&dir, &link, ""));
+    assert_eq!(code, Some(1), "{text}");
+    let line = text.lines().find(|l| l.contains("roomcal:")).unwrap_or(&text);
+    assert!(
+        line.contains(&link.display().to_string())
+            && line.contains(&format!(
+                "a symbolic link to {}, which does not exist",
+                missing.display()
+            )),
+        "{text}"
+    );
+    assert!(!text.contains("os error 17"), "{text}");
+    assert!(!missing.exists(), "the link's target was created");
+
+    let file = dir.join("store-file");
+    std::fs::write(&file, b"not a store").unwrap();
+    let (code, text) = once(&auto_config(&dir, &file, ""));
+    assert_eq!(code, Some(1), "{text}");
+    assert!(
+        text.contains(&format!("store {}: is a file, not a directory", file.display())),
+        "{text}"
+    );
+}
