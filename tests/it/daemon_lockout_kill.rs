@@ -2,7 +2,10 @@
 //! over socketcand lock it, the process is killed with SIGKILL (no chance to save anything
 //! then), and the restarted daemon still refuses a seed (requiredTimeDelayNotExpired):
 //! the lockout is in STORE/security.json before the third refusal is sent. tests/it/daemon.rs
-//! covers the graceful stop in process.
+//! covers the graceful stop in process. Also against real daemon processes: a second daemon on
+//! one store, a secret others can read, a full disk while current.json is written (nothing
+//! stored, nothing revived at the next start), a file or a dangling link as the store, and
+//! SIGTERM in the middle of a run (abandoned, said so, nothing stored).
 #![cfg(all(unix, feature = "daemon"))]
 
 use std::path::{Path, PathBuf};
@@ -279,4 +282,53 @@ fn a_dangling_link_or_a_file_as_the_store_is_named_and_explained() {
         text.contains(&format!("store {}: is a file, not a directory", file.display())),
         "{text}"
     );
+}
+
+#[test]
+fn sigterm_during_a_run_says_it_was_abandoned_and_stores_nothing() {
+    use std::io::{BufRead, BufReader};
+    let dir = Scratch::new("sigterm-run");
+    let store = dir.join("store");
+    // 100 frames at 10 fps: the capture lasts 10 s, so the stop lands in the middle of it.
+    let config = auto_config(&dir, &store, "frames = 100\ncapture_timeout_s = 60.0\n");
+    let mut daemon = Daemon(
+        Command::new(crate::common::BIN)
+            .args(["daemon", "--config", config.to_str().unwrap()])
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let (lines, got) = std::sync::mpsc::channel();
+    let stderr = daemon.0.stderr.take().unwrap();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            let _ = lines.send(line);
+        }
+    });
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
+    loop {
+        let left = deadline.saturating_duration_since(std::time::Instant::now());
+        match got.recv_timeout(left) {
+            Ok(line) if line.contains("capturing 100 frames") => break,
+            Ok(_) => {}
+            Err(_) => panic!("no run started within 30 s"),
+        }
+    }
+    let pid = daemon.0.id().to_string();
+    assert!(Command::new("kill").args(["-TERM", &pid]).status().unwrap().success());
+    let status = daemon.0.wait().unwrap();
+    let rest: Vec<String> = got.iter().collect();
+    let text = rest.join("\n");
+    println!("{text}");
+    assert_eq!(status.code(), Some(0), "a graceful stop: {text}");
+    let said = rest.iter().find(|l| l.contains("abandoned")).unwrap_or_else(|| {
+        panic!("no line says the run was abandoned: {text}");
+    });
+    assert!(said.contains("WARN") && said.contains("nothing of it was stored"), "{said}");
+    assert!(!store.join("current.json").exists(), "{text}");
+    assert_eq!(history_names(&store), Vec::<String>::new());
+    let reopened = roomcal::store::Store::open(&store, 4).unwrap();
+    assert_eq!(reopened.current().unwrap(), None, "the store is valid and holds nothing");
 }
