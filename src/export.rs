@@ -47,6 +47,42 @@ pub enum ExportError {
         "export {path}: cannot write it ({source}); check the directory exists and is writable"
     )]
     Io { path: PathBuf, source: std::io::Error },
+    #[error("export {path}: {problem}")]
+    NotADirectory { path: PathBuf, problem: NotADirectory },
+}
+
+/// Why a path that should be a directory (the store, an export directory) is not one and
+/// cannot be made one.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum NotADirectory {
+    /// A file (or a link to one) is in the way.
+    #[error("is a file, not a directory")]
+    File,
+    /// A symbolic link to nothing: its target is not created, since a missing target is
+    /// usually a partition that is not mounted, and writing beneath the mount point would
+    /// hide the data from it.
+    #[error(
+        "is a symbolic link to {}, which does not exist (create it, mount it, or fix the link)",
+        target.display()
+    )]
+    DanglingLink { target: PathBuf },
+}
+
+/// Why `path` can neither be used as a directory nor created as one; `None` when it is a
+/// directory (or a link to one) or does not exist yet.
+pub fn directory_problem(path: &Path) -> Option<NotADirectory> {
+    let meta = std::fs::symlink_metadata(path).ok()?;
+    if meta.is_symlink() {
+        return match std::fs::metadata(path) {
+            Ok(target) if target.is_dir() => None,
+            Ok(_) => Some(NotADirectory::File),
+            Err(_) => {
+                let target = std::fs::read_link(path).unwrap_or_default();
+                Some(NotADirectory::DanglingLink { target })
+            }
+        };
+    }
+    (!meta.is_dir()).then_some(NotADirectory::File)
 }
 
 /// Every export of a result: the camera_info always, the Autoware and KITTI files as far
@@ -85,6 +121,9 @@ pub fn write_dir(dir: &Path, files: &[ExportFile]) -> Result<Vec<PathBuf>, Expor
         let path = path.to_path_buf();
         move |source| ExportError::Io { path, source }
     };
+    if let Some(problem) = directory_problem(dir) {
+        return Err(ExportError::NotADirectory { path: dir.to_path_buf(), problem });
+    }
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     let mut written = Vec::new();
     write_each(dir, files, |path, bytes| {

@@ -21,7 +21,12 @@
 //! that are gone (killed mid-write). A generation is written to `history/` before
 //! `current.json`, so a valid `current.json` always has its copy in history, and a history
 //! generation newer than `current.json` is an update interrupted between the two writes:
-//! it is completed (put in force) rather than skipped, so kills leave no gaps.
+//! it is completed (put in force) rather than skipped, so kills leave no gaps. A commit
+//! whose `current.json` write *fails* (a full disk) takes its history copy back out before
+//! reporting the error, so a result reported as not stored never comes into force later;
+//! the number of that generation, which was never in force, is the next one's. A failure
+//! after `current.json` was replaced (a YAML view, an export) says that the generation is
+//! in force ([`StoreError::InForce`]).
 //! `crc32` is the CRC-32 (IEEE) of the record's canonical JSON — the file's bytes before
 //! the `"crc32"` member with the closing brace appended, which is exactly `serde_json`'s
 //! pretty form of the record without it — written as 8 hex digits.
@@ -46,10 +51,15 @@ use serde::{Deserialize, Serialize};
 
 pub use crate::export::{camera_yaml, extrinsic_yaml, rig_extrinsics_yaml};
 
+use crate::export::{directory_problem, NotADirectory};
+
 use crate::result::{CalibrationResult, RigExtrinsic, RigResult, SensorResult, Status};
 
 /// Generations and rejected runs kept by default.
 pub const DEFAULT_KEEP: usize = 16;
+
+/// Looks at a held lock's file this many times, 10 ms apart, for the holder's pid.
+const LOCK_HOLDER_TRIES: usize = 50;
 
 /// One stored calibration: the result file plus the store's bookkeeping.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -122,6 +132,32 @@ pub enum StoreError {
          time may (stop it, or give this one another store)"
     )]
     Locked { dir: PathBuf, holder: String },
+    #[error("store {path}: {problem}")]
+    NotADirectory { path: PathBuf, problem: NotADirectory },
+    /// The commit's record is in force (`current.json` holds it), but a later step failed.
+    #[error(
+        "{source}; generation {} is in force (current.json holds it), but the YAML views and \
+         exports beside it may still show the previous calibration",
+        record.generation
+    )]
+    InForce { record: Box<Record>, source: Box<StoreError> },
+    /// `current.json` could not be written and the history copy could not be taken back.
+    #[error(
+        "{source}; generation {generation} could not be taken back out of history ({}: \
+         {undo}) and will be put in force the next time the store is read",
+        path.display()
+    )]
+    Pending { generation: u32, path: PathBuf, source: Box<StoreError>, undo: io::Error },
+}
+
+impl StoreError {
+    /// The record in force despite the error ([`StoreError::InForce`]).
+    pub fn in_force(&self) -> Option<&Record> {
+        match self {
+            StoreError::InForce { record, .. } => Some(record),
+            _ => None,
+        }
+    }
 }
 
 /// Why a record cannot be in force: the first thing wrong with its calibration.
@@ -195,23 +231,32 @@ impl Store {
             .truncate(false)
             .open(&path)
             .map_err(io_error)?;
-        match file.try_lock() {
-            Ok(()) => {
-                file.set_len(0).map_err(io_error)?;
-                writeln!(file, "{}", std::process::id()).map_err(io_error)?;
-                Ok(StoreLock { _file: file })
+        // The holder writes its pid just after taking the lock: until then the file is empty
+        // or names an earlier holder that is gone, so a refusal waits a moment for a live pid.
+        let mut holder = None;
+        for _ in 0..LOCK_HOLDER_TRIES {
+            match file.try_lock() {
+                Ok(()) => {
+                    file.set_len(0).map_err(io_error)?;
+                    file.write_all(format!("{}\n", std::process::id()).as_bytes())
+                        .map_err(io_error)?;
+                    return Ok(StoreLock { _file: file });
+                }
+                Err(fs::TryLockError::WouldBlock) => {
+                    holder = fs::read_to_string(&path)
+                        .ok()
+                        .and_then(|text| text.trim().parse::<u32>().ok())
+                        .filter(|&pid| process_alive(pid));
+                    if holder.is_some() {
+                        break;
+                    }
+                    std::thread::sleep(std::time::Duration::from_millis(10));
+                }
+                Err(fs::TryLockError::Error(source)) => return Err(io_error(source)),
             }
-            Err(fs::TryLockError::WouldBlock) => {
-                let mut text = String::new();
-                let _ = io::Read::read_to_string(&mut file, &mut text);
-                let holder = match text.trim().parse::<u32>() {
-                    Ok(pid) => format!("pid {pid}"),
-                    Err(_) => "pid unknown".to_string(),
-                };
-                Err(StoreError::Locked { dir: self.dir.clone(), holder })
-            }
-            Err(fs::TryLockError::Error(source)) => Err(io_error(source)),
         }
+        let holder = holder.map_or_else(|| "pid unknown".to_string(), |pid| format!("pid {pid}"));
+        Err(StoreError::Locked { dir: self.dir.clone(), holder })
     }
 
     /// Opens (creating if needed) the store at `dir`, keeping `keep` generations and
@@ -475,10 +520,14 @@ impl Store {
         self.writes.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// The store's directories, recreated when someone deleted them.
+    /// The store's directories, recreated when someone deleted them; a file or a link to
+    /// nothing in the way is named as such ([`NotADirectory`]).
     fn create_dirs(&self) -> Result<(), StoreError> {
         for d in [self.dir.clone(), self.history_dir(), self.rejected_dir()] {
-            fs::create_dir_all(&d).map_err(|source| StoreError::Io { path: d.clone(), source })?;
+            fs::create_dir_all(&d).map_err(|source| match directory_problem(&d) {
+                Some(problem) => StoreError::NotADirectory { path: d.clone(), problem },
+                None => StoreError::Io { path: d.clone(), source },
+            })?;
         }
         Ok(())
     }
@@ -591,21 +640,66 @@ impl Store {
             .ok_or(StoreError::GenerationsExhausted { dir: self.dir.clone(), seen_in })
     }
 
-    /// History first, then current, then the YAML views, then pruning.
+    /// History first, then current, then the YAML views, then pruning. A failed
+    /// `current.json` write takes the history copy back out ([`Store::take_back`]); a
+    /// failed view after it is [`StoreError::InForce`]; a failed pruning is a warning.
     fn install(&self, record: &Record) -> Result<(), StoreError> {
         self.create_dirs()?;
         let hist = self.history_dir().join(format!("gen-{:06}.json", record.generation));
         write_atomic(&hist, &encode(record))?;
-        self.put_in_force(record)?;
-        let files: Vec<PathBuf> = self.history_files()?.into_iter().map(|(_, p)| p).collect();
-        prune(&files, &self.history_dir(), self.keep)
+        if let Err(failure) = write_atomic(&self.current_path(), &encode(record)) {
+            return Err(self.take_back(&hist, record, failure));
+        }
+        let in_force = |source| StoreError::InForce {
+            record: Box::new(record.clone()),
+            source: Box::new(source),
+        };
+        self.write_views(record).map_err(in_force)?;
+        // The generation is in force with its views: a history longer than `keep` for now
+        // is no reason to report the commit as failed.
+        let pruned = self.history_files().and_then(|files| {
+            let files: Vec<PathBuf> = files.into_iter().map(|(_, p)| p).collect();
+            prune(&files, &self.history_dir(), self.keep)
+        });
+        if let Err(e) = pruned {
+            tracing::warn!("{e}; the history keeps more than {} generations for now", self.keep);
+        }
+        Ok(())
     }
 
-    /// `current.json` and its YAML views (for a rig also one per camera and the rig's
-    /// extrinsics; the first camera's and first LiDAR's stay in `camera.yaml` and
-    /// `extrinsic.yaml` for one-pair consumers).
+    /// After `failure` to write `current.json`: the generation never came into force, so
+    /// its history copy `hist` is removed — left there, the next read of the store would
+    /// take it for an interrupted update and put in force a result reported as not stored.
+    /// If `current.json` holds the generation after all (renamed, but its directory's sync
+    /// failed), it is in force and says so.
+    fn take_back(&self, hist: &Path, record: &Record, failure: StoreError) -> StoreError {
+        if generation_in_file(&self.current_path()) == Some(record.generation) {
+            return StoreError::InForce {
+                record: Box::new(record.clone()),
+                source: Box::new(failure),
+            };
+        }
+        match fs::remove_file(hist).and_then(|()| sync_dir(&self.history_dir())) {
+            Ok(()) => failure,
+            Err(undo) => StoreError::Pending {
+                generation: record.generation,
+                path: hist.to_path_buf(),
+                source: Box::new(failure),
+                undo,
+            },
+        }
+    }
+
+    /// `current.json` and its views ([`Store::write_views`]).
     fn put_in_force(&self, record: &Record) -> Result<(), StoreError> {
         write_atomic(&self.current_path(), &encode(record))?;
+        self.write_views(record)
+    }
+
+    /// The YAML views and exports of the record in force (for a rig also one per camera and
+    /// the rig's extrinsics; the first camera's and first LiDAR's stay in `camera.yaml` and
+    /// `extrinsic.yaml` for one-pair consumers).
+    fn write_views(&self, record: &Record) -> Result<(), StoreError> {
         write_atomic(&self.dir.join("camera.yaml"), camera_yaml(&record.result.camera).as_bytes())?;
         if let Some(yaml) = extrinsic_yaml(&record.result) {
             write_atomic(&self.dir.join("extrinsic.yaml"), yaml.as_bytes())?;

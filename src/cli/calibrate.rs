@@ -84,6 +84,12 @@ pub struct CalibrateArgs {
 /// `roomcal calibrate`: one pair's images and clouds, or with `--rig` every sensor's.
 pub fn run(args: CalibrateArgs) -> Result<(), Failure> {
     let room = roomcal::room::load(&args.room).map_err(bad_input)?;
+    // Found before the calibration, not after it.
+    if let Some(dir) = &args.export {
+        if let Some(problem) = roomcal::export::directory_problem(dir) {
+            return Err(bad_input(anyhow!("--export {}: {problem}", dir.display())));
+        }
+    }
     if let Some(rig_path) = &args.rig {
         return run_rig(&room, rig_path, &args);
     }

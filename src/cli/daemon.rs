@@ -44,7 +44,12 @@ pub fn run(args: DaemonArgs) -> Result<(), Failure> {
             RunOptions { once: args.once },
             stop_signal(),
         ))
-        .map_err(|e| Failure::new(1, e))?;
+        .map_err(|e| Failure::new(1, e));
+    // A run abandoned by a stop may still be calibrating on a blocking thread: nothing of it
+    // can reach the store any more, so the stop does not wait for it (nor for a camera
+    // read blocked on a silent device).
+    runtime.shutdown_background();
+    let summary = summary?;
     say!(
         "roomcal daemon: {} run(s): {} accepted, {} rejected, {} failed; generation {} in force",
         summary.runs,

@@ -14,6 +14,8 @@
 //! Every second (and before every UDS read) `current.json` is checked against the record
 //! in force and put back if it was emptied or damaged. With `once`, a run that left nothing
 //! in the store (it failed, or the store could not be written) ends the daemon with an error.
+//! A stop while a run captures or calibrates abandons the run and logs that nothing of it
+//! was stored.
 //! A rig (`rig = …` with `[[camera]]` / `[[lidar]]`): one task per camera and per LiDAR;
 //! the trigger watches the first camera's boards and the first LiDAR's motion, a run
 //! waits for `frames` frames of every camera and `sweeps` sweeps of every LiDAR (its
@@ -560,7 +562,10 @@ async fn run_daemon<C: Calibrator>(
         let mut action = Action::None;
         let mut outcome: Option<CalibrationOutcome> = None;
         tokio::select! {
-            _ = &mut shutdown => break,
+            _ = &mut shutdown => {
+                log_abandoned(capturing, solving.is_some(), &shared);
+                break;
+            }
             _ = watchdog.tick(), if watchdog_on => notify(&[sd_notify::NotifyState::Watchdog]),
             _ = store_check.tick() => verify_store(&store, &shared),
             _ = detect.tick(), if !capturing && solving.is_none() => {
@@ -676,6 +681,26 @@ async fn run_daemon<C: Calibrator>(
         Some(e) => Err(e),
         None => Ok(summary),
     }
+}
+
+/// Says that a stop ended a run before its result reached the store (nothing when no run
+/// was under way): the report picture of a run can exist, its result cannot.
+fn log_abandoned(capturing: bool, solving: bool, shared: &Arc<Mutex<Shared>>) {
+    let doing = match (capturing, solving) {
+        (true, _) => "capturing",
+        (_, true) => "calibrating",
+        _ => return,
+    };
+    let generation =
+        shared.lock().ok().and_then(|s| s.current.as_ref().map(|r| r.generation)).unwrap_or(0);
+    let in_force = match generation {
+        0 => "no calibration is in force".to_string(),
+        g => format!("generation {g} stays in force"),
+    };
+    tracing::warn!(
+        "stopped while {doing}: the run in progress is abandoned and nothing of it was \
+         stored; {in_force}"
+    );
 }
 
 /// Puts `current.json` back from the record in force when it was emptied, damaged or
@@ -823,9 +848,15 @@ async fn finish_run(
     let (verdict, record, failure) = match stored {
         Ok(Ok((v, Ok(record)))) => (v, record, None),
         Ok(Ok((v, Err(why)))) => (v, None, Some(DaemonError::RunFailed(why))),
+        // InForce and Pending say themselves what holds; any other error stored nothing.
         Ok(Err(e)) => {
-            tracing::error!("{e}; the run's result was not stored");
-            (Verdict::Error, None, Some(DaemonError::Store(e)))
+            let record = e.in_force().cloned();
+            match (&record, &e) {
+                (Some(_), _) | (_, StoreError::Pending { .. }) => tracing::error!("{e}"),
+                _ => tracing::error!("{e}; the run's result was not stored"),
+            }
+            let verdict = if record.is_some() { Verdict::Accepted } else { Verdict::Error };
+            (verdict, record, Some(DaemonError::Store(e)))
         }
         Err(e) => {
             tracing::error!("store task: {e}");

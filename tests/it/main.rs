@@ -55,6 +55,7 @@ mod solve_lm;
 mod solve_opencv;
 mod solve_rig;
 mod store;
+mod store_concurrency;
 mod survey_bundle;
 mod survey_cli;
 mod survey_detect;

@@ -536,3 +536,76 @@ fn restore_is_logged_only_after_it_succeeded() {
     assert_eq!(got.unwrap().unwrap().generation, 3);
     assert!(log.contains("restored generation 3 from history"), "{log}");
 }
+
+const VIEWS_FULL_ENV: &str = "ROOMCAL_STORE_VIEWS_FULL_DIR";
+
+/// Child side of the full-disk-after-current.json test: commits generation 1, then
+/// generation 2 with every `.camera.yaml.tmp-PID-N` this process could write leading to
+/// /dev/full (ENOSPC once current.json is already replaced); prints the error.
+#[test]
+fn views_full_child() {
+    let Ok(dir) = std::env::var(VIEWS_FULL_ENV) else {
+        return;
+    };
+    let store = Store::open(&dir, 4).unwrap();
+    store.commit(&result(1.0, Status::Accepted), 1).unwrap();
+    for n in 0..64 {
+        let tmp = Path::new(&dir).join(format!(".camera.yaml.tmp-{}-{n}", std::process::id()));
+        std::os::unix::fs::symlink("/dev/full", tmp).unwrap();
+    }
+    let err = store.commit(&result(2.0, Status::Accepted), 2).unwrap_err();
+    println!("VIEWS-FULL-ERROR {err}");
+}
+
+#[cfg(unix)]
+#[test]
+fn a_full_disk_after_current_json_says_the_generation_is_in_force() {
+    let dir = Scratch::new("views-full");
+    let exe = std::env::current_exe().unwrap();
+    let out = std::process::Command::new(exe)
+        .args(["--exact", &test_name("views_full_child"), "--nocapture"])
+        .env(VIEWS_FULL_ENV, dir.path())
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stdout}{}", String::from_utf8_lossy(&out.stderr));
+    let line = stdout.lines().find(|l| l.starts_with("VIEWS-FULL-ERROR")).expect("child ran");
+    println!("{line}");
+    assert!(line.contains("No space left on device") && line.contains("camera.yaml"), "{line}");
+    assert!(line.contains("generation 2 is in force"), "the message hides what holds: {line}");
+    let store = Store::open(dir.path(), 4).unwrap();
+    assert_eq!(store.current().unwrap().unwrap().generation, 2, "as the message says");
+    assert_eq!(store.next_generation().unwrap(), 3);
+}
+
+#[test]
+fn export_to_a_file_is_refused_before_calibrating_and_named() {
+    // The store's directory and `calibrate --export DIR` share the check of a path that
+    // must be a directory.
+    let dir = Scratch::new("export-file");
+    let file = dir.join("exports");
+    std::fs::write(&file, b"a file").unwrap();
+    let out = dir.join("result.json");
+    let fixture = crate::common::fixture;
+    let (code, _, stderr) = crate::common::roomcal(&[
+        "calibrate".as_ref(),
+        "--room".as_ref(),
+        fixture("six-boards-pandar64/room.toml").as_os_str(),
+        "--image".as_ref(),
+        fixture("six-boards-pandar64/image.png").as_os_str(),
+        "--cloud".as_ref(),
+        fixture("six-boards-pandar64/cloud.pcd").as_os_str(),
+        "--quiet".as_ref(),
+        "--out".as_ref(),
+        out.as_os_str(),
+        "--export".as_ref(),
+        file.as_os_str(),
+    ]);
+    assert_eq!(code, 2, "{stderr}");
+    assert!(
+        stderr.contains(&format!("--export {}: is a file, not a directory", file.display())),
+        "{stderr}"
+    );
+    assert!(!out.exists(), "calibrated before finding the export directory unusable");
+    assert_eq!(std::fs::read(&file).unwrap(), b"a file");
+}
