@@ -290,8 +290,13 @@ impl Refusal {
             Refusal::TooFewPoints { .. } | Refusal::LinesMissing { .. } => {
                 "if it is a board, bring it closer or clear what hides it"
             }
-            Refusal::NoHolePattern { .. } | Refusal::NoHoleGaps { .. } => {
+            Refusal::NoHolePattern { .. } => {
                 "if it is a board, check the room file's hole positions and radius"
+            }
+            // Most often a board too few scan lines cross (far, or in sparse beams); a
+            // room file whose holes are elsewhere looks the same.
+            Refusal::NoHoleGaps { .. } => {
+                "too few scan lines cross its holes: if it is a board, bring it closer or into the LiDAR's denser beams, or check the room file's hole positions"
             }
             Refusal::HolesUnseen { .. }
             | Refusal::FewLines { .. }
