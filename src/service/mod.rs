@@ -79,6 +79,53 @@ impl Add<Duration> for Instant {
     }
 }
 
+/// At most one warning per [`WarnThrottle::INTERVAL`]; the ones held back are counted into
+/// the next. Generic over the clock (`T`: this module's [`Instant`], tokio's, ...) so the
+/// transports and the protocol loop share it and tests can pass instants in.
+#[derive(Clone, Copy, Debug)]
+pub struct WarnThrottle<T> {
+    last: Option<T>,
+    suppressed: u64,
+}
+
+impl<T> Default for WarnThrottle<T> {
+    fn default() -> Self {
+        WarnThrottle { last: None, suppressed: 0 }
+    }
+}
+
+impl<T: Copy + Ord + Add<Duration, Output = T>> WarnThrottle<T> {
+    /// Shortest time between two warnings logged.
+    pub const INTERVAL: Duration = Duration::from_secs(1);
+
+    /// `Some(n)` when a warning may be logged at `now` (`n` were suppressed since the last
+    /// one), `None` when this one is suppressed.
+    pub fn allow(&mut self, now: T) -> Option<u64> {
+        if self.last.is_some_and(|t| now < t + Self::INTERVAL) {
+            self.suppressed += 1;
+            return None;
+        }
+        self.last = Some(now);
+        Some(core::mem::take(&mut self.suppressed))
+    }
+
+    /// When the warnings held back are due to be reported, if any are: one interval after
+    /// the last one logged (so a burst that stops is still counted in the log).
+    pub fn flush_at(&self) -> Option<T> {
+        self.last.filter(|_| self.suppressed > 0).map(|t| t + Self::INTERVAL)
+    }
+
+    /// `Some(n)` at or after [`WarnThrottle::flush_at`]: log that `n` were held back (the
+    /// report counts as a logged warning).
+    pub fn flush(&mut self, now: T) -> Option<u64> {
+        if self.flush_at().is_none_or(|t| now < t) {
+            return None;
+        }
+        self.last = Some(now);
+        Some(core::mem::take(&mut self.suppressed))
+    }
+}
+
 /// Largest standard (11-bit) CAN identifier.
 pub const MAX_STANDARD_ID: u32 = 0x7FF;
 /// Largest extended (29-bit) CAN identifier.
