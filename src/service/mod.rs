@@ -6,8 +6,9 @@
 //! * [`isotp`]: segmentation and reassembly of messages up to 4095 bytes over classic
 //!   CAN, flow control, STmin and block size in both directions, N_As/N_Bs/N_Cr timeouts.
 //! * [`uds`]: the roomcal UDS server (sessions, SecurityAccess, ReadDataByIdentifier,
-//!   RoutineControl) over a [`uds::Backend`] trait the daemon implements, plus the wire
-//!   encodings of every data identifier.
+//!   RoutineControl) over a [`uds::Backend`] trait the daemon implements, the wire
+//!   encodings of every data identifier, and [`uds::Link`], which puts the server on an
+//!   ISO-TP endpoint with each answer bound to its request.
 //!
 //! With the `daemon` feature come the transports and tools (std, tokio): the
 //! [`transport::CanTransport`] trait with a socketcand TCP endpoint (server and client,

@@ -63,11 +63,6 @@ impl<const N: usize> Link<N> {
         Link { tp: IsoTp::new(cfg), sending: None }
     }
 
-    /// The ISO-TP endpoint (its state, for tests and diagnostics).
-    pub fn isotp(&self) -> &IsoTp<N> {
-        &self.tp
-    }
-
     /// Feeds one received CAN frame; a complete request is answered at once.
     pub fn on_frame<B: Backend, R: SeedSource>(
         &mut self,
@@ -116,13 +111,13 @@ impl<const N: usize> Link<N> {
         [self.tp.poll_at(), server.poll_at()].into_iter().flatten().min()
     }
 
-    /// Starts sending `response`, abandoning an older one still in transmission.
+    /// Starts sending `response`, abandoning an older one still in transmission (also when
+    /// ISO-TP refuses the new one: longer than the link's `N`, which is then reported).
     fn respond(&mut self, response: &[u8]) -> Option<LinkEvent> {
         let older = self.sending.take();
         let superseded = self.tp.abort_send();
         let service = response_service(response);
         if let Err(e) = self.tp.send(response) {
-            // The server never builds a response ISO-TP cannot carry; kept for safety.
             return Some(LinkEvent::ResponseAbandoned { service, why: Abandoned::Transport(e) });
         }
         self.sending = Some(service);
