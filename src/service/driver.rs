@@ -1,24 +1,17 @@
 //! Runs the UDS server on a CAN transport (std, tokio): the glue between
-//! [`CanTransport`], the ISO-TP endpoint and the [`Server`] state machine. This is the
-//! layer that sends the 0x78 responsePending and, later, the final response the server
-//! produces from [`Server::poll`].
+//! [`CanTransport`] and the sans-I/O [`Link`] (ISO-TP endpoint + [`Server`]), which sends
+//! each response at once, the 0x78 responsePending and, later, a routine's final response.
+//! Responses abandoned (superseded, or no flow control within N_Bs) are logged at most once
+//! a second with a count of the ones not logged: a hostile tester must not flood the journal.
 
-use std::collections::VecDeque;
 use std::fs::File;
 use std::future::Future;
 use std::io::Read;
 
-use super::isotp::{self, Event, IsoTp};
+use super::isotp;
 use super::transport::{CanTransport, TransportError};
-use super::uds::{Backend, Response, SeedSource, Server, SEED_LEN};
-use super::Instant;
-
-/// Responses waiting for the ISO-TP transmitter. A well-behaved client waits for each
-/// response before its next request, so one is the norm; a client that floods requests
-/// while a segmented response waits for its flow control would otherwise grow the queue
-/// without bound. Responses beyond this are dropped (the client times out and retries,
-/// as after a lost frame).
-pub const MAX_QUEUED_RESPONSES: usize = 8;
+use super::uds::{Backend, Link, LinkEvent, SeedSource, Server, SEED_LEN};
+use super::{Instant, WarnThrottle};
 
 /// Seeds from the operating system's random source (`/dev/urandom`).
 pub struct OsRandom {
@@ -56,8 +49,8 @@ impl Clock {
 }
 
 /// Serves UDS requests arriving on `transport` until `shutdown` resolves or the
-/// transport fails. ISO-TP aborts (timeouts, wrong sequence numbers) are logged (debug
-/// level, `tracing`) and the endpoint carries on.
+/// transport fails. Abandoned responses are logged as warnings (throttled), abandoned
+/// request receptions at debug level (`tracing`); the link carries on.
 pub async fn serve<T, B, R>(
     transport: &mut T,
     server: &mut Server<B, R>,
@@ -70,81 +63,80 @@ where
     R: SeedSource,
 {
     let clock = Clock(tokio::time::Instant::now());
-    let mut tp: Box<IsoTp> = Box::new(IsoTp::new(cfg));
-    let mut outbox: VecDeque<Response> = VecDeque::new();
+    let mut link: Box<Link> = Box::new(Link::new(cfg));
+    let mut log = Log::default();
     tokio::pin!(shutdown);
     loop {
-        let now = clock.now();
-        if let Some(r) = server.poll(now) {
-            queue(&mut outbox, r);
+        while let Some(ev) = link.poll(server, clock.now()) {
+            log.report(ev, clock.now());
         }
-        flush(transport, &mut tp, &mut outbox, &clock).await?;
-        if let Some(ev) = tp.poll(clock.now()) {
-            report(ev);
-        }
-        let wake = [tp.poll_at(), server.poll_at()].into_iter().flatten().min();
-        let sleep = tokio::time::sleep_until(wake.map_or_else(
+        log.flush(clock.now());
+        flush(transport, &mut link, &mut log, &clock).await?;
+        let at = [link.poll_at(server), log.flush_at()].into_iter().flatten().min();
+        let wake = tokio::time::sleep_until(at.map_or_else(
             || tokio::time::Instant::now() + std::time::Duration::from_secs(3600),
             |t| clock.at(t),
         ));
         tokio::select! {
             frame = transport.recv() => {
-                let frame = frame?;
                 let now = clock.now();
-                match tp.on_frame(&frame, now) {
-                    Some(Event::Received(_)) => {
-                        if let Some(r) = server.handle(tp.received(), now) {
-                            queue(&mut outbox, r);
-                        }
-                    }
-                    Some(ev) => report(ev),
-                    None => {}
+                if let Some(ev) = link.on_frame(server, &frame?, now) {
+                    log.report(ev, now);
                 }
             }
-            _ = sleep => {}
+            _ = wake => {}
             _ = &mut shutdown => return Ok(()),
         }
     }
 }
 
-fn queue(outbox: &mut VecDeque<Response>, r: Response) {
-    if outbox.len() < MAX_QUEUED_RESPONSES {
-        outbox.push_back(r);
-    } else {
-        tracing::warn!("roomcal service: {} responses queued, response dropped", outbox.len());
-    }
-}
-
-/// Hands queued responses to ISO-TP and puts every frame that is due on the bus.
-async fn flush<T: CanTransport, const N: usize>(
+/// Puts every frame that is due on the bus.
+async fn flush<T: CanTransport>(
     transport: &mut T,
-    tp: &mut IsoTp<N>,
-    outbox: &mut VecDeque<Response>,
+    link: &mut Link,
+    log: &mut Log,
     clock: &Clock,
 ) -> Result<(), TransportError> {
-    loop {
-        if !tp.is_sending() {
-            if let Some(r) = outbox.pop_front() {
-                if let Err(e) = tp.send(&r) {
-                    tracing::warn!("roomcal service: response dropped: {e}");
-                }
-            }
-        }
-        let Some(frame) = tp.poll_transmit(clock.now()) else {
-            return Ok(());
-        };
+    while let Some(frame) = link.poll_transmit(clock.now()) {
         transport.send(&frame).await?;
-        if let Some(ev) = tp.frame_sent(clock.now()) {
-            report(ev);
+        if let Some(ev) = link.frame_sent(clock.now()) {
+            log.report(ev, clock.now());
         }
     }
+    Ok(())
 }
 
-fn report(ev: Event) {
-    match ev {
-        // Debug level: a noisy or hostile bus must not flood the journal.
-        Event::RxAborted(e) => tracing::debug!("roomcal service: {e}"),
-        Event::TxAborted(e) => tracing::debug!("roomcal service: {e}"),
-        Event::Received(_) | Event::Sent => {}
+/// The link's events as log lines.
+#[derive(Default)]
+struct Log {
+    abandoned: WarnThrottle<Instant>,
+}
+
+impl Log {
+    fn report(&mut self, ev: LinkEvent, now: Instant) {
+        match ev {
+            LinkEvent::ResponseAbandoned { .. } => match self.abandoned.allow(now) {
+                Some(0) => tracing::warn!("roomcal service: {ev}"),
+                Some(n) => tracing::warn!(
+                    "roomcal service: {ev} ({n} more responses abandoned since the last warning)"
+                ),
+                None => {}
+            },
+            // Debug level: a noisy or hostile bus must not flood the journal.
+            LinkEvent::RequestAborted(_) => tracing::debug!("roomcal service: {ev}"),
+        }
+    }
+
+    /// When the count of warnings held back is due.
+    fn flush_at(&self) -> Option<Instant> {
+        self.abandoned.flush_at()
+    }
+
+    /// Logs the count of warnings held back once it is due: a burst that stops is still
+    /// counted in the log.
+    fn flush(&mut self, now: Instant) {
+        if let Some(n) = self.abandoned.flush(now) {
+            tracing::warn!("roomcal service: {n} more responses abandoned since the last warning");
+        }
     }
 }

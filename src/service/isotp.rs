@@ -512,6 +512,18 @@ impl<const N: usize> IsoTp<N> {
         self.rx_len = 0;
     }
 
+    /// Abandons the message being sent, if any (the receiving side of the endpoint
+    /// carries on); true when there was one. A flow control that arrives afterwards is
+    /// ignored, as any flow control outside a transmission.
+    pub fn abort_send(&mut self) -> bool {
+        let was_sending = self.is_sending();
+        self.tx = Tx::Idle;
+        if matches!(self.in_flight, Some(f) if !matches!(f, InFlight::RxFlowControl { .. })) {
+            self.in_flight = None;
+        }
+        was_sending
+    }
+
     /// True while a message is being sent.
     pub fn is_sending(&self) -> bool {
         !matches!(self.tx, Tx::Idle)

@@ -6,8 +6,9 @@
 //! * [`isotp`]: segmentation and reassembly of messages up to 4095 bytes over classic
 //!   CAN, flow control, STmin and block size in both directions, N_As/N_Bs/N_Cr timeouts.
 //! * [`uds`]: the roomcal UDS server (sessions, SecurityAccess, ReadDataByIdentifier,
-//!   RoutineControl) over a [`uds::Backend`] trait the daemon implements, plus the wire
-//!   encodings of every data identifier.
+//!   RoutineControl) over a [`uds::Backend`] trait the daemon implements, the wire
+//!   encodings of every data identifier, and [`uds::Link`], which puts the server on an
+//!   ISO-TP endpoint with each answer bound to its request.
 //!
 //! With the `daemon` feature come the transports and tools (std, tokio): the
 //! [`transport::CanTransport`] trait with a socketcand TCP endpoint (server and client,
@@ -76,6 +77,53 @@ impl Add<Duration> for Instant {
         // Saturate: a deadline past the end of time is simply never reached.
         let micros = u64::try_from(rhs.as_micros()).unwrap_or(u64::MAX);
         Instant(self.0.saturating_add(micros))
+    }
+}
+
+/// At most one warning per [`WarnThrottle::INTERVAL`]; the ones held back are counted into
+/// the next. Generic over the clock (`T`: this module's [`Instant`], tokio's, ...) so the
+/// transports and the protocol loop share it and tests can pass instants in.
+#[derive(Clone, Copy, Debug)]
+pub struct WarnThrottle<T> {
+    last: Option<T>,
+    suppressed: u64,
+}
+
+impl<T> Default for WarnThrottle<T> {
+    fn default() -> Self {
+        WarnThrottle { last: None, suppressed: 0 }
+    }
+}
+
+impl<T: Copy + Ord + Add<Duration, Output = T>> WarnThrottle<T> {
+    /// Shortest time between two warnings logged.
+    pub const INTERVAL: Duration = Duration::from_secs(1);
+
+    /// `Some(n)` when a warning may be logged at `now` (`n` were suppressed since the last
+    /// one), `None` when this one is suppressed.
+    pub fn allow(&mut self, now: T) -> Option<u64> {
+        if self.last.is_some_and(|t| now < t + Self::INTERVAL) {
+            self.suppressed += 1;
+            return None;
+        }
+        self.last = Some(now);
+        Some(core::mem::take(&mut self.suppressed))
+    }
+
+    /// When the warnings held back are due to be reported, if any are: one interval after
+    /// the last one logged (so a burst that stops is still counted in the log).
+    pub fn flush_at(&self) -> Option<T> {
+        self.last.filter(|_| self.suppressed > 0).map(|t| t + Self::INTERVAL)
+    }
+
+    /// `Some(n)` at or after [`WarnThrottle::flush_at`]: log that `n` were held back (the
+    /// report counts as a logged warning).
+    pub fn flush(&mut self, now: T) -> Option<u64> {
+        if self.flush_at().is_none_or(|t| now < t) {
+            return None;
+        }
+        self.last = Some(now);
+        Some(core::mem::take(&mut self.suppressed))
     }
 }
 

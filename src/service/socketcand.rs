@@ -50,25 +50,8 @@ impl Default for Limits {
     }
 }
 
-/// At most one warning a second; the ones held back are counted into the next.
-#[derive(Debug, Default)]
-pub struct WarnThrottle {
-    last: Option<tokio::time::Instant>,
-    suppressed: u64,
-}
-
-impl WarnThrottle {
-    /// `Some(n)` when a warning may be logged at `now` (`n` were suppressed since the last
-    /// one), `None` when this one is suppressed.
-    pub fn allow(&mut self, now: tokio::time::Instant) -> Option<u64> {
-        if self.last.is_some_and(|t| now < t + Duration::from_secs(1)) {
-            self.suppressed += 1;
-            return None;
-        }
-        self.last = Some(now);
-        Some(std::mem::take(&mut self.suppressed))
-    }
-}
+/// The accept loop's warning throttle (tokio's clock).
+type WarnThrottle = super::WarnThrottle<tokio::time::Instant>;
 
 /// Logs `message` through `throttle`, with the count of warnings it held back.
 fn warn_throttled(throttle: &mut WarnThrottle, message: std::fmt::Arguments<'_>) {

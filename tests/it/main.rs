@@ -44,6 +44,7 @@ mod rig_file;
 mod road_overlay;
 mod room_file;
 mod service_e2e;
+mod service_flood;
 mod service_isotp;
 mod service_uds;
 mod sim_capture;

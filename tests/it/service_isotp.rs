@@ -1,5 +1,6 @@
 //! ISO-TP (ISO 15765-2) endpoint tests: byte vectors both ways (frames in → message,
-//! message → frames), flow control, block size, STmin, timeouts, malformed input.
+//! message → frames), flow control, block size, STmin, timeouts, malformed input, abandoning
+//! a transmission.
 
 use core::time::Duration;
 
@@ -270,6 +271,29 @@ fn timeouts() {
     assert!(tp.poll_transmit(ms(1)).is_none(), "one frame in flight at a time");
     assert_eq!(tp.poll(ms(1000)), Some(Event::TxAborted(TxError::NotSent)));
     assert!(!tp.is_sending());
+}
+
+#[test]
+fn abort_send_drops_the_transmission_only() {
+    let mut tp: IsoTp = IsoTp::new(Config::new(TX, RX));
+    assert!(!tp.abort_send(), "nothing to abort");
+    tp.on_frame(&frame(RX, &[0x10, 20, 0, 1, 2, 3, 4, 5]), ms(0));
+    tp.send(&[7; 20]).unwrap();
+    assert_eq!(transmit(&mut tp, ms(1)).unwrap().0[0], 0x30, "the flow control we owe first");
+    assert_eq!(transmit(&mut tp, ms(1)).unwrap().0[..2], [0x10, 20]);
+    assert!(tp.abort_send());
+    assert!(!tp.is_sending() && tp.is_receiving());
+    assert_eq!(tp.on_frame(&frame(RX, &[0x30, 0, 0]), ms(2)), None);
+    assert_eq!(tp.poll_transmit(ms(2)), None, "its flow control continues nothing");
+    assert_eq!(tp.poll_at(), Some(ms(1001)), "only the reception's N_Cr is left");
+    tp.on_frame(&frame(RX, &[0x21, 6, 7, 8, 9, 10, 11, 12]), ms(3));
+    let ev = tp.on_frame(&frame(RX, &[0x22, 13, 14, 15, 16, 17, 18, 19]), ms(4));
+    assert_eq!(ev, Some(Event::Received(20)));
+    tp.send(&[1, 2, 3]).unwrap();
+    assert_eq!(
+        transmit(&mut tp, ms(5)).unwrap(),
+        (vec![0x03, 1, 2, 3, 0xCC, 0xCC, 0xCC, 0xCC], Some(Event::Sent))
+    );
 }
 
 #[test]

@@ -1,18 +1,20 @@
 //! UDS server tests: byte vectors both ways for every service and DID, the NRC cases
 //! and their priority, S3, SecurityAccess lockout, 0x78 while a calibration runs, and a
-//! flood of 10,000 requests through ISO-TP + server (rate printed); the per-sensor DIDs of
-//! rigs (sensor table 0xC010, intrinsics 0xC200 + i, extrinsics 0xC300 + i).
+//! flood of 10,000 requests through ISO-TP + server (rate printed); the link binding each
+//! answer to its request through floods of unanswered answers and unfinished requests, with
+//! N_Bs and N_Cr to the microsecond; the per-sensor DIDs of rigs (sensor table 0xC010,
+//! intrinsics 0xC200 + i, extrinsics 0xC300 + i).
 
 use core::time::Duration;
 
 use roomcal::service::fake::FakeBackend;
-use roomcal::service::isotp::{Config, Event, IsoTp};
+use roomcal::service::isotp::{Config, Event, IsoTp, RxError, TxError};
 use roomcal::service::uds::{
-    security_key, DaemonState, DecodeError, ExtrinsicRecord, IntrinsicsRecord, Nrc, Outcome,
-    QualityRecord, RequestRepr, ResponseRepr, SensorKind, SensorTable, Server, ServerConfig,
-    Session, StateRecord, MAX_SENSORS, MAX_SENSOR_NAME, SEED_LEN,
+    security_key, Abandoned, DaemonState, DecodeError, ExtrinsicRecord, IntrinsicsRecord, Link,
+    LinkEvent, Nrc, Outcome, QualityRecord, RequestRepr, ResponseRepr, SensorKind, SensorTable,
+    Server, ServerConfig, Session, StateRecord, MAX_SENSORS, MAX_SENSOR_NAME, SEED_LEN,
 };
-use roomcal::service::Instant;
+use roomcal::service::{CanFrame, Instant, WarnThrottle};
 
 const SECRET: &[u8] = b"roomcal-secret";
 
@@ -374,45 +376,81 @@ fn records_reject_malformed_bytes() {
     assert!(Outcome::parse(&[4, 0, 0, 0]).is_err());
 }
 
-/// Client-side ISO-TP + server-side ISO-TP + server, frames moved in memory.
+/// The server's end of the link ([`Link`] + server) and a tester's ISO-TP endpoint, frames
+/// moved in memory; time passes only as a test says. Events of the link are kept.
 struct Bench {
     client: Box<IsoTp>,
-    tp: Box<IsoTp>,
+    link: Box<Link>,
     server: TestServer,
     now: Instant,
+    events: Vec<(Instant, LinkEvent)>,
 }
 
 impl Bench {
     fn new() -> Self {
         Bench {
             client: Box::new(IsoTp::new(Config::new(0x7A0, 0x7A8))),
-            tp: Box::new(IsoTp::new(Config::new(0x7A8, 0x7A0))),
+            link: Box::new(Link::new(Config::new(0x7A8, 0x7A0))),
             server: server(FakeBackend::calibrated()),
             now: Instant::from_micros(0),
+            events: Vec::new(),
         }
     }
 
+    fn note(&mut self, ev: Option<LinkEvent>) {
+        self.events.extend(ev.map(|ev| (self.now, ev)));
+    }
+
+    /// Runs the link's timers at `now` and takes every frame it has for the bus.
+    fn server_frames(&mut self) -> Vec<Vec<u8>> {
+        let mut out = Vec::new();
+        loop {
+            while let Some(ev) = self.link.poll(&mut self.server, self.now) {
+                self.events.push((self.now, ev));
+            }
+            let Some(f) = self.link.poll_transmit(self.now) else {
+                return out;
+            };
+            assert_eq!(f.id, 0x7A8);
+            let ev = self.link.frame_sent(self.now);
+            self.note(ev);
+            out.push(f.data.to_vec());
+        }
+    }
+
+    /// One frame from a tester to the server at `now`; the frames the server sends back.
+    fn tester_sends(&mut self, data: &[u8]) -> Vec<Vec<u8>> {
+        let f = CanFrame::new_standard(0x7A0, data).unwrap();
+        let ev = self.link.on_frame(&mut self.server, &f, self.now);
+        self.note(ev);
+        self.server_frames()
+    }
+
+    /// A well-behaved tester's request: its ISO-TP endpoint sees only what the server
+    /// sends after it; the message it receives (`None`: nothing within 10 ms).
     fn request(&mut self, req: &[u8]) -> Option<Vec<u8>> {
         self.client.send(req).unwrap();
         for _ in 0..1000 {
             self.now = self.now + Duration::from_micros(10);
             while let Some(f) = self.client.poll_transmit(self.now) {
                 self.client.frame_sent(self.now);
-                if let Some(Event::Received(_)) = self.tp.on_frame(&f, self.now) {
-                    match self.server.handle(self.tp.received(), self.now) {
-                        Some(r) => self.tp.send(&r).unwrap(),
-                        None => return None,
-                    }
-                }
+                let ev = self.link.on_frame(&mut self.server, &f, self.now);
+                self.note(ev);
             }
-            while let Some(f) = self.tp.poll_transmit(self.now) {
-                self.tp.frame_sent(self.now);
+            for data in self.server_frames() {
+                let f = CanFrame::new_standard(0x7A8, &data).unwrap();
                 if let Some(Event::Received(_)) = self.client.on_frame(&f, self.now) {
                     return Some(self.client.received().to_vec());
                 }
             }
         }
-        panic!("no answer to {req:02X?}");
+        None
+    }
+
+    fn abandoned(&self, why: Abandoned) -> usize {
+        let hit =
+            |ev: &LinkEvent| matches!(ev, LinkEvent::ResponseAbandoned { why: w, .. } if *w == why);
+        self.events.iter().filter(|(_, ev)| hit(ev)).count()
     }
 }
 
@@ -444,6 +482,99 @@ fn flood_of_requests_through_isotp_and_server() {
         dt.as_secs_f64() * 1e3,
         10_000.0 / dt.as_secs_f64()
     );
+}
+
+/// The flood at the protocol level, time passed in: 1000 reads whose segmented
+/// answers never get flow control, each followed by the first frame of a request never
+/// finished. Each read is answered at once with its own first frame (the older answer is
+/// abandoned, not queued); the tester that comes next gets its own answer to every DID;
+/// the abandoned answers, warned through the throttle, make one line and, a second
+/// later, one with the count of the others.
+#[test]
+fn link_answers_each_request_itself_through_1000_unanswered_answers_and_unfinished_requests() {
+    let mut b = Bench::new();
+    for i in 0..1000u32 {
+        let did = 1 + (i % 4) as u8;
+        b.now = b.now + Duration::from_micros(100);
+        let out = b.tester_sends(&[0x03, 0x22, 0xC0, did]);
+        assert_eq!(out.len(), 1, "read {i}: one first frame at once");
+        assert_eq!((out[0][0], &out[0][2..5]), (0x10, &[0x62, 0xC0, did][..]), "read {i}: its own");
+        b.now = b.now + Duration::from_micros(100);
+        let out = b.tester_sends(&[0x10, 0x0A, 0x22, 0xC0, 0x01, 0xC0, 0x02, 0xC0]);
+        assert_eq!(out, [vec![0x30, 0, 0, 0xCC, 0xCC, 0xCC, 0xCC, 0xCC]], "unfinished request {i}");
+    }
+    assert_eq!(b.abandoned(Abandoned::Superseded), 999, "each answer gave way to the next");
+    let flood_end = b.now;
+    for did in [0x01, 0x02, 0x03, 0x04, 0x01] {
+        let r = b.request(&[0x22, 0xC0, did]).expect("answered");
+        assert_eq!(r[..3], [0x62, 0xC0, did], "DID 0xC0{did:02X}: its own answer");
+    }
+    let took = b.now.saturating_since(flood_end);
+    assert!(took < Duration::from_millis(1), "five reads took {took:?}");
+    assert_eq!(b.abandoned(Abandoned::Superseded), 1000, "the flood's last answer too");
+    assert_eq!(b.events.len(), 1000, "{:?}", &b.events[990..]);
+
+    let mut throttle = WarnThrottle::<Instant>::default();
+    let lines: Vec<u64> = b.events.iter().filter_map(|(t, _)| throttle.allow(*t)).collect();
+    assert_eq!(lines, [0], "0.2 s of abandoned answers: one warning line");
+    let first = b.events[0].0;
+    assert_eq!(throttle.flush_at(), Some(first + WarnThrottle::<Instant>::INTERVAL));
+    assert_eq!(throttle.flush(first + Duration::from_millis(999)), None);
+    assert_eq!(throttle.flush(first + Duration::from_secs(1)), Some(999), "then the rest, counted");
+    assert_eq!((throttle.flush_at(), throttle.flush(first + Duration::from_secs(9))), (None, None));
+}
+
+/// N_Bs and N_Cr at the link, to the microsecond: an answer whose flow control never
+/// comes is abandoned at N_Bs after its first frame, a request whose consecutive frames
+/// never come at N_Cr after our flow control; then nothing is in progress and late flow
+/// control or consecutive frames are ignored.
+#[test]
+fn link_abandons_an_answer_at_n_bs_and_an_unfinished_request_at_n_cr() {
+    let mut b = Bench::new();
+    let cfg = Config::new(0x7A8, 0x7A0);
+    let t0 = Instant::from_millis(5);
+    b.now = t0;
+    assert_eq!(b.tester_sends(&[0x03, 0x22, 0xC0, 0x02])[0][..2], [0x10, 41]);
+    let t1 = t0 + Duration::from_millis(10);
+    b.now = t1;
+    assert_eq!(b.tester_sends(&[0x10, 0x0A, 0x22, 0xC0, 0x01, 0xC0, 0x02, 0xC0])[0][0], 0x30);
+    assert_eq!(b.link.poll_at(&b.server), Some(t0 + cfg.n_bs));
+    b.now = t0 + (cfg.n_bs - Duration::from_micros(1));
+    assert!(b.server_frames().is_empty() && b.events.is_empty());
+    b.now = t0 + cfg.n_bs;
+    assert!(b.server_frames().is_empty());
+    let timeout =
+        LinkEvent::ResponseAbandoned { service: 0x22, why: Abandoned::Transport(TxError::Timeout) };
+    assert_eq!(b.events, [(t0 + cfg.n_bs, timeout)]);
+    assert_eq!(b.link.poll_at(&b.server), Some(t1 + cfg.n_cr));
+    b.now = t1 + (cfg.n_cr - Duration::from_micros(1));
+    assert!(b.server_frames().is_empty() && b.events.len() == 1);
+    b.now = t1 + cfg.n_cr;
+    assert!(b.server_frames().is_empty());
+    assert_eq!(b.events[1], (t1 + cfg.n_cr, LinkEvent::RequestAborted(RxError::Timeout)));
+    assert_eq!(b.link.poll_at(&b.server), None, "nothing in progress");
+    assert!(b.tester_sends(&[0x30, 0, 0]).is_empty(), "late flow control: no consecutive frame");
+    assert!(b.tester_sends(&[0x21, 0xC0, 0x03, 0, 0, 0, 0, 0]).is_empty());
+    assert_eq!(b.events.len(), 2);
+    assert_eq!(b.request(&[0x3E, 0x00]).unwrap(), [0x7E, 0x00]);
+}
+
+/// A request whose answer is suppressed does not disturb the answer being sent; one
+/// whose answer is not abandons it (reported), and the flow control that follows
+/// continues the new answer only.
+#[test]
+fn only_a_newer_answer_takes_the_link() {
+    let mut b = Bench::new();
+    assert_eq!(b.tester_sends(&[0x03, 0x22, 0xC0, 0x02])[0][..5], [0x10, 41, 0x62, 0xC0, 0x02]);
+    assert!(b.tester_sends(&[0x02, 0x3E, 0x80]).is_empty(), "TesterPresent, suppressed");
+    let cfs = b.tester_sends(&[0x30, 0, 0]);
+    assert_eq!(cfs.len(), 5, "the read's answer carries on");
+    assert_eq!(b.tester_sends(&[0x03, 0x22, 0xC0, 0x03])[0][..5], [0x10, 31, 0x62, 0xC0, 0x03]);
+    let out = b.tester_sends(&[0x02, 0x3E, 0x00]);
+    assert_eq!(out, [vec![0x02, 0x7E, 0x00, 0xCC, 0xCC, 0xCC, 0xCC, 0xCC]]);
+    let superseded = LinkEvent::ResponseAbandoned { service: 0x22, why: Abandoned::Superseded };
+    assert_eq!(b.events, [(b.now, superseded)]);
+    assert!(b.tester_sends(&[0x30, 0, 0]).is_empty(), "no flow control continues an old answer");
 }
 
 /// The response's data after the echoed DID, asserting the DID.

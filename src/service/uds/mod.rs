@@ -6,7 +6,8 @@
 //! [`Server::poll`] runs the timers (S3 session timeout, the periodic 0x78
 //! responsePending while a calibration runs, and the final answer once the
 //! [`Backend`] reports it). Time is passed in; randomness for SecurityAccess seeds comes
-//! from a caller-supplied [`SeedSource`].
+//! from a caller-supplied [`SeedSource`]. [`Link`] puts the server on an ISO-TP endpoint
+//! and binds each response to the request it answers.
 //!
 //! Services (see DESIGN.md, "Service over CAN"):
 //!
@@ -33,9 +34,11 @@ use sha2::Sha256;
 
 use super::Instant;
 
+mod link;
 mod records;
 mod repr;
 
+pub use link::{Abandoned, Link, LinkEvent};
 pub use records::*;
 pub use repr::{RequestRepr, ResponseRepr};
 
