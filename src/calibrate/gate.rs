@@ -55,7 +55,7 @@ pub(super) fn gate(
         })?;
         holes_fit(q, r.quality.hole_rms_px)?;
         if let Some(ext) = &run.lidar_to_camera {
-            holes_agree(&run.boards, &run.holes_board, ext)?;
+            holes_agree(&run.boards, &run.holes_board, ext, r.quality.corner_rms_px)?;
         }
         extrinsic_certain(q, &r.uncertainty)?;
     }
@@ -143,12 +143,16 @@ pub(super) fn holes_agree(
     boards: &[UsedBoard],
     holes_board: &[crate::geometry::Vec3],
     lidar_to_camera: &crate::geometry::Se3,
+    corner_sigma_px: f64,
 ) -> Result<(), String> {
     let (mut chi2, mut rows, mut worst) = (0.0, 0usize, 0.0f64);
     for b in boards.iter().filter(|b| !b.holes_lidar.is_empty() && b.hole_sigma_m > 0.0) {
+        // Joint σ: the LiDAR's hole and the camera's board, whose depth is the less
+        // certain part of its pose (taken on every axis: the test only loosens).
+        let variance = b.hole_sigma_m.powi(2) + depth_sigma_m(b, corner_sigma_px).powi(2);
         for (lidar, model) in b.holes_lidar.iter().zip(holes_board) {
             let apart = lidar_to_camera.act(lidar) - b.pose.act(model);
-            chi2 += apart.norm_squared() / (b.hole_sigma_m * b.hole_sigma_m);
+            chi2 += apart.norm_squared() / variance;
             rows += 3;
             worst = worst.max(apart.norm());
         }
@@ -164,6 +168,22 @@ pub(super) fn holes_agree(
             worst * 1e3
         )
     })
+}
+
+/// The σ of a board's depth from its corners: its image scale `s` (the corners' RMS
+/// distance from their mean, px) sets the depth `Z ∝ 1/s`, and `N` corners of σ `σ_px`
+/// pin `s` to about `σ_px·√(2/N)`, so `σ_Z ≈ Z·σ_px·√(2/N)/s`.
+fn depth_sigma_m(board: &UsedBoard, corner_sigma_px: f64) -> f64 {
+    let n = board.corners.len();
+    if n < 2 {
+        return 0.0;
+    }
+    let mean = board.corners.iter().sum::<crate::geometry::Vec2>() / n as f64;
+    let spread = (board.corners.iter().map(|c| (c - mean).norm_squared()).sum::<f64>()
+        / n as f64)
+        .sqrt();
+    let depth = board.pose.translation.norm();
+    depth * corner_sigma_px * (2.0 / n as f64).sqrt() / spread.max(1.0)
 }
 
 /// The standard normal quantile of `1 − 10⁻³`: a right run fails [`holes_agree`] this
@@ -371,10 +391,10 @@ mod tests {
         };
         let identity = Se3::identity();
         let right = [board(-1.5, 0.0), board(1.5, 0.0)];
-        assert_eq!(holes_agree(&right, &holes_board, &identity), Ok(()));
+        assert_eq!(holes_agree(&right, &holes_board, &identity, 0.0), Ok(()));
         // One board off: a common shift would be the extrinsic's, a differing one is not.
         let wrong = [board(-1.5, 0.0), board(1.5, 5.0 * sigma)];
-        let reason = holes_agree(&wrong, &holes_board, &identity).unwrap_err();
+        let reason = holes_agree(&wrong, &holes_board, &identity, 0.0).unwrap_err();
         assert!(reason.contains("disagree"), "{reason}");
         assert!(reason.contains("25 mm apart"), "{reason}");
     }
