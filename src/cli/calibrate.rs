@@ -103,7 +103,10 @@ pub fn run(args: CalibrateArgs) -> Result<(), Failure> {
         let image = frame.decode(&room)?;
         let camera = detectors.detect_image(&image).map_err(bad_input)?;
         frames.push(FrameDetections { camera, lidar: Vec::new() });
-        first = first.or(Some(image));
+        // Only the report's frame is kept; the others go once detected.
+        if first.is_none() && args.report.is_some() {
+            first = Some(image);
+        }
     }
     // Room without a LiDAR, or images only: intrinsics only.
     let mut room = room;

@@ -252,8 +252,8 @@ impl JpegFrame {
 /// Walks a JPEG's segments after its start marker to the first scan, then counts the
 /// bytes from there to the end-of-image marker (inside entropy-coded data 0xFF is always
 /// followed by 0x00 or a restart marker, so 0xFF 0xD9 there is the end). `None` when the
-/// file ends first; the frame is `None`-free: a file without a frame header gets a frame
-/// of no blocks, for the decoder to refuse.
+/// file ends first. A file without a frame header gets a frame of no blocks (no bound):
+/// the decoder refuses it.
 fn jpeg_scan(input: &mut impl BufRead) -> std::io::Result<Option<(JpegFrame, u64)>> {
     let mut frame = JpegFrame { width: 0, height: 0, blocks: 0, bits_per_block: 0 };
     loop {
