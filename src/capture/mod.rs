@@ -33,6 +33,9 @@ pub enum CaptureError {
     Pixel { device: String, source: pixel::PixelError },
     #[error("image {path}: {message}")]
     Image { path: PathBuf, message: String },
+    /// An image file refused by the loader (its message names the file).
+    #[error(transparent)]
+    Load(#[from] crate::detect::DetectError),
     #[error("replay {path}: no PNG or JPEG images found")]
     Empty { path: PathBuf },
     #[error("camera source `{0}`: expected v4l2:DEVICE or replay:PATH")]
@@ -258,7 +261,7 @@ impl ImageReplay {
             return Err(CaptureError::Empty { path: path.to_path_buf() });
         };
         for file in &files[1..] {
-            crate::detect::image_size(file).map_err(|e| image_error(file, e))?;
+            crate::detect::image_size(file)?;
         }
         let current = (0, load_grey(first)?);
         Ok(ImageReplay {
@@ -307,12 +310,8 @@ impl FrameSource for ImageReplay {
 
 /// Decodes a PNG or JPEG file to grey (colour is converted to luma).
 pub fn load_grey(path: &Path) -> Result<GreyFrame, CaptureError> {
-    let image = crate::detect::load_grey(path).map_err(|e| image_error(path, e))?;
+    let image = crate::detect::load_grey(path)?;
     Ok(GreyFrame { width: image.width, height: image.height, pixels: image.data, time: 0.0 })
-}
-
-fn image_error(path: &Path, e: crate::detect::DetectError) -> CaptureError {
-    CaptureError::Image { path: path.to_path_buf(), message: e.to_string() }
 }
 
 /// The image itself, or a folder's PNG/JPEG files sorted by name.
