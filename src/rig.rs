@@ -54,7 +54,11 @@ pub struct CameraEntry {
     pub cx: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cy: Option<f64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "crate::target::lists::distortion"
+    )]
     pub distortion: Option<heapless::Vec<f64, 5>>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rotation: Option<Rows>,
@@ -81,10 +85,22 @@ pub type Rows = heapless::Vec<heapless::Vec<f64, 3>, 3>;
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RigFile {
-    #[serde(default)]
+    #[serde(default, deserialize_with = "cameras")]
     pub camera: heapless::Vec<CameraEntry, MAX_CAMERAS>,
-    #[serde(default)]
+    #[serde(default, deserialize_with = "lidars")]
     pub lidar: heapless::Vec<LidarEntry, MAX_LIDARS>,
+}
+
+fn cameras<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> Result<heapless::Vec<CameraEntry, MAX_CAMERAS>, D::Error> {
+    crate::target::capped(d, "cameras ([[camera]] tables)")
+}
+
+fn lidars<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> Result<heapless::Vec<LidarEntry, MAX_LIDARS>, D::Error> {
+    crate::target::capped(d, "LiDARs ([[lidar]] tables)")
 }
 
 /// A checked camera of a rig.
@@ -396,7 +412,7 @@ mod file {
     pub fn parse(text: &str, path: &Path) -> Result<Rig, RigFileError> {
         let file: RigFile = toml::from_str(text).map_err(|e| RigFileError::Parse {
             path: path.to_owned(),
-            message: e.to_string().trim_end().replace('\n', "\n  "),
+            message: crate::room::toml_message(text, &e),
         })?;
         Rig::from_file(&file).map_err(|source| RigFileError::Invalid {
             path: path.to_owned(),

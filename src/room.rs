@@ -29,10 +29,61 @@ pub fn load(path: &Path) -> Result<Room, RoomFileError> {
 pub fn parse(text: &str, path: &Path) -> Result<Room, RoomFileError> {
     let room: Room = toml::from_str(text).map_err(|e| RoomFileError::Parse {
         path: path.to_owned(),
-        message: e.to_string().trim_end().replace('\n', "\n  "),
+        message: toml_message(text, &e),
     })?;
     room.validate().map_err(|source| RoomFileError::Invalid { path: path.to_owned(), source })?;
     Ok(room)
+}
+
+/// Most characters of a TOML file's line, or of the parser's message, that an error echoes:
+/// a 50 MB value is named, not printed.
+const ECHO_CHARS: usize = 120;
+
+/// A TOML parse error of `text` as toml words it (the line, a caret under the problem, the
+/// message), indented under the file's name, with the line and the message cut to
+/// [`ECHO_CHARS`] characters around the problem: a huge bad value costs neither memory nor
+/// a screenful. Shared by the room, rig and daemon configuration files.
+pub fn toml_message(text: &str, e: &toml::de::Error) -> String {
+    let message = clip(e.message().trim_end(), 0, ECHO_CHARS);
+    let Some(span) = e.span() else {
+        return message;
+    };
+    let mut start = span.start.min(text.len());
+    while !text.is_char_boundary(start) {
+        start -= 1;
+    }
+    let line_start = text[..start].rfind('\n').map_or(0, |i| i + 1);
+    let line_end = text[start..].find('\n').map_or(text.len(), |i| start + i);
+    let line_no = text[..line_start].matches('\n').count() + 1;
+    let line = text[line_start..line_end].trim_end_matches('\r');
+    let column = text[line_start..start].chars().count();
+    // A long line is shown as its start (its key) and the part around the problem.
+    let head = ECHO_CHARS / 4;
+    let (excerpt, caret_at) = if column < ECHO_CHARS - head {
+        (clip(line, 0, ECHO_CHARS), column)
+    } else {
+        let skip = column - head;
+        let excerpt = clip(line, 0, head) + &clip(line, skip, ECHO_CHARS - head);
+        (excerpt, head + 1 + column - skip)
+    };
+    let gutter = " ".repeat(line_no.to_string().len());
+    format!(
+        "TOML parse error at line {line_no}, column {}\n  {gutter} |\n  {line_no} | {excerpt}\n  \
+         {gutter} | {}^\n  {message}",
+        column + 1,
+        " ".repeat(caret_at),
+    )
+}
+
+/// `chars` characters of `s` from character `skip`, with `…` where it goes on.
+fn clip(s: &str, skip: usize, chars: usize) -> String {
+    let mut out = String::new();
+    let mut rest = s.chars().skip(skip);
+    out.extend(rest.by_ref().take(chars));
+    if rest.next().is_some() {
+        out.push('…');
+    }
+    out
 }
 
 /// What the room file says of `survey.covariance` above it (`target::SurveySpec::covariance`

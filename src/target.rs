@@ -39,9 +39,11 @@ pub const MIN_SQUARE_M: f64 = 0.005;
 /// 16384 is beyond any vehicle camera.
 pub const MIN_IMAGE_SIDE: u32 = 32;
 pub const MAX_IMAGE_SIDE: u32 = 16384;
-/// Most pixels of a camera image (64 Mpx): bounds every buffer sized from an image, and
-/// image files are refused above it from their header, before decoding.
-pub const MAX_IMAGE_PIXELS: u64 = 64 << 20;
+/// Most pixels of a camera image (16 Mi px: 4096 × 4096, twice a 4K camera): bounds every
+/// buffer sized from an image, and image files are refused above it from their header,
+/// before decoding. With the decoders' byte limit it keeps a run within the memory budget
+/// of docs/limits.md (a frame, the detector's response and the report take ~8 B a pixel).
+pub const MAX_IMAGE_PIXELS: u64 = 16 << 20;
 /// Focal lengths (px) must lie within these multiples of the image's larger side: 0.05×
 /// is wider than any fisheye, 50× narrower than any vehicle telephoto lens.
 pub const MIN_FOCAL_PER_SIDE: f64 = 0.05;
@@ -93,7 +95,11 @@ pub struct CameraSpec {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cy: Option<f64>,
     /// Nominal distortion (k1 k2 p1 p2 k3, or fisheye k1..k4).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "lists::distortion"
+    )]
     pub distortion: Option<heapless::Vec<f64, 5>>,
 }
 
@@ -227,9 +233,10 @@ pub struct SurveySpec {
     /// How the room frame is defined (free text).
     pub frame: heapless::String<MAX_SURVEY_TEXT>,
     /// One per board (`board.count` of them), any order.
+    #[serde(deserialize_with = "lists::boards")]
     pub boards: heapless::Vec<SurveyedBoard, MAX_BOARDS>,
     /// The room's big planes, any number up to [`MAX_SURVEY_PLANES`].
-    #[serde(default)]
+    #[serde(default, deserialize_with = "lists::planes")]
     pub planes: heapless::Vec<SurveyedPlane, MAX_SURVEY_PLANES>,
     /// The survey's joint covariance (optional): the lower triangle by rows, row `i`
     /// holding `i + 1` numbers, over every board's `[δω δt]` in `boards` order (6: rad and
@@ -858,6 +865,70 @@ impl Room {
     }
 }
 
+/// Lists of a fixed capacity read from a file. heapless's own deserialiser refuses a longer
+/// list as "invalid length 9, expected a sequence", which names neither the list nor its
+/// maximum; [`capped`] says what the list holds, how many the file gives and how many
+/// roomcal takes (toml adds the key and the line).
+pub fn capped<'de, D, T, const N: usize>(
+    d: D,
+    what: &'static str,
+) -> Result<heapless::Vec<T, N>, D::Error>
+where
+    D: serde::Deserializer<'de>,
+    T: Deserialize<'de>,
+{
+    use serde::de::{Error, IgnoredAny, SeqAccess, Visitor};
+    struct V<T, const N: usize>(&'static str, core::marker::PhantomData<T>);
+    impl<'de, T: Deserialize<'de>, const N: usize> Visitor<'de> for V<T, N> {
+        type Value = heapless::Vec<T, N>;
+        fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+            write!(f, "a list of at most {N} {}", self.0)
+        }
+        fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
+            let mut out = heapless::Vec::new();
+            while let Some(item) = seq.next_element()? {
+                if out.push(item).is_err() {
+                    let mut given = N + 1;
+                    while seq.next_element::<IgnoredAny>()?.is_some() {
+                        given += 1;
+                    }
+                    return Err(A::Error::custom(format_args!(
+                        "{given} {}, more than the {N} roomcal takes",
+                        self.0
+                    )));
+                }
+            }
+            Ok(out)
+        }
+    }
+    d.deserialize_seq(V::<T, N>(what, core::marker::PhantomData))
+}
+
+/// The capped lists of the room and rig files (see [`capped`]).
+pub(crate) mod lists {
+    use serde::Deserializer;
+
+    use super::{capped, SurveyedBoard, SurveyedPlane, MAX_BOARDS, MAX_SURVEY_PLANES};
+
+    pub fn boards<'de, D: Deserializer<'de>>(
+        d: D,
+    ) -> Result<heapless::Vec<SurveyedBoard, MAX_BOARDS>, D::Error> {
+        capped(d, "surveyed boards")
+    }
+
+    pub fn planes<'de, D: Deserializer<'de>>(
+        d: D,
+    ) -> Result<heapless::Vec<SurveyedPlane, MAX_SURVEY_PLANES>, D::Error> {
+        capped(d, "surveyed planes")
+    }
+
+    pub fn distortion<'de, D: Deserializer<'de>>(
+        d: D,
+    ) -> Result<Option<heapless::Vec<f64, 5>>, D::Error> {
+        capped(d, "distortion coefficients").map(Some)
+    }
+}
+
 /// Strict-length deserialisers: serde's `[T; N]` takes the first N elements of a longer
 /// array and drops the rest silently, so `inner_corners = [7, 5, 3]` would be read as
 /// `[7, 5]`. These refuse any array that has not exactly N elements (toml names the key).
@@ -923,7 +994,7 @@ mod exact {
     where
         D: Deserializer<'de>,
     {
-        let pts = heapless::Vec::<Exact2, M>::deserialize(d)?;
+        let pts: heapless::Vec<Exact2, M> = super::capped(d, "holes")?;
         Ok(pts.iter().map(|p| p.0).collect())
     }
 

@@ -33,6 +33,9 @@ pub enum CaptureError {
     Pixel { device: String, source: pixel::PixelError },
     #[error("image {path}: {message}")]
     Image { path: PathBuf, message: String },
+    /// An image file refused by the loader (its message names the file).
+    #[error(transparent)]
+    Load(#[from] crate::detect::DetectError),
     #[error("replay {path}: no PNG or JPEG images found")]
     Empty { path: PathBuf },
     #[error("camera source `{0}`: expected v4l2:DEVICE or replay:PATH")]
@@ -70,26 +73,58 @@ pub fn mean_pixels(frames: &[&[u8]]) -> Option<Vec<u8>> {
     sum.into_mean().map(|m| m.pixels)
 }
 
-/// The rounded per-pixel mean of a standing vehicle's frames read from files (each
-/// already checked to be the camera's size), as [`FrameSum`] averages the daemon's;
-/// `None` if there are none or their sizes differ.
-pub fn mean_image(images: &[crate::detect::GreyImage]) -> Option<crate::detect::GreyImage> {
-    let pixels: Vec<&[u8]> = images.iter().map(|i| i.data.as_slice()).collect();
-    let data = mean_pixels(&pixels)?;
-    Some(crate::detect::GreyImage { width: images[0].width, height: images[0].height, data })
+/// The rounded per-pixel mean of a standing vehicle's frames read one at a time by `load`
+/// (each checked to be the camera's size): only the running sum and one frame are held,
+/// whatever the number of files. `Ok(None)` without files; a frame of another size than
+/// the first is refused through `mismatch`.
+pub fn mean_image<P, E>(
+    paths: &[P],
+    mut load: impl FnMut(&P) -> Result<crate::detect::GreyImage, E>,
+    mismatch: impl Fn(&P, FrameSizeMismatch) -> E,
+) -> Result<Option<crate::detect::GreyImage>, E> {
+    let mut sum = FrameSum::default();
+    for path in paths {
+        let image = load(path)?;
+        let frame =
+            GreyFrame { width: image.width, height: image.height, pixels: image.data, time: 0.0 };
+        sum.add(&frame).map_err(|e| mismatch(path, e))?;
+    }
+    Ok(sum.into_mean().map(|m| crate::detect::GreyImage {
+        width: m.width,
+        height: m.height,
+        data: m.pixels,
+    }))
 }
 
 /// The running per-pixel sum of a static scene's frames: their rounded mean without
 /// keeping the frames. The daemon sums each camera's frames as they arrive (a run's five
 /// 1920×1200 frames of two cameras held 23 MB as frames) and turns the sums into means
 /// before it calibrates, so the sums are gone while the detectors and the solve run.
+/// The sum takes 2 bytes a pixel up to [`NARROW_FRAMES`] frames, 4 beyond.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct FrameSum {
     width: u32,
     height: u32,
-    sum: Vec<u32>,
+    sum: Sum,
     frames: u32,
     time: f64,
+}
+
+/// Most frames whose sum fits 16 bits a pixel (257 × 255 ≤ 65535): the daemon's runs
+/// (at most 100 frames) and any usual standing vehicle's files.
+pub const NARROW_FRAMES: u32 = (u16::MAX / u8::MAX as u16) as u32;
+
+/// Per-pixel sums: 16 bits while they cannot overflow, then 32.
+#[derive(Clone, Debug, PartialEq)]
+enum Sum {
+    Narrow(Vec<u16>),
+    Wide(Vec<u32>),
+}
+
+impl Default for Sum {
+    fn default() -> Self {
+        Sum::Narrow(Vec::new())
+    }
 }
 
 /// A frame that [`FrameSum::add`] refused: its size is not the first frame's.
@@ -132,7 +167,11 @@ impl FrameSum {
         if n == 0 {
             return None;
         }
-        let pixels = self.sum.iter().map(|&s| ((s + n / 2) / n) as u8).collect();
+        let mean = |s: u32| ((s + n / 2) / n) as u8;
+        let pixels = match self.sum {
+            Sum::Narrow(sum) => sum.into_iter().map(|s| mean(u32::from(s))).collect(),
+            Sum::Wide(sum) => sum.into_iter().map(mean).collect(),
+        };
         Some(GreyFrame {
             width: self.width,
             height: self.height,
@@ -144,12 +183,21 @@ impl FrameSum {
     /// Adds one buffer of pixels; `Err` (sum unchanged) when its length is not the first's.
     fn add_pixels(&mut self, pixels: &[u8]) -> Result<(), ()> {
         if self.frames == 0 {
-            self.sum = vec![0; pixels.len()];
-        } else if pixels.len() != self.sum.len() {
-            return Err(());
+            self.sum = Sum::Narrow(vec![0; pixels.len()]);
         }
-        for (s, &p) in self.sum.iter_mut().zip(pixels) {
-            *s += u32::from(p);
+        if self.frames == NARROW_FRAMES {
+            if let Sum::Narrow(narrow) = &self.sum {
+                self.sum = Sum::Wide(narrow.iter().map(|&s| u32::from(s)).collect());
+            }
+        }
+        match &mut self.sum {
+            Sum::Narrow(sum) if sum.len() == pixels.len() => {
+                sum.iter_mut().zip(pixels).for_each(|(s, &p)| *s += u16::from(p));
+            }
+            Sum::Wide(sum) if sum.len() == pixels.len() => {
+                sum.iter_mut().zip(pixels).for_each(|(s, &p)| *s += u32::from(p));
+            }
+            _ => return Err(()),
         }
         self.frames += 1;
         Ok(())
@@ -192,11 +240,14 @@ impl Default for Backoff {
 }
 
 /// Replay of an image file or a folder of PNG/JPEG images (sorted by name), looped.
-/// Every image is decoded to grey when the source opens.
+/// Every image's header is checked when the source opens and the first is decoded; the
+/// others are decoded when served, so one decoded image is held whatever the folder holds.
 #[derive(Debug)]
 pub struct ImageReplay {
     name: String,
-    frames: Vec<GreyFrame>,
+    files: Vec<PathBuf>,
+    /// The last decoded image and its index in `files`.
+    current: (usize, GreyFrame),
     next: usize,
     served: u64,
     period: Duration,
@@ -206,24 +257,31 @@ impl ImageReplay {
     /// Opens `path` (a file, or a folder of images) replayed every `period`.
     pub fn open(path: &Path, period: Duration) -> Result<Self, CaptureError> {
         let files = image_files(path)?;
-        let mut frames = Vec::with_capacity(files.len());
-        for file in &files {
-            frames.push(load_grey(file)?);
-        }
-        if frames.is_empty() {
+        let Some(first) = files.first() else {
             return Err(CaptureError::Empty { path: path.to_path_buf() });
+        };
+        for file in &files[1..] {
+            crate::detect::image_size(file)?;
         }
-        Ok(ImageReplay { name: path.display().to_string(), frames, next: 0, served: 0, period })
+        let current = (0, load_grey(first)?);
+        Ok(ImageReplay {
+            name: path.display().to_string(),
+            files,
+            current,
+            next: 0,
+            served: 0,
+            period,
+        })
     }
 
     /// Number of distinct images.
     pub fn len(&self) -> usize {
-        self.frames.len()
+        self.files.len()
     }
 
     /// Never true for an opened replay.
     pub fn is_empty(&self) -> bool {
-        self.frames.is_empty()
+        self.files.is_empty()
     }
 }
 
@@ -233,9 +291,14 @@ impl FrameSource for ImageReplay {
     }
 
     fn next_frame(&mut self) -> Result<GreyFrame, CaptureError> {
-        let mut frame = self.frames[self.next % self.frames.len()].clone();
+        if self.current.0 != self.next {
+            // The old frame goes before the new one is decoded: one is held at a time.
+            self.current.1 = GreyFrame { width: 0, height: 0, pixels: Vec::new(), time: 0.0 };
+            self.current = (self.next, load_grey(&self.files[self.next])?);
+        }
+        let mut frame = self.current.1.clone();
         frame.time = self.served as f64 * self.period.as_secs_f64();
-        self.next = (self.next + 1) % self.frames.len();
+        self.next = (self.next + 1) % self.files.len();
         self.served += 1;
         Ok(frame)
     }
@@ -247,8 +310,7 @@ impl FrameSource for ImageReplay {
 
 /// Decodes a PNG or JPEG file to grey (colour is converted to luma).
 pub fn load_grey(path: &Path) -> Result<GreyFrame, CaptureError> {
-    let image = crate::detect::load_grey(path)
-        .map_err(|e| CaptureError::Image { path: path.to_path_buf(), message: e.to_string() })?;
+    let image = crate::detect::load_grey(path)?;
     Ok(GreyFrame { width: image.width, height: image.height, pixels: image.data, time: 0.0 })
 }
 
@@ -308,6 +370,19 @@ mod tests {
         assert_eq!(sum.frames(), 2);
         let mean = sum.into_mean().unwrap();
         assert_eq!((mean.pixels, mean.time, mean.width), (vec![12, 244], 0.5, 2));
+    }
+
+    #[test]
+    fn a_frame_sum_widens_past_the_frames_sixteen_bits_hold() {
+        let mut sum = FrameSum::default();
+        let frames = NARROW_FRAMES + 43;
+        for i in 0..frames {
+            sum.add(&frame(if i % 3 == 0 { 0 } else { 255 }, 0.0)).unwrap();
+        }
+        assert!(matches!(sum.sum, Sum::Wide(_)));
+        let zeros = frames.div_ceil(3);
+        let want = ((255 * (frames - zeros) + frames / 2) / frames) as u8;
+        assert_eq!(sum.into_mean().unwrap().pixels[0], want);
     }
 
     #[test]

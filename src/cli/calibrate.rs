@@ -19,7 +19,9 @@ use roomcal::rig::Rig;
 use roomcal::target::Room;
 
 use super::detect::refused_message;
-use super::io::{load_cloud, load_image, result_json, write_result};
+use super::io::{
+    check_image_sized, load_cloud, load_clouds, load_image, mean_image, result_json, write_result,
+};
 use super::progress::Progress;
 use super::rig::{RigDetections, RigInputs};
 use super::{bad_input, rejected, summary, Failure};
@@ -102,10 +104,17 @@ pub fn run(args: CalibrateArgs) -> Result<(), Failure> {
     let (images, clouds) = load_inputs(&args, &room, &mut progress)?;
     let mut detectors = Detectors::new(&room).map_err(bad_input)?;
     let mut frames = Vec::new();
-    for (i, image) in images.iter().enumerate() {
-        progress.step(&format!("detecting boards, frame {} of {}", i + 1, images.len()));
-        let camera = detectors.detect_image(image).map_err(bad_input)?;
+    let mut first = None;
+    let count = images.len();
+    for (i, frame) in images.into_iter().enumerate() {
+        progress.step(&format!("detecting boards, frame {} of {count}", i + 1));
+        let image = frame.decode(&room)?;
+        let camera = detectors.detect_image(&image).map_err(bad_input)?;
         frames.push(FrameDetections { camera, lidar: Vec::new() });
+        // Only the report's frame is kept; the others go once detected.
+        if first.is_none() && args.report.is_some() {
+            first = Some(image);
+        }
     }
     // Room without a LiDAR, or images only: intrinsics only.
     let mut room = room;
@@ -133,7 +142,7 @@ pub fn run(args: CalibrateArgs) -> Result<(), Failure> {
     let mut written = write_result(&args.out, &run.result)?;
     if let Some(report) = &args.report {
         let first_refused = refused.first().map_or(&[][..], Vec::as_slice);
-        write_report(report, &images, &clouds, &run, first_refused)?;
+        write_report(report, first.as_ref(), &clouds, &run, first_refused)?;
         written.push(report.display().to_string());
     }
     let accepted = run.result.status == Status::Accepted;
@@ -194,36 +203,54 @@ fn steps(args: &CalibrateArgs) -> usize {
     args.image.len() + args.cloud.len() + frames + 2
 }
 
-/// Every image and cloud read; a standing vehicle's as one frame (images averaged, sweeps
-/// accumulated).
+/// A camera frame of the run: a standing vehicle's mean, or a file whose header was
+/// checked and whose pixels are decoded when its frame is detected, so one frame is held
+/// at a time whatever the number of files.
+enum Frame {
+    Mean(GreyImage),
+    File(PathBuf),
+}
+
+impl Frame {
+    fn decode(self, room: &Room) -> Result<GreyImage, Failure> {
+        match self {
+            Frame::Mean(image) => Ok(image),
+            Frame::File(path) => load_image(room, &path),
+        }
+    }
+}
+
+/// Every image's header checked and every cloud read; a standing vehicle's as one frame
+/// (images averaged as they are read, sweeps accumulated).
 fn load_inputs(
     args: &CalibrateArgs,
     room: &Room,
     progress: &mut Progress,
-) -> Result<(Vec<GreyImage>, Vec<Vec<Point>>), Failure> {
-    let images = args
-        .image
-        .iter()
-        .map(|path| {
+) -> Result<(Vec<Frame>, Vec<Vec<Point>>), Failure> {
+    let size = (room.camera.width, room.camera.height);
+    let whose = "the room's camera";
+    let images = if args.standing {
+        let step = |path: &Path| progress.step(&format!("reading {}", path.display()));
+        mean_image(&args.image, size, whose, step)?.map(Frame::Mean).into_iter().collect()
+    } else {
+        let mut files = Vec::with_capacity(args.image.len());
+        for path in &args.image {
             progress.step(&format!("reading {}", path.display()));
-            load_image(room, path)
-        })
-        .collect::<Result<Vec<_>, _>>()?;
-    let clouds = args
-        .cloud
-        .iter()
-        .map(|path| {
-            progress.step(&format!("reading {}", path.display()));
-            load_cloud(room, path, args.lidar_calibration.as_deref())
-        })
-        .collect::<Result<Vec<_>, _>>()?;
+            check_image_sized(path, size, whose)?;
+            files.push(Frame::File(path.clone()));
+        }
+        files
+    };
+    let clouds = load_clouds(&args.cloud, |path| {
+        progress.step(&format!("reading {}", path.display()));
+        load_cloud(room, path, args.lidar_calibration.as_deref())
+    })?;
     if !args.standing {
         return Ok((images, clouds));
     }
-    let image = roomcal::capture::mean_image(&images);
     let cloud = roomcal::lidar::accumulate_sweeps(clouds);
     let clouds = if cloud.is_empty() { Vec::new() } else { vec![cloud] };
-    Ok((image.into_iter().collect(), clouds))
+    Ok((images, clouds))
 }
 
 /// Each refused LiDAR plane as a sentence that stays above the progress line.
@@ -242,12 +269,12 @@ fn note_refused(args: &CalibrateArgs, refused: &[Vec<RefusedBoard>], progress: &
 /// The report picture of the first frame (see `roomcal::report::calibration_report`).
 fn write_report(
     path: &Path,
-    images: &[GreyImage],
+    first: Option<&GreyImage>,
     clouds: &[Vec<Point>],
     run: &roomcal::calibrate::Calibration,
     refused: &[RefusedBoard],
 ) -> Result<(), Failure> {
-    let Some(first) = images.first() else { return Ok(()) };
+    let Some(first) = first else { return Ok(()) };
     let cloud: Vec<&[Point]> = clouds.first().map(|c| c.as_slice()).into_iter().collect();
     roomcal::report::calibration_report(&first.data, &cloud, run, refused)
         .save(path)

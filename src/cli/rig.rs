@@ -15,7 +15,7 @@ use roomcal::lidar::Point;
 use roomcal::rig::{Rig, SensorKind};
 use roomcal::target::Room;
 
-use super::io::load_image_sized;
+use super::io::{load_clouds, mean_image};
 use super::{bad_input, Failure};
 
 /// Every sensor's inputs, in the rig's order.
@@ -171,11 +171,7 @@ fn detect_camera(
 pub fn camera_frame(rig: &Rig, c: usize, paths: &[PathBuf]) -> Result<Option<GreyImage>, Failure> {
     let spec = &rig.cameras[c].spec;
     let whose = format!("camera `{}` of the rig", rig.cameras[c].name);
-    let images = paths
-        .iter()
-        .map(|p| load_image_sized(p, (spec.width, spec.height), &whose))
-        .collect::<Result<Vec<_>, _>>()?;
-    Ok(roomcal::capture::mean_image(&images))
+    mean_image(paths, (spec.width, spec.height), &whose, |_| {})
 }
 
 /// LiDAR `l`'s sweeps, read and accumulated into one cloud.
@@ -186,10 +182,9 @@ fn load_lidar(
     angles: Option<&Path>,
 ) -> Result<Vec<Point>, Failure> {
     let model = rig.lidars[l].model.packet_model();
-    let sweeps = paths
-        .iter()
-        .map(|path| roomcal::lidar::read_cloud(path, model, angles).map_err(bad_input))
-        .collect::<Result<Vec<_>, _>>()?;
+    let sweeps = load_clouds(paths, |path| {
+        roomcal::lidar::read_cloud(path, model, angles).map_err(bad_input)
+    })?;
     Ok(roomcal::lidar::accumulate_sweeps(sweeps))
 }
 

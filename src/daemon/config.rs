@@ -318,7 +318,8 @@ pub fn load(path: &Path) -> Result<Config, ConfigError> {
 /// Parses configuration text; `path` names it and anchors relative paths.
 pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
     let invalid = |message: String| ConfigError::Invalid { path: path.to_path_buf(), message };
-    let raw: RawConfig = toml::from_str(text).map_err(|e| invalid(e.to_string()))?;
+    let raw: RawConfig =
+        toml::from_str(text).map_err(|e| invalid(crate::room::toml_message(text, &e)))?;
     let base = path.parent().unwrap_or(Path::new("."));
     let resolve = |p: &Path| if p.is_absolute() { p.to_path_buf() } else { base.join(p) };
     let rig = match &raw.rig {

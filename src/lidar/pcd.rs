@@ -22,11 +22,16 @@ use super::{lzf, Point};
 
 /// Most fields a PCD header may declare (the header is parsed without allocating).
 pub const MAX_FIELDS: usize = 64;
-/// Most points a PCD file may declare (16 Mi): a 128-beam sweep holds about 0.3 M, ten
-/// accumulated sweeps 3 M. Bounds the point buffer (32 B a point) whatever the header says;
-/// the data present must hold them too (binary: `POINTS × record` bytes; compressed: the
-/// LZF stream can expand to them; ascii: one line each).
-pub const MAX_POINTS: usize = 1 << 24;
+/// Most points a PCD file may declare (1 Mi), checked from the header before anything is
+/// sized from it: a 128-beam sweep holds about 0.3 M points. With [`MAX_DATA_BYTES`] this
+/// keeps calibrating from a cloud within the memory budget of docs/limits.md: a point
+/// takes 32 B, and a calibration's work on a cloud about 230 B a point in all.
+pub const MAX_POINTS: usize = 1 << 20;
+/// Most bytes a PCD file may hold, and most its data may take once decompressed
+/// (`POINTS × record`, from the header, before inflating).
+pub const MAX_DATA_BYTES: usize = 64 << 20;
+/// Room for the header (and comments) in a file of [`MAX_DATA_BYTES`] of data.
+const MAX_HEADER_BYTES: usize = 1 << 16;
 
 /// Data section encoding of a PCD file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -251,11 +256,18 @@ fn display(path: &Path) -> String {
     path.display().to_string()
 }
 
-/// Reads the whole file into `buf`, reusing its capacity.
+/// Reads the whole file into `buf`, reusing its capacity; a file above [`MAX_DATA_BYTES`]
+/// is refused before it is read.
 fn load(path: &Path, buf: &mut Vec<u8>) -> std::io::Result<()> {
     let mut f = File::open(path)?;
     buf.clear();
     let len = f.metadata().map(|m| m.len() as usize).unwrap_or(0);
+    if len > MAX_DATA_BYTES + MAX_HEADER_BYTES {
+        return Err(std::io::Error::other(format!(
+            "{len} bytes, more than the {} bytes of a PCD file roomcal reads",
+            MAX_DATA_BYTES + MAX_HEADER_BYTES
+        )));
+    }
     buf.reserve(len.saturating_add(1));
     f.read_to_end(buf)?;
     Ok(())
@@ -497,6 +509,13 @@ impl RawHeader<'_> {
         if points > MAX_POINTS {
             return Err(format!(
                 "POINTS {points} is more than the {MAX_POINTS} points roomcal reads"
+            ));
+        }
+        let data_bytes = points.saturating_mul(stride);
+        if format != PcdFormat::Ascii && data_bytes > MAX_DATA_BYTES {
+            return Err(format!(
+                "POINTS × record = {points} × {stride} bytes is more than the {MAX_DATA_BYTES} \
+                 bytes of data roomcal reads"
             ));
         }
         Ok(Header { fields, stride, width, height, points, format, data_start })

@@ -374,3 +374,59 @@ fn overlay_and_current_refuse_a_calibration_that_cannot_be() {
     ]);
     assert_eq!(code, 0, "{stderr}");
 }
+
+#[test]
+fn a_jpeg_whose_header_claims_more_than_its_data_holds_is_refused_as_truncated() {
+    let dir = scratch("jpeg-header-lie");
+    // A whole 16×16 JPEG (end marker and all) whose frame header is rewritten to 1920×1200.
+    let grey = image::GrayImage::from_fn(16, 16, |x, y| image::Luma([(x * 16 + y) as u8]));
+    let mut jpeg = Vec::new();
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 90).encode_image(&grey).unwrap();
+    let sof = jpeg.windows(2).position(|w| w == [0xFF, 0xC0]).expect("a baseline frame header");
+    jpeg[sof + 5..sof + 7].copy_from_slice(&1200u16.to_be_bytes());
+    jpeg[sof + 7..sof + 9].copy_from_slice(&1920u16.to_be_bytes());
+    let path = dir.join("lying.jpg");
+    std::fs::write(&path, &jpeg).unwrap();
+    let outcome = roomcal_no_crash(&[
+        "detect".as_ref(),
+        "--room".as_ref(),
+        ROOM_PATH.as_ref(),
+        "--image".as_ref(),
+        path.as_ref(),
+        "--out".as_ref(),
+        dir.join("o.json").as_ref(),
+    ]);
+    assert_refused(
+        "lying.jpg",
+        outcome,
+        &["lying.jpg", "truncated", "1920x1200", "bytes of image data"],
+    );
+}
+
+#[test]
+fn lists_beyond_their_capacity_name_the_list_and_its_maximum() {
+    let dir = scratch("capacity");
+    let holes = "holes = [[-0.45, -0.35], [0.45, -0.35], [-0.45, 0.35], [0.45, 0.35]]";
+    let nine = format!("holes = [{}]", ["[0.1, 0.1]"; 9].join(", "));
+    let outcome = detect_with_room(&dir, &ROOM.replacen(holes, &nine, 1));
+    assert_refused("9 holes", outcome, &["room.toml", "9 holes", "more than the 8"]);
+    let six = "height = 1200\ndistortion = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]";
+    let outcome = detect_with_room(&dir, &ROOM.replacen("height = 1200", six, 1));
+    assert_refused("6 coefficients", outcome, &["6 distortion coefficients", "more than the 5"]);
+
+    let lidar = |i: usize| format!("[[lidar]]\nname = \"l{i}\"\nmodel = \"pandar64\"\n");
+    let camera = |i: usize| {
+        format!("[[camera]]\nname = \"c{i}\"\nmodel = \"pinhole-radtan\"\nwidth = 1920\nheight = 1200\n")
+    };
+    let rig_cases = [
+        (camera(0) + &(0..9).map(lidar).collect::<String>(), "9 LiDARs", "more than the 8"),
+        ((0..500).map(camera).collect::<String>(), "500 cameras", "more than the 8"),
+    ];
+    for (text, count, maximum) in rig_cases {
+        let message = roomcal::rig::parse(&text, Path::new("rig.toml")).unwrap_err().to_string();
+        for word in ["rig.toml", count, maximum] {
+            assert!(message.contains(word), "`{word}` missing from: {message}");
+        }
+        assert!(message.len() < 1000, "{} bytes: {message}", message.len());
+    }
+}

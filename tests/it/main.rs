@@ -37,6 +37,7 @@ mod lidar_random_packets;
 mod lidar_reference;
 mod lidar_roundtrip;
 mod lidar_sweep;
+mod memory_budget;
 mod pcap;
 mod rig_calibrate;
 mod rig_cli;
