@@ -179,9 +179,8 @@ fn depth_sigma_m(board: &UsedBoard, corner_sigma_px: f64) -> f64 {
         return 0.0;
     }
     let mean = board.corners.iter().sum::<crate::geometry::Vec2>() / n as f64;
-    let spread = (board.corners.iter().map(|c| (c - mean).norm_squared()).sum::<f64>()
-        / n as f64)
-        .sqrt();
+    let spread =
+        (board.corners.iter().map(|c| (c - mean).norm_squared()).sum::<f64>() / n as f64).sqrt();
     let depth = board.pose.translation.norm();
     depth * corner_sigma_px * (2.0 / n as f64).sqrt() / spread.max(1.0)
 }
