@@ -6,6 +6,7 @@
 //! made on the test's thread while a closure runs (test threads run in parallel; each
 //! tracks only itself).
 
+use crate::common::png::png_claiming;
 use crate::counting_alloc::largest_allocation;
 use roomcal::detect::holes::{HoleConfig, HoleDetector, MAX_MASK_SIDE};
 use roomcal::lidar::pcd::{self, PcdError, PcdFormat};
@@ -28,25 +29,6 @@ fn hole_mask_is_bounded_for_boards_that_bypassed_validation() {
         println!("board.width = {width}: largest allocation {largest} B (bound {bound} B)");
         assert!(largest <= bound, "width {width}: {largest} B > {bound} B");
     }
-}
-
-/// A PNG whose header says `width × height` and whose data is one empty row.
-fn png_claiming(width: u32, height: u32) -> Vec<u8> {
-    fn chunk(out: &mut Vec<u8>, kind: &[u8; 4], data: &[u8]) {
-        out.extend((data.len() as u32).to_be_bytes());
-        let mut body = kind.to_vec();
-        body.extend(data);
-        out.extend(&body);
-        out.extend(roomcal::store::crc32(&body).to_be_bytes());
-    }
-    let mut png = b"\x89PNG\r\n\x1a\n".to_vec();
-    let mut ihdr = width.to_be_bytes().to_vec();
-    ihdr.extend(height.to_be_bytes());
-    ihdr.extend([8, 0, 0, 0, 0]);
-    chunk(&mut png, b"IHDR", &ihdr);
-    chunk(&mut png, b"IDAT", &[0x78, 0x9c, 0x03, 0x00, 0x00, 0x00, 0x00, 0x01]);
-    chunk(&mut png, b"IEND", &[]);
-    png
 }
 
 #[test]

@@ -8,6 +8,7 @@ pub mod impair;
 pub mod md5;
 pub mod opencalib;
 pub mod pcap_data;
+pub mod png;
 pub mod render;
 pub mod results;
 pub mod rig_scene;
@@ -48,4 +49,24 @@ pub fn write_secret(path: &Path, secret: &[u8]) {
     use std::os::unix::fs::PermissionsExt;
     std::fs::write(path, secret).unwrap();
     std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o600)).unwrap();
+}
+
+/// A replay daemon's configuration in `dir` (the six-board fixture, manual trigger: no run
+/// starts by itself) with its service on socketcand `127.0.0.1:port` and a secret of
+/// `secret` in `dir/secret`; the store is `dir/store`. Returns the file's path.
+pub fn service_daemon_config(dir: &Path, port: u16, secret: &[u8]) -> PathBuf {
+    write_secret(&dir.join("secret"), secret);
+    let text = format!(
+        "room = {:?}\nstore = {:?}\n[camera]\nsource = \"replay:{}\"\n[lidar]\nsource = \"replay:{}\"\n\
+         [trigger]\nmode = \"manual\"\nsweeps = 1\n[service]\ntransport = \"socketcand:127.0.0.1:{port}\"\n\
+         secret_file = {:?}\n",
+        fixture("six-boards-pandar64/room.toml"),
+        dir.join("store"),
+        fixture("six-boards-pandar64/image.png").display(),
+        fixture("six-boards-pandar64/cloud.pcd").display(),
+        dir.join("secret"),
+    );
+    let path = dir.join("roomcal.toml");
+    std::fs::write(&path, text).unwrap();
+    path
 }

@@ -21,20 +21,7 @@ use crate::common::scratch::Scratch;
 
 /// A replay daemon (manual trigger: no run starts by itself) with its service on `port`.
 fn config(dir: &Path, port: u16) -> PathBuf {
-    crate::common::write_secret(&dir.join("secret"), b"kill test secret\n");
-    let text = format!(
-        "room = {:?}\nstore = {:?}\n[camera]\nsource = \"replay:{}\"\n[lidar]\nsource = \"replay:{}\"\n\
-         [trigger]\nmode = \"manual\"\nsweeps = 1\n[service]\ntransport = \"socketcand:127.0.0.1:{port}\"\n\
-         secret_file = {:?}\n",
-        fixture("six-boards-pandar64/room.toml"),
-        dir.join("store"),
-        fixture("six-boards-pandar64/image.png").display(),
-        fixture("six-boards-pandar64/cloud.pcd").display(),
-        dir.join("secret"),
-    );
-    let path = dir.join("roomcal.toml");
-    std::fs::write(&path, text).unwrap();
-    path
+    crate::common::service_daemon_config(dir, port, b"kill test secret\n")
 }
 
 fn spawn(config: &Path) -> Daemon {

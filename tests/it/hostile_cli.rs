@@ -6,6 +6,7 @@
 //! The inputs are the design's room (`config/room.toml`) and the `six-boards-pandar64`
 //! fixture (made by `roomcal simulate`), altered in a temporary folder.
 
+use crate::common::png::png_claiming;
 use crate::common::{fixture, roomcal};
 use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
@@ -166,26 +167,6 @@ fn truncated_images_are_refused_as_truncated() {
         dir.join("o.json").as_ref(),
     ]);
     assert_eq!(code, 0, "{stderr}");
-}
-
-/// A PNG whose header says `width × height` and whose data is one empty row: a few dozen
-/// bytes that would decode to `width × height` pixels.
-pub fn png_claiming(width: u32, height: u32) -> Vec<u8> {
-    fn chunk(out: &mut Vec<u8>, kind: &[u8; 4], data: &[u8]) {
-        out.extend((data.len() as u32).to_be_bytes());
-        let mut body = kind.to_vec();
-        body.extend(data);
-        out.extend(&body);
-        out.extend(roomcal::store::crc32(&body).to_be_bytes());
-    }
-    let mut png = b"\x89PNG\r\n\x1a\n".to_vec();
-    let mut ihdr = width.to_be_bytes().to_vec();
-    ihdr.extend(height.to_be_bytes());
-    ihdr.extend([8, 0, 0, 0, 0]); // 8-bit grey, deflate, adaptive filter, no interlace
-    chunk(&mut png, b"IHDR", &ihdr);
-    chunk(&mut png, b"IDAT", &[0x78, 0x9c, 0x03, 0x00, 0x00, 0x00, 0x00, 0x01]);
-    chunk(&mut png, b"IEND", &[]);
-    png
 }
 
 #[test]

@@ -16,6 +16,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
+use crate::common::png::png_header;
 use crate::common::scratch::Scratch;
 use crate::common::{fixture, root, BIN};
 use roomcal::lidar::pcd::{self, PcdFormat};
@@ -135,26 +136,6 @@ fn room_with_camera(dir: &Path, width: u32, height: u32) -> PathBuf {
     let path = dir.join(format!("room-{width}x{height}.toml"));
     std::fs::write(&path, room.replacen("width = 1920\nheight = 1200", &camera, 1)).unwrap();
     path
-}
-
-/// A PNG header claiming `width × height` pixels of `depth`-bit `colour` (PNG colour type),
-/// with one empty data chunk: what a decoder sizes its buffer from.
-fn png_header(width: u32, height: u32, depth: u8, colour: u8) -> Vec<u8> {
-    fn chunk(out: &mut Vec<u8>, kind: &[u8; 4], data: &[u8]) {
-        out.extend((data.len() as u32).to_be_bytes());
-        let mut body = kind.to_vec();
-        body.extend(data);
-        out.extend(&body);
-        out.extend(roomcal::store::crc32(&body).to_be_bytes());
-    }
-    let mut png = b"\x89PNG\r\n\x1a\n".to_vec();
-    let mut ihdr = width.to_be_bytes().to_vec();
-    ihdr.extend(height.to_be_bytes());
-    ihdr.extend([depth, colour, 0, 0, 0]);
-    chunk(&mut png, b"IHDR", &ihdr);
-    chunk(&mut png, b"IDAT", &[0x78, 0x9c, 0x03, 0x00, 0x00, 0x00, 0x00, 0x01]);
-    chunk(&mut png, b"IEND", &[]);
-    png
 }
 
 /// A real grey PNG of `width × height`, a checker of 64 px squares (cheap to detect in).

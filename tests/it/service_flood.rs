@@ -27,7 +27,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::oneshot;
 
 use crate::common::scratch::Scratch;
-use crate::common::{fixture, results};
+use crate::common::results;
 
 const SECRET: &[u8] = b"flood vehicle secret";
 /// Requests (and unfinished requests) in a flood.
@@ -211,22 +211,9 @@ async fn recv(t: &mut MemoryTransport, ms: u64) -> Option<Vec<u8>> {
 
 /// A replay daemon (manual trigger) with its service on `port` and a calibration in force.
 fn daemon_config(dir: &Path, port: u16) -> std::path::PathBuf {
-    crate::common::write_secret(&dir.join("secret"), b"flood test secret\n");
     let store = Store::open(dir.join("store"), 4).unwrap();
     store.commit(&results::result(CameraModel::PinholeRadtan), 1_700_000_000).unwrap();
-    let text = format!(
-        "room = {:?}\nstore = {:?}\n[camera]\nsource = \"replay:{}\"\n[lidar]\nsource = \"replay:{}\"\n\
-         [trigger]\nmode = \"manual\"\nsweeps = 1\n[service]\ntransport = \"socketcand:127.0.0.1:{port}\"\n\
-         secret_file = {:?}\n",
-        fixture("six-boards-pandar64/room.toml"),
-        dir.join("store"),
-        fixture("six-boards-pandar64/image.png").display(),
-        fixture("six-boards-pandar64/cloud.pcd").display(),
-        dir.join("secret"),
-    );
-    let path = dir.join("roomcal.toml");
-    std::fs::write(&path, text).unwrap();
-    path
+    crate::common::service_daemon_config(dir, port, b"flood test secret\n")
 }
 
 /// A spawned daemon, killed when dropped: a failed assert must not leave it running.
