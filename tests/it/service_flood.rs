@@ -26,8 +26,8 @@ use roomcal::store::Store;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::oneshot;
 
-use crate::common::scratch::Scratch;
 use crate::common::results;
+use crate::common::scratch::Scratch;
 
 const SECRET: &[u8] = b"flood vehicle secret";
 /// Requests (and unfinished requests) in a flood.
