@@ -296,7 +296,7 @@ impl Refusal {
             // Most often a board too few scan lines cross (far, or in sparse beams); a
             // room file whose holes are elsewhere looks the same.
             Refusal::NoHoleGaps { .. } => {
-                "too few scan lines cross its holes: if it is a board, bring it closer or into the LiDAR's denser beams, or check the room file's hole positions"
+                "if it is a board, too few scan lines cross its holes: bring it closer or into the LiDAR's denser beams, or check the room file's hole positions"
             }
             Refusal::HolesUnseen { .. }
             | Refusal::FewLines { .. }
