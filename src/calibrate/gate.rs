@@ -38,8 +38,7 @@ pub(super) fn gate(
                 q.min_lidar_boards
             )
         })?;
-        let hole_boards = run.boards.iter().filter(|b| !b.holes_lidar.is_empty()).count();
-        angles_checked(options.lidar_angles, hole_boards)?;
+        angles_checked(options.lidar_angles, run.hole_boards())?;
         // In a surveyed room the survey gives every target its pose: the LiDAR registers
         // against boards (by their holes or their face) and planes alike, as a rig's does.
         let lidar_boards = run.boards.iter().filter(|b| b.seen_by_lidar()).count();

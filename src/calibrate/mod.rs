@@ -119,6 +119,17 @@ pub enum LidarAngles {
     Nominal,
 }
 
+impl LidarAngles {
+    /// The table of points decoded from packets here (`decoded_here`, not a cloud file
+    /// decoded elsewhere), with or without the unit's angle file.
+    pub fn of(decoded_here: bool, unit_file: bool) -> Self {
+        match decoded_here && !unit_file {
+            true => LidarAngles::Nominal,
+            false => LidarAngles::Unit,
+        }
+    }
+}
+
 /// One board observation as the solver used it.
 #[derive(Clone, Debug, PartialEq)]
 pub struct UsedBoard {
@@ -169,6 +180,14 @@ pub struct Calibration {
 pub type PoseCovariance = nalgebra::SMatrix<f64, 12, 12>;
 
 impl Calibration {
+    /// Boards the run placed with the LiDAR by their holes (0 without an extrinsic).
+    pub fn hole_boards(&self) -> usize {
+        match self.lidar_to_camera {
+            Some(_) => self.boards.iter().filter(|b| !b.holes_lidar.is_empty()).count(),
+            None => 0,
+        }
+    }
+
     /// A used board's hole centres in the camera frame, placed by its solved pose.
     pub fn holes_in_camera(&self, board: &UsedBoard) -> Vec<Vec3> {
         self.holes_board.iter().map(|h| board.pose.act(h)).collect()

@@ -256,14 +256,14 @@ pub(super) fn solve_surveyed(
                         &holes_board,
                     );
                     dropped.iter().for_each(|&i| again[i] = None);
-                    if paired(&again) > paired(&pairs) && reassociated {
-                        return Err(format!(
-                            "the solved mounting pairs {} of the LiDAR's hole-placed boards with the camera's, the run used {}: the LiDAR and the camera disagree; is the room's nominal LiDAR mounting right?",
-                            paired(&again),
-                            paired(&pairs)
-                        ));
-                    }
                     if paired(&again) > paired(&pairs) {
+                        if reassociated {
+                            return Err(format!(
+                                "the solved mounting pairs {} of the LiDAR's hole-placed boards with the camera's, the run used {}: the LiDAR and the camera disagree; is the room's nominal LiDAR mounting right?",
+                                paired(&again),
+                                paired(&pairs)
+                            ));
+                        }
                         tracing::info!(
                         before = paired(&pairs),
                         after = paired(&again),

@@ -172,10 +172,7 @@ pub fn run(args: CalibrateArgs) -> Result<(), Failure> {
 /// without the unit's angle file.
 fn lidar_angles(clouds: &[PathBuf], angle_file: Option<&Path>) -> LidarAngles {
     let decoded_here = clouds.iter().any(|c| roomcal::lidar::is_packet_capture(c));
-    match decoded_here && angle_file.is_none() {
-        true => LidarAngles::Nominal,
-        false => LidarAngles::Unit,
-    }
+    LidarAngles::of(decoded_here, angle_file.is_some())
 }
 
 /// Image i pairs with cloud i (unless standing), and clouds need the room's LiDAR.

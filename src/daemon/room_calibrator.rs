@@ -35,21 +35,18 @@ pub struct RoomCalibrator {
 /// model's nominal table when any LiDAR's packets, live or a replayed capture, are
 /// decoded without the unit's angle file ([`LidarAngles`]).
 pub fn lidar_angles(config: &Config) -> LidarAngles {
-    let nominal = |source: &LidarSource, file: Option<&PathBuf>| {
-        file.is_none()
-            && match source {
-                LidarSource::Udp(_) => true,
-                LidarSource::Replay(path) => crate::lidar::is_packet_capture(path),
-            }
+    let sources: Vec<(&LidarSource, Option<&PathBuf>)> = match &config.rig {
+        Some(rig) => rig.lidars.iter().map(|l| (&l.source, l.calibration.as_ref())).collect(),
+        None => vec![(&config.lidar, config.lidar_calibration.as_ref())],
     };
-    let any_nominal = match &config.rig {
-        Some(rig) => rig.lidars.iter().any(|l| nominal(&l.source, l.calibration.as_ref())),
-        None => nominal(&config.lidar, config.lidar_calibration.as_ref()),
+    let of = |(source, file): (&LidarSource, Option<&PathBuf>)| {
+        let decoded_here = match source {
+            LidarSource::Udp(_) => true,
+            LidarSource::Replay(path) => crate::lidar::is_packet_capture(path),
+        };
+        LidarAngles::of(decoded_here, file.is_some())
     };
-    match any_nominal {
-        true => LidarAngles::Nominal,
-        false => LidarAngles::Unit,
-    }
+    sources.into_iter().map(of).find(|a| *a == LidarAngles::Nominal).unwrap_or_default()
 }
 
 impl RoomCalibrator {

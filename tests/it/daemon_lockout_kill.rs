@@ -24,6 +24,28 @@ fn config(dir: &Path, port: u16) -> PathBuf {
     crate::common::service_daemon_config(dir, port, b"kill test secret\n")
 }
 
+/// A daemon at INFO whose stderr lines arrive on the receiver as it writes them.
+fn spawn_logging(config: &Path) -> (Daemon, std::sync::mpsc::Receiver<String>) {
+    use std::io::{BufRead, BufReader};
+    let mut daemon = Daemon(
+        Command::new(crate::common::BIN)
+            .args(["daemon", "--config", config.to_str().unwrap()])
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let (lines, got) = std::sync::mpsc::channel();
+    let stderr = daemon.0.stderr.take().unwrap();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            let _ = lines.send(line);
+        }
+    });
+    (daemon, got)
+}
+
 fn spawn(config: &Path) -> Daemon {
     Daemon(
         Command::new(crate::common::BIN)
@@ -127,28 +149,12 @@ async fn a_second_daemon_on_one_store_is_refused_naming_the_first() {
 
 #[test]
 fn a_secret_others_can_read_leaves_the_service_off_and_says_why() {
-    use std::io::{BufRead, BufReader};
     use std::os::unix::fs::PermissionsExt;
     let dir = Scratch::new("secret-mode");
     let port = free_port();
     let config = config(&dir, port);
     std::fs::set_permissions(dir.join("secret"), std::fs::Permissions::from_mode(0o644)).unwrap();
-    let mut daemon = Daemon(
-        Command::new(crate::common::BIN)
-            .args(["daemon", "--config", config.to_str().unwrap()])
-            .env("RUST_LOG", "info")
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap(),
-    );
-    let (lines, got) = std::sync::mpsc::channel();
-    let stderr = daemon.0.stderr.take().unwrap();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-            let _ = lines.send(line);
-        }
-    });
+    let (daemon, got) = spawn_logging(&config);
     let deadline = std::time::Instant::now() + Duration::from_secs(20);
     let said = loop {
         let left = deadline.saturating_duration_since(std::time::Instant::now());
@@ -273,27 +279,11 @@ fn a_dangling_link_or_a_file_as_the_store_is_named_and_explained() {
 
 #[test]
 fn sigterm_during_a_run_says_it_was_abandoned_and_stores_nothing() {
-    use std::io::{BufRead, BufReader};
     let dir = Scratch::new("sigterm-run");
     let store = dir.join("store");
     // 100 frames at 10 fps: the capture lasts 10 s, so the stop lands in the middle of it.
     let config = auto_config(&dir, &store, "frames = 100\ncapture_timeout_s = 60.0\n");
-    let mut daemon = Daemon(
-        Command::new(crate::common::BIN)
-            .args(["daemon", "--config", config.to_str().unwrap()])
-            .env("RUST_LOG", "info")
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap(),
-    );
-    let (lines, got) = std::sync::mpsc::channel();
-    let stderr = daemon.0.stderr.take().unwrap();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-            let _ = lines.send(line);
-        }
-    });
+    let (mut daemon, got) = spawn_logging(&config);
     // Seeing the room takes a debug build seconds, more on a loaded machine.
     let deadline = std::time::Instant::now() + Duration::from_secs(120);
     let mut before = Vec::new();

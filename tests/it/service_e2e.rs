@@ -24,8 +24,9 @@ use crate::common::scratch::Scratch;
 
 const SECRET: &[u8] = b"e2e vehicle secret";
 
-/// Starts the server on 127.0.0.1:0; returns its address and a stop handle.
-async fn start_server(
+/// Starts the library server with `backend` on a socketcand endpoint (127.0.0.1:0);
+/// returns its address, a stop handle and the task, which ends with the backend.
+pub(crate) async fn start_server(
     backend: FakeBackend,
 ) -> (String, oneshot::Sender<()>, tokio::task::JoinHandle<FakeBackend>) {
     let mut transport = SocketcandServer::bind("127.0.0.1:0", "can0").await.unwrap();

@@ -18,7 +18,7 @@ use roomcal::service::client::UdsClient;
 use roomcal::service::driver::{serve, OsRandom};
 use roomcal::service::fake::FakeBackend;
 use roomcal::service::isotp::Config;
-use roomcal::service::socketcand::{SocketcandClient, SocketcandServer};
+use roomcal::service::socketcand::SocketcandClient;
 use roomcal::service::transport::{memory_pair, CanTransport, MemoryTransport};
 use roomcal::service::uds::{Server, ServerConfig};
 use roomcal::service::{CanFrame, DEFAULT_REQUEST_ID, DEFAULT_RESPONSE_ID};
@@ -106,24 +106,6 @@ impl Flooder {
     }
 }
 
-/// The library server with a fake backend on a socketcand endpoint (127.0.0.1:0).
-async fn start_server(backend: FakeBackend) -> (String, oneshot::Sender<()>) {
-    let mut transport = SocketcandServer::bind("127.0.0.1:0", "can0").await.unwrap();
-    let addr = transport.local_addr().to_string();
-    let (stop, stopped) = oneshot::channel::<()>();
-    tokio::spawn(async move {
-        let mut server =
-            Server::new(backend, OsRandom::open().unwrap(), SECRET, ServerConfig::default());
-        let cfg = Config::new(DEFAULT_RESPONSE_ID, DEFAULT_REQUEST_ID);
-        serve(&mut transport, &mut server, cfg, async {
-            let _ = stopped.await;
-        })
-        .await
-        .unwrap();
-    });
-    (addr, stop)
-}
-
 /// After a flood of unanswered requests and unfinished requests, a new tester reads every
 /// DID and gets each one's own answer, at once (well within N_Bs); before, the answers to
 /// the flood were queued and each waited N_Bs for flow control, so the tester's request
@@ -131,7 +113,7 @@ async fn start_server(backend: FakeBackend) -> (String, oneshot::Sender<()>) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn after_a_flood_every_request_gets_its_own_answer_at_once() {
     let backend = FakeBackend::calibrated();
-    let (addr, stop) = start_server(backend.clone()).await;
+    let (addr, stop, _) = crate::service_e2e::start_server(backend.clone()).await;
     let mut flooder = Flooder::connect(&addr).await;
     flooder.flood().await;
     let seen = flooder.quiet(FLOOD / 2).await;

@@ -106,7 +106,7 @@ pub fn calibrate_rig(
     });
     let mut runs: BTreeMap<_, _> = keys.into_iter().zip(solved).collect();
     let counts: Vec<Vec<usize>> = (0..rig.cameras.len())
-        .map(|c| (0..rig.lidars.len()).map(|l| lidar_boards(&runs[&(c, Some(l))])).collect())
+        .map(|c| (0..rig.lidars.len()).map(|l| runs[&(c, Some(l))].hole_boards()).collect())
         .collect();
     let placed = |c: usize, l: usize| counts[c][l];
     // Each camera's run: the LiDAR that places most of its boards, else intrinsics only.
@@ -210,7 +210,7 @@ pub fn calibrate_rig(
                 apply_joint(&mut result, &joint, rig, targets);
                 let lidar_runs =
                     Runs { runs: &runs, cameras: &camera_runs, lidars: &lidar_cameras };
-                judge_jointly(&mut result, &joint, (room, rig), &lidar_runs, options.lidar_angles);
+                judge_jointly(&mut result, &joint, room, rig, &lidar_runs, options.lidar_angles);
             }
             Err(reason) => reject_rig(&mut result.pair, reason),
         }
@@ -346,7 +346,8 @@ struct Runs<'a> {
 fn judge_jointly(
     result: &mut RigResult,
     joint: &Joint,
-    (room, rig): (&Room, &Rig),
+    room: &Room,
+    rig: &Rig,
     runs: &Runs<'_>,
     angles: LidarAngles,
 ) {
@@ -490,14 +491,6 @@ fn pair_run(
         false => l.and_then(|l| lidars.get(l)).map(|i| i.cloud).into_iter().collect(),
     };
     calibrate_with_clouds(&pair, std::slice::from_ref(&frame), &clouds, options)
-}
-
-/// Boards a run placed with the LiDAR (0 without an extrinsic).
-fn lidar_boards(run: &Calibration) -> usize {
-    match run.lidar_to_camera {
-        Some(_) => run.boards.iter().filter(|b| !b.holes_lidar.is_empty()).count(),
-        None => 0,
-    }
 }
 
 /// The index in `0..n` with the largest positive score, the first of equals.
