@@ -15,6 +15,9 @@ pub enum ResultFileError {
     Read { path: PathBuf, source: std::io::Error },
     #[error("calibration {path}: not a calibration result: {message}")]
     Parse { path: PathBuf, message: String },
+    /// A rig's result was asked for and the file holds a one-pair room's.
+    #[error("calibration {path}: a one-pair room's result, not a rig's (it names no `sensors`)")]
+    NotRig { path: PathBuf },
     /// A field outside the range a calibration can have (the room file's ranges).
     #[error("calibration {path}: {source}")]
     Invalid { path: PathBuf, source: RoomError },
@@ -31,9 +34,12 @@ pub fn load(path: &Path) -> Result<CalibrationResult, ResultFileError> {
 }
 
 /// Reads a rig's result file (or a rig store's `current.json`): [`load`]'s checks on its
-/// one-pair fields, and `sensors` and `extrinsics` required.
+/// one-pair fields, and its sensors required.
 pub fn load_rig(path: &Path) -> Result<RigResult, ResultFileError> {
     let result: RigResult = parse(path)?;
+    if !result.is_rig() {
+        return Err(ResultFileError::NotRig { path: path.to_owned() });
+    }
     result
         .pair
         .validate()
@@ -261,17 +267,27 @@ impl CalibrationResult {
     }
 }
 
-/// A rig's result file (DESIGN.md "Vehicles with several sensors"): the one-pair fields
-/// for the first camera and first LiDAR, plus every sensor and every extrinsic to the
-/// first camera.
+/// A run's result file: the one-pair fields for the (first) camera and (first) LiDAR and,
+/// for a rig (DESIGN.md "Vehicles with several sensors"), every sensor and every
+/// extrinsic to the first camera. A one-pair room's run has neither, and its file is the
+/// one-pair fields alone, as a [`CalibrationResult`] writes them.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RigResult {
     #[serde(flatten)]
     pub pair: CalibrationResult,
-    /// Per sensor name.
+    /// Per sensor name (empty for a one-pair room).
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
     pub sensors: std::collections::BTreeMap<String, SensorResult>,
     /// One per sensor other than the first camera, `from` it `to` the first camera.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub extrinsics: Vec<RigExtrinsic>,
+}
+
+impl From<CalibrationResult> for RigResult {
+    /// A one-pair room's run: no sensors, no extrinsics beyond the pair's.
+    fn from(pair: CalibrationResult) -> Self {
+        RigResult { pair, sensors: Default::default(), extrinsics: Vec::new() }
+    }
 }
 
 /// One sensor of a rig's result: a camera's intrinsics with their σ, or `"lidar": true`;
@@ -324,6 +340,11 @@ pub struct RigSensor<'a> {
 }
 
 impl RigResult {
+    /// Whether this is a rig's result (it names its sensors), not a one-pair room's.
+    pub fn is_rig(&self) -> bool {
+        !self.sensors.is_empty()
+    }
+
     /// The first camera's name: every extrinsic's `to`, or the only camera of a rig
     /// without extrinsics.
     pub fn first_camera(&self) -> Option<&str> {

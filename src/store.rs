@@ -53,7 +53,7 @@ pub use crate::export::{camera_yaml, extrinsic_yaml, rig_extrinsics_yaml};
 
 use crate::export::{directory_problem, NotADirectory};
 
-use crate::result::{CalibrationResult, RigExtrinsic, RigResult, SensorResult, Status};
+use crate::result::{CalibrationResult, RigResult, Status};
 
 /// Generations and rejected runs kept by default.
 pub const DEFAULT_KEEP: usize = 16;
@@ -64,11 +64,10 @@ const LOCK_HOLDER_TRIES: usize = 50;
 /// One stored calibration: the result file plus the store's bookkeeping.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Record {
+    /// A one-pair room's record holds the one-pair fields alone, a rig's its sensors and
+    /// extrinsics too.
     #[serde(flatten)]
-    pub result: CalibrationResult,
-    /// A rig's sensors and extrinsics (empty for a one-pair room: its records are unchanged).
-    #[serde(flatten)]
-    pub rig: RigPart,
+    pub result: RigResult,
     /// +1 per accepted run (and per rollback); 0 is never written.
     pub generation: u32,
     /// Unix seconds when the record was written.
@@ -78,24 +77,15 @@ pub struct Record {
     pub restored_from: Option<u32>,
 }
 
-/// What a rig's result adds to the one-pair fields (DESIGN.md, "Vehicles with several
-/// sensors"); both empty for a one-pair room.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct RigPart {
-    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
-    pub sensors: std::collections::BTreeMap<String, SensorResult>,
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub extrinsics: Vec<RigExtrinsic>,
-}
-
 impl Record {
     /// The rig result this record holds, if it is a rig's.
-    pub fn rig_result(&self) -> Option<RigResult> {
-        (!self.rig.sensors.is_empty()).then(|| RigResult {
-            pair: self.result.clone(),
-            sensors: self.rig.sensors.clone(),
-            extrinsics: self.rig.extrinsics.clone(),
-        })
+    pub fn rig(&self) -> Option<&RigResult> {
+        Some(&self.result).filter(|r| r.is_rig())
+    }
+
+    /// The one-pair fields: the (first) camera, the (first) LiDAR, the verdict.
+    pub fn pair(&self) -> &CalibrationResult {
+        &self.result.pair
     }
 }
 
@@ -177,8 +167,8 @@ pub fn is_valid_calibration(result: &CalibrationResult) -> Result<(), String> {
 /// for a rig every sensor accepted, every camera valid and every extrinsic a proper
 /// rotation with a translation within the vehicle's size.
 pub fn is_valid_record(record: &Record) -> Result<(), String> {
-    is_valid_calibration(&record.result)?;
-    for (name, sensor) in &record.rig.sensors {
+    is_valid_calibration(record.pair())?;
+    for (name, sensor) in &record.result.sensors {
         if sensor.status != Status::Accepted {
             return Err(format!("sensor `{name}` is not accepted"));
         }
@@ -186,7 +176,7 @@ pub fn is_valid_record(record: &Record) -> Result<(), String> {
             camera.validate().map_err(|e| format!("camera `{name}`: {e}"))?;
         }
     }
-    for e in &record.rig.extrinsics {
+    for e in &record.result.extrinsics {
         crate::target::validate_mounting(
             "extrinsics.rotation",
             &e.rotation,
@@ -369,30 +359,16 @@ impl Store {
     }
 
     /// Puts an accepted result in force as the next generation, written at `now` (unix
-    /// seconds); returns the record written.
-    pub fn commit(&self, result: &CalibrationResult, now: u64) -> Result<Record, StoreError> {
-        self.commit_part(result, RigPart::default(), now)
-    }
-
-    /// [`Store::commit`] for a rig: its one-pair fields, sensors and extrinsics in force
-    /// as one record, with a YAML view per camera and one for the rig's extrinsics.
-    pub fn commit_rig(&self, rig: &RigResult, now: u64) -> Result<Record, StoreError> {
-        self.commit_part(&rig.pair, rig_part(rig), now)
-    }
-
-    fn commit_part(
-        &self,
-        result: &CalibrationResult,
-        rig: RigPart,
-        now: u64,
-    ) -> Result<Record, StoreError> {
-        if result.status != Status::Accepted {
+    /// seconds); returns the record written. A rig's sensors and extrinsics go in force
+    /// with its one-pair fields, as one record, with a YAML view per camera and one for
+    /// the rig's extrinsics.
+    pub fn commit(&self, result: &RigResult, now: u64) -> Result<Record, StoreError> {
+        if result.pair.status != Status::Accepted {
             return Err(StoreError::NotAccepted);
         }
         let _writing = self.lock();
         let record = Record {
             result: result.clone(),
-            rig,
             generation: self.next_generation_locked()?,
             time: now,
             restored_from: None,
@@ -401,31 +377,13 @@ impl Store {
         Ok(record)
     }
 
-    /// Keeps a rejected run beside the history (never in force); returns its path. The
-    /// name carries the generation in force, so the sequence survives a lost history.
-    pub fn record_rejected(
-        &self,
-        result: &CalibrationResult,
-        now: u64,
-    ) -> Result<PathBuf, StoreError> {
-        self.record_rejected_part(result, RigPart::default(), now)
-    }
-
-    /// [`Store::record_rejected`] for a rig (every sensor's verdict kept).
-    pub fn record_rejected_rig(&self, rig: &RigResult, now: u64) -> Result<PathBuf, StoreError> {
-        self.record_rejected_part(&rig.pair, rig_part(rig), now)
-    }
-
-    fn record_rejected_part(
-        &self,
-        result: &CalibrationResult,
-        rig: RigPart,
-        now: u64,
-    ) -> Result<PathBuf, StoreError> {
+    /// Keeps a rejected run beside the history (never in force; a rig's with every
+    /// sensor's verdict); returns its path. The name carries the generation in force, so
+    /// the sequence survives a lost history.
+    pub fn record_rejected(&self, result: &RigResult, now: u64) -> Result<PathBuf, StoreError> {
         let _writing = self.lock();
         let generation = self.current_locked()?.map_or(0, |r| r.generation);
-        let record =
-            Record { result: result.clone(), rig, generation, time: now, restored_from: None };
+        let record = Record { result: result.clone(), generation, time: now, restored_from: None };
         self.create_dirs()?;
         let mut seq = list_json(&self.rejected_dir())?.len();
         let path = loop {
@@ -457,7 +415,6 @@ impl Store {
             .ok_or_else(no_previous)?;
         let record = Record {
             result: previous.result.clone(),
-            rig: previous.rig.clone(),
             generation: self.next_generation_locked()?,
             time: now,
             restored_from: Some(previous.generation),
@@ -700,11 +657,11 @@ impl Store {
     /// the rig's extrinsics; the first camera's and first LiDAR's stay in `camera.yaml` and
     /// `extrinsic.yaml` for one-pair consumers).
     fn write_views(&self, record: &Record) -> Result<(), StoreError> {
-        write_atomic(&self.dir.join("camera.yaml"), camera_yaml(&record.result.camera).as_bytes())?;
-        if let Some(yaml) = extrinsic_yaml(&record.result) {
+        write_atomic(&self.dir.join("camera.yaml"), camera_yaml(&record.pair().camera).as_bytes())?;
+        if let Some(yaml) = extrinsic_yaml(record.pair()) {
             write_atomic(&self.dir.join("extrinsic.yaml"), yaml.as_bytes())?;
         }
-        let exports = match record.rig_result() {
+        let exports = match record.rig() {
             Some(rig) => {
                 for sensor in rig.in_order() {
                     if let Some(camera) = sensor.camera {
@@ -714,11 +671,11 @@ impl Store {
                 }
                 write_atomic(
                     &self.dir.join("extrinsics.yaml"),
-                    rig_extrinsics_yaml(&rig).as_bytes(),
+                    rig_extrinsics_yaml(rig).as_bytes(),
                 )?;
-                crate::export::rig_files(&rig)
+                crate::export::rig_files(rig)
             }
-            None => crate::export::files(&record.result),
+            None => crate::export::files(record.pair()),
         };
         crate::export::write_each(&self.dir, &exports, write_atomic)?;
         Ok(())
@@ -892,10 +849,6 @@ fn prune(files: &[PathBuf], dir: &Path, keep: usize) -> Result<(), StoreError> {
         sync_dir(dir).map_err(|source| StoreError::Io { path: dir.to_path_buf(), source })?;
     }
     Ok(())
-}
-
-fn rig_part(rig: &RigResult) -> RigPart {
-    RigPart { sensors: rig.sensors.clone(), extrinsics: rig.extrinsics.clone() }
 }
 
 #[cfg(test)]

@@ -118,17 +118,17 @@ impl Backend for DaemonBackend {
 
     fn intrinsics(&self) -> Option<IntrinsicsRecord> {
         let s = self.fresh();
-        intrinsics_record(&s.current.as_ref()?.result.camera)
+        intrinsics_record(&s.current.as_ref()?.pair().camera)
     }
 
     fn extrinsic(&self) -> Option<ExtrinsicRecord> {
         let s = self.fresh();
-        Some(extrinsic_record(&s.current.as_ref()?.result.lidar_to_camera.as_ref()?.to_se3()))
+        Some(extrinsic_record(&s.current.as_ref()?.pair().lidar_to_camera.as_ref()?.to_se3()))
     }
 
     fn quality(&self) -> Option<QualityRecord> {
         let s = self.fresh();
-        let q = &s.current.as_ref()?.result.quality;
+        let q = &s.current.as_ref()?.pair().quality;
         Some(QualityRecord {
             corner_rms_px: q.corner_rms_px as f32,
             hole_rms_px: q.hole_rms_px as f32,
@@ -137,19 +137,20 @@ impl Backend for DaemonBackend {
     }
 
     fn sensors(&self) -> SensorTable {
-        let rig = self.fresh().current.as_ref().and_then(Record::rig_result);
-        rig.and_then(|rig| rig_table(&rig)).unwrap_or_else(|| self.sensors.clone())
+        let fresh = self.fresh();
+        let rig = fresh.current.as_ref().and_then(Record::rig);
+        rig.and_then(rig_table).unwrap_or_else(|| self.sensors.clone())
     }
 
     fn sensor_intrinsics(&self, index: u8) -> Option<IntrinsicsRecord> {
-        match self.fresh().current.as_ref().and_then(Record::rig_result) {
+        match self.fresh().current.as_ref().and_then(Record::rig) {
             Some(rig) => intrinsics_record(rig.in_order().get(usize::from(index))?.camera?),
             None => uds::one_pair_intrinsics(self, index),
         }
     }
 
     fn sensor_extrinsic(&self, index: u8) -> Option<ExtrinsicRecord> {
-        match self.fresh().current.as_ref().and_then(Record::rig_result) {
+        match self.fresh().current.as_ref().and_then(Record::rig) {
             Some(rig) => Some(extrinsic_record(&rig.in_order().get(usize::from(index))?.to_first)),
             None => uds::one_pair_extrinsic(self, index),
         }

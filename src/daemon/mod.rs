@@ -19,8 +19,8 @@
 //! A rig (`rig = …` with `[[camera]]` / `[[lidar]]`): one task per camera and per LiDAR;
 //! the trigger watches the first camera's boards and the first LiDAR's motion, a run
 //! waits for `frames` frames of every camera and `sweeps` sweeps of every LiDAR (its
-//! timeout names the sensors short of them) and calibrates the whole rig
-//! ([`Calibrator::calibrate_rig`]); the store keeps the rig's record.
+//! timeout names the sensors short of them) and calibrates the whole rig; the store keeps
+//! the rig's record. The one-pair vehicle is the same with one camera and one LiDAR.
 //! systemd: READY=1 once the sources are open, STATUS= on every state change, WATCHDOG=1
 //! at half the watchdog interval (all no-ops without `NOTIFY_SOCKET`).
 
@@ -39,7 +39,7 @@ use tokio::sync::{mpsc, watch};
 
 use crate::capture::{Backoff, CaptureError, FrameSource, FrameSum, GreyFrame, ImageReplay};
 use crate::lidar::{Calibration, Model, Point};
-use crate::result::{CalibrationResult, RigResult, Status};
+use crate::result::{RigResult, Status};
 use crate::service::uds::{DaemonState, Outcome};
 use crate::store::{Store, StoreError};
 
@@ -49,48 +49,30 @@ use motion::{sweep_motion, RangeImage};
 use sources::{AnySweepSource, OwnedSweep, PacketCounts, SweepError, SweepSource};
 use trigger::{Action, Trigger, Verdict};
 
-/// The calibration pipeline, injected (the real one is `calibrate.rs`; tests use a fake).
-/// Called on a blocking thread.
+/// The calibration pipeline, injected (the real one is [`RoomCalibrator`]; tests use a
+/// fake). Called on a blocking thread.
 pub trait Calibrator: Send + 'static {
-    /// A cheap detection pass: how many boards `frame` shows (about once a second).
-    fn count_boards(&mut self, frame: &GreyFrame) -> usize;
+    /// A cheap detection pass: how many boards camera `camera`'s `frame` shows (about once
+    /// a second; `camera` in the rig file's order, 0 for the one-pair vehicle).
+    fn count_boards(&mut self, camera: usize, frame: &GreyFrame) -> usize;
 
-    /// The same for a rig's camera `camera` (the rig file's order); a calibrator with one
-    /// set of detectors counts every camera's frame with it.
-    fn count_boards_on(&mut self, camera: usize, frame: &GreyFrame) -> usize {
-        let _ = camera;
-        self.count_boards(frame)
-    }
-    /// A full run on averaged frames and accumulated sweeps (frame *i* pairs with sweep
-    /// *i*); `current` is the calibration in force, for the gate's change check.
+    /// A full run: one averaged frame per camera and one accumulated sweep per LiDAR, in
+    /// the rig file's order (one of each for the one-pair vehicle); `current` is the
+    /// calibration in force, for the gate's change checks.
     fn calibrate(
         &mut self,
         frames: &[GreyFrame],
         sweeps: &[Vec<Point>],
-        current: Option<&CalibrationResult>,
-    ) -> CalibrationOutcome;
-
-    /// A rig's run: one averaged frame per camera and one accumulated sweep per LiDAR, in
-    /// the rig file's order; `current` is the rig in force. A calibrator of one camera and
-    /// one LiDAR fails it.
-    fn calibrate_rig(
-        &mut self,
-        frames: &[GreyFrame],
-        sweeps: &[Vec<Point>],
         current: Option<&RigResult>,
-    ) -> CalibrationOutcome {
-        let _ = (frames, sweeps, current);
-        CalibrationOutcome::Failed("this calibrator calibrates one camera with one LiDAR".into())
-    }
+    ) -> CalibrationOutcome;
 }
 
 /// How a calibration run ended.
 #[derive(Clone, Debug, PartialEq)]
 pub enum CalibrationOutcome {
-    /// A result, accepted or rejected by the quality gate (`status`).
-    Done(Box<CalibrationResult>),
-    /// A rig's result, accepted or rejected as a whole (`pair.status`).
-    DoneRig(Box<RigResult>),
+    /// A result, accepted or rejected by the quality gate (`pair.status`; a rig's as a
+    /// whole).
+    Done(Box<RigResult>),
     /// The run could not produce a result (too few boards, ...).
     Failed(String),
 }
@@ -447,7 +429,7 @@ fn room_seen<C: Calibrator>(
     names: &SensorNames,
 ) -> bool {
     latest.iter().all(|(camera, need, frame)| {
-        let boards = calibrator.count_boards_on(*camera, frame);
+        let boards = calibrator.count_boards(*camera, frame);
         if boards < *need {
             let name = names.cameras.get(*camera).map_or("", String::as_str);
             tracing::debug!("{boards} of {need} boards seen{name}");
@@ -648,8 +630,7 @@ async fn run_daemon<C: Calibrator>(
         {
             trigger.on_captured();
             solving_counts = run.counts;
-            let rig = config.rig.is_some();
-            solving = Some(start_solve(&calibrator, &shared, std::mem::take(&mut run), rig));
+            solving = Some(start_solve(&calibrator, &shared, std::mem::take(&mut run)));
         }
         if let Some(outcome) = outcome {
             let (verdict, failure) = finish_run(&store, &shared, outcome, &mut summary).await;
@@ -756,31 +737,23 @@ fn with_sweep_counts(outcome: CalibrationOutcome, counts: &PacketCounts) -> Cali
     let Some(note) = counts.incomplete() else { return outcome };
     match outcome {
         CalibrationOutcome::Failed(why) => CalibrationOutcome::Failed(format!("{why}; {note}")),
-        CalibrationOutcome::Done(mut r) if r.status != Status::Accepted => {
-            r.reason = Some(match r.reason.take() {
+        CalibrationOutcome::Done(mut r) if r.pair.status != Status::Accepted => {
+            r.pair.reason = Some(match r.pair.reason.take() {
                 Some(why) => format!("{why}; {note}"),
                 None => note,
             });
             CalibrationOutcome::Done(r)
         }
-        CalibrationOutcome::DoneRig(mut r) if r.pair.status != Status::Accepted => {
-            r.pair.reason = Some(match r.pair.reason.take() {
-                Some(why) => format!("{why}; {note}"),
-                None => note,
-            });
-            CalibrationOutcome::DoneRig(r)
-        }
         done => done,
     }
 }
 
-/// Averages each camera's frames, accumulates each LiDAR's sweeps, calibrates (the pair,
-/// or the whole `rig`) on a blocking thread.
+/// Averages each camera's frames, accumulates each LiDAR's sweeps, calibrates on a
+/// blocking thread.
 fn start_solve<C: Calibrator>(
     calibrator: &Arc<Mutex<C>>,
     shared: &Arc<Mutex<Shared>>,
     run: RunBuffers,
-    rig: bool,
 ) -> tokio::task::JoinHandle<CalibrationOutcome> {
     let cal = calibrator.clone();
     let current = shared.lock().ok().and_then(|s| s.current.clone());
@@ -797,13 +770,7 @@ fn start_solve<C: Calibrator>(
         let Ok(mut c) = cal.lock() else {
             return CalibrationOutcome::Failed("calibrator poisoned by an earlier panic".into());
         };
-        match rig {
-            false => c.calibrate(&frames, &clouds, current.as_ref().map(|r| &r.result)),
-            true => {
-                let in_force = current.as_ref().and_then(crate::store::Record::rig_result);
-                c.calibrate_rig(&frames, &clouds, in_force.as_ref())
-            }
-        }
+        c.calibrate(&frames, &clouds, current.as_ref().map(|r| &r.result))
     })
 }
 
@@ -819,25 +786,14 @@ async fn finish_run(
     let now = unix_now();
     let store = store.clone();
     let stored = tokio::task::spawn_blocking(move || match outcome {
-        CalibrationOutcome::Done(r) if r.status == Status::Accepted => {
+        CalibrationOutcome::Done(r) if r.pair.status == Status::Accepted => {
             store.commit(&r, now).map(|rec| (Verdict::Accepted, Ok(Some(rec))))
         }
         CalibrationOutcome::Done(r) => {
-            tracing::warn!(
-                "calibration rejected: {}",
-                r.reason.as_deref().unwrap_or("no reason given")
-            );
+            let what = if r.is_rig() { "rig calibration" } else { "calibration" };
+            let why = r.pair.reason.as_deref().unwrap_or("no reason given");
+            tracing::warn!("{what} rejected: {why}");
             store.record_rejected(&r, now).map(|_| (Verdict::Rejected, Ok(None)))
-        }
-        CalibrationOutcome::DoneRig(r) if r.pair.status == Status::Accepted => {
-            store.commit_rig(&r, now).map(|rec| (Verdict::Accepted, Ok(Some(rec))))
-        }
-        CalibrationOutcome::DoneRig(r) => {
-            tracing::warn!(
-                "rig calibration rejected: {}",
-                r.pair.reason.as_deref().unwrap_or("no reason given")
-            );
-            store.record_rejected_rig(&r, now).map(|_| (Verdict::Rejected, Ok(None)))
         }
         CalibrationOutcome::Failed(why) => {
             tracing::error!("calibration failed: {why}");

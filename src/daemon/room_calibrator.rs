@@ -62,8 +62,7 @@ impl RoomCalibrator {
         })
     }
 
-    /// Also calibrates `rig` ([`Calibrator::calibrate_rig`]): its cameras' detectors made
-    /// now; the trigger's board count stays on the first camera's.
+    /// Calibrates `rig` instead of the room's one pair: its cameras' detectors made now.
     pub fn with_rig(mut self, rig: Rig) -> Result<Self, crate::detect::DetectError> {
         self.detectors = RigDetectors::new(&self.room, &rig)?;
         self.rig = Some(rig);
@@ -118,16 +117,28 @@ fn write_picture(path: &std::path::Path, picture: &image::RgbImage) {
 }
 
 impl Calibrator for RoomCalibrator {
-    fn count_boards(&mut self, frame: &GreyFrame) -> usize {
-        self.count_boards_on(0, frame)
-    }
-
-    fn count_boards_on(&mut self, camera: usize, frame: &GreyFrame) -> usize {
+    fn count_boards(&mut self, camera: usize, frame: &GreyFrame) -> usize {
         let Some(detectors) = self.detectors.cameras.get_mut(camera) else { return 0 };
         detectors.detect_pixels(&frame.pixels).map_or(0, |boards| boards.len())
     }
 
+    /// A rig's run, or the one-pair room's; a rig's gate compares with the record in force
+    /// only when that is a rig's too.
     fn calibrate(
+        &mut self,
+        frames: &[GreyFrame],
+        sweeps: &[Vec<Point>],
+        current: Option<&RigResult>,
+    ) -> CalibrationOutcome {
+        match self.rig.is_some() {
+            true => self.calibrate_rig(frames, sweeps, current.filter(|r| r.is_rig())),
+            false => self.calibrate_pair(frames, sweeps, current.map(|r| &r.pair)),
+        }
+    }
+}
+
+impl RoomCalibrator {
+    fn calibrate_pair(
         &mut self,
         frames: &[GreyFrame],
         sweeps: &[Vec<Point>],
@@ -163,7 +174,7 @@ impl Calibrator for RoomCalibrator {
         if let Some(first) = frames.first() {
             self.write_report(first, sweeps.first(), &run, &refused_first);
         }
-        CalibrationOutcome::Done(Box::new(run.result))
+        CalibrationOutcome::Done(Box::new(run.result.into()))
     }
 
     fn calibrate_rig(
@@ -223,6 +234,6 @@ impl Calibrator for RoomCalibrator {
                 }
             }
         }
-        CalibrationOutcome::DoneRig(Box::new(run.result))
+        CalibrationOutcome::Done(Box::new(run.result))
     }
 }

@@ -12,7 +12,9 @@ use roomcal::capture::GreyFrame;
 use roomcal::daemon::{self, config, CalibrationOutcome, Calibrator, Daemon, RunOptions};
 use roomcal::geometry::CameraModel;
 use roomcal::lidar::{pcd, Point};
-use roomcal::result::{CalibrationResult, CameraResult, Extrinsic, Quality, Status, Uncertainty};
+use roomcal::result::{
+    CalibrationResult, CameraResult, Extrinsic, Quality, RigResult, Status, Uncertainty,
+};
 use roomcal::service::uds::{Backend, DaemonState, Refusal, SensorTable};
 use roomcal::store::Store;
 
@@ -20,8 +22,9 @@ use crate::common::results;
 
 use crate::common::scratch::Scratch;
 
-fn result(fx: f64, status: Status) -> CalibrationResult {
-    CalibrationResult {
+/// A one-pair room\'s result (no sensors), as the store and the daemon take it.
+fn result(fx: f64, status: Status) -> RigResult {
+    RigResult::from(CalibrationResult {
         status,
         reason: (status == Status::Rejected).then(|| "hole RMS 4.2 px > 2 px".into()),
         camera: CameraResult {
@@ -44,7 +47,7 @@ fn result(fx: f64, status: Status) -> CalibrationResult {
         quality: Quality { corner_rms_px: 0.25, hole_rms_px: 0.5, boards: 6 },
         boards: vec![],
         camera_in_room: None,
-    }
+    })
 }
 
 /// Sees `boards` boards; answers every run with `status`; counts calls.
@@ -57,7 +60,7 @@ struct Fake {
 }
 
 impl Calibrator for Fake {
-    fn count_boards(&mut self, _frame: &GreyFrame) -> usize {
+    fn count_boards(&mut self, _camera: usize, _frame: &GreyFrame) -> usize {
         self.counts.fetch_add(1, Ordering::SeqCst);
         self.boards
     }
@@ -66,7 +69,7 @@ impl Calibrator for Fake {
         &mut self,
         frames: &[GreyFrame],
         sweeps: &[Vec<Point>],
-        _current: Option<&CalibrationResult>,
+        _current: Option<&RigResult>,
     ) -> CalibrationOutcome {
         self.runs.fetch_add(1, Ordering::SeqCst);
         self.frames_px.store(frames[0].pixels.len(), Ordering::SeqCst);
@@ -143,7 +146,7 @@ async fn replay_auto_trigger_stores_a_generation_and_exits_once() {
     let cur = store.current().unwrap().unwrap();
     assert_eq!(cur.generation, 1);
     // Two accumulated sweeps of 16 × 720 points.
-    assert_eq!(cur.result.camera.fx, 500.0 + 2.0 * 16.0 * 720.0);
+    assert_eq!(cur.result.pair.camera.fx, 500.0 + 2.0 * 16.0 * 720.0);
     assert!(dir.join("store/camera.yaml").exists());
 }
 
@@ -179,7 +182,7 @@ async fn rejected_run_leaves_current_untouched() {
     assert_eq!(current_bytes(&dir).unwrap(), before);
     let rejected = store.rejected().unwrap();
     assert_eq!(rejected.len(), 1);
-    assert_eq!(rejected[0].result.status, Status::Rejected);
+    assert_eq!(rejected[0].result.pair.status, Status::Rejected);
 }
 
 #[tokio::test(start_paused = true)]
@@ -238,7 +241,7 @@ fn backend_serves_the_rig_in_force_sensor_by_sensor() {
     let dir = Scratch::new("daemon-rig");
     let store = Store::open(dir.path(), 4).unwrap();
     let rig = results::rig_result();
-    let rec = store.commit_rig(&rig, 1_700_000_000).unwrap();
+    let rec = store.commit(&rig, 1_700_000_000).unwrap();
     let shared = Arc::new(std::sync::Mutex::new(daemon::Shared {
         current: Some(rec),
         ..Default::default()
@@ -561,31 +564,18 @@ impl RigFake {
 }
 
 impl Calibrator for RigFake {
-    fn count_boards(&mut self, _frame: &GreyFrame) -> usize {
-        self.boards[0]
-    }
-
-    fn count_boards_on(&mut self, camera: usize, _frame: &GreyFrame) -> usize {
+    fn count_boards(&mut self, camera: usize, _frame: &GreyFrame) -> usize {
         self.boards[camera]
     }
 
     fn calibrate(
         &mut self,
-        _frames: &[GreyFrame],
-        _sweeps: &[Vec<Point>],
-        _current: Option<&CalibrationResult>,
-    ) -> CalibrationOutcome {
-        CalibrationOutcome::Failed("a rig's daemon calibrated one pair".into())
-    }
-
-    fn calibrate_rig(
-        &mut self,
         frames: &[GreyFrame],
         sweeps: &[Vec<Point>],
-        _current: Option<&roomcal::result::RigResult>,
+        _current: Option<&RigResult>,
     ) -> CalibrationOutcome {
         self.seen.lock().unwrap().push((frames.len(), sweeps.len()));
-        CalibrationOutcome::DoneRig(Box::new(results::rig_result()))
+        CalibrationOutcome::Done(Box::new(results::rig_result()))
     }
 }
 
@@ -629,7 +619,7 @@ async fn a_rig_daemon_captures_every_sensor_and_keeps_the_rig_in_force() {
     assert_eq!((summary.runs, summary.accepted, summary.generation), (1, 1, 1));
     assert_eq!(*seen.lock().unwrap(), [(2, 2)], "one frame per camera, one sweep per LiDAR");
     let record = Store::open(dir.join("store"), 4).unwrap().current().unwrap().unwrap();
-    assert_eq!(record.rig_result(), Some(results::rig_result()));
+    assert_eq!(record.rig(), Some(&results::rig_result()));
     for file in
         ["camera-front.yaml", "camera-wide.yaml", "extrinsics.yaml", "wide.camera_info.yaml"]
     {

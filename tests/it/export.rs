@@ -245,11 +245,11 @@ fn the_store_writes_the_exports_beside_current_json() {
     let dir = Scratch::new("export-store");
     let store = roomcal::store::Store::open(dir.path(), 4).unwrap();
     let first = result(CameraModel::PinholeRadtan);
-    store.commit(&first, 1_700_000_000).unwrap();
+    store.commit(&first.clone().into(), 1_700_000_000).unwrap();
     assert_exports_of(&dir, &first);
     let mut second = first.clone();
     second.camera.fx += 1.5;
-    store.commit(&second, 1_700_000_100).unwrap();
+    store.commit(&second.clone().into(), 1_700_000_100).unwrap();
     assert_exports_of(&dir, &second);
     // A rollback puts the first calibration's exports back.
     store.rollback(1_700_000_200).unwrap();
@@ -397,7 +397,7 @@ fn the_store_keeps_a_rig_with_its_views_and_rolls_it_back_whole() {
     let dir = Scratch::new("export-store-rig");
     let store = roomcal::store::Store::open(dir.path(), 4).unwrap();
     let first = rig_result();
-    store.commit_rig(&first, 1_700_000_000).unwrap();
+    store.commit(&first, 1_700_000_000).unwrap();
     let on_disk = |name: &str| std::fs::read_to_string(dir.join(name)).unwrap();
     let assert_views_of = |rig: &RigResult| {
         for file in roomcal::export::rig_files(rig) {
@@ -423,26 +423,26 @@ fn the_store_keeps_a_rig_with_its_views_and_rolls_it_back_whole() {
     assert_eq!(on_disk("camera.yaml"), roomcal::store::camera_yaml(&first.pair.camera));
     let in_force =
         || roomcal::store::Store::open(dir.path(), 4).unwrap().current().unwrap().unwrap();
-    assert_eq!(in_force().rig_result(), Some(first.clone()));
+    assert_eq!(in_force().rig(), Some(&first.clone()));
 
     let mut second = first.clone();
     second.sensors.get_mut("wide").unwrap().camera.as_mut().unwrap().fx += 1.5;
     second.extrinsics[2].translation[0] += 0.01;
-    store.commit_rig(&second, 1_700_000_100).unwrap();
+    store.commit(&second, 1_700_000_100).unwrap();
     assert_views_of(&second);
-    assert_eq!(in_force().rig_result(), Some(second.clone()));
+    assert_eq!(in_force().rig(), Some(&second.clone()));
     store.rollback(1_700_000_200).unwrap();
     assert_views_of(&first);
-    assert_eq!(in_force().rig_result(), Some(first.clone()));
+    assert_eq!(in_force().rig(), Some(&first.clone()));
 
     // A rig record whose extrinsic is no rotation is never in force.
     let generation = in_force().generation;
     let mut bad = first.clone();
     bad.extrinsics[1].rotation[0][0] = 2.0;
-    store.commit_rig(&bad, 1_700_000_300).unwrap();
+    store.commit(&bad, 1_700_000_300).unwrap();
     let current = in_force();
     assert_eq!(current.generation, generation, "an invalid rig record went in force");
-    assert_eq!(current.rig_result(), Some(first));
+    assert_eq!(current.rig(), Some(&first));
 }
 
 /// `RigResult::between`: sensor → sensor through the first camera, as the rig's report draws

@@ -194,7 +194,7 @@ async fn recv(t: &mut MemoryTransport, ms: u64) -> Option<Vec<u8>> {
 /// A replay daemon (manual trigger) with its service on `port` and a calibration in force.
 fn daemon_config(dir: &Path, port: u16) -> std::path::PathBuf {
     let store = Store::open(dir.join("store"), 4).unwrap();
-    store.commit(&results::result(CameraModel::PinholeRadtan), 1_700_000_000).unwrap();
+    store.commit(&results::result(CameraModel::PinholeRadtan).into(), 1_700_000_000).unwrap();
     crate::common::service_daemon_config(dir, port, b"flood test secret\n")
 }
 

@@ -8,15 +8,18 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use roomcal::geometry::CameraModel;
-use roomcal::result::{CalibrationResult, CameraResult, Extrinsic, Quality, Status, Uncertainty};
+use roomcal::result::{
+    CalibrationResult, CameraResult, Extrinsic, Quality, RigResult, Status, Uncertainty,
+};
 use roomcal::store::{crc32, decode, encode, Store};
 
 use crate::common::scratch::Scratch;
 
 /// A result whose fx encodes `tag`, so a record's content can be checked against its
 /// generation.
-fn result(tag: f64, status: Status) -> CalibrationResult {
-    CalibrationResult {
+/// A one-pair room\'s result (no sensors), as the store and the daemon take it.
+fn result(tag: f64, status: Status) -> RigResult {
+    RigResult::from(CalibrationResult {
         status,
         reason: (status == Status::Rejected).then(|| "corner RMS too high".to_string()),
         camera: CameraResult {
@@ -37,7 +40,29 @@ fn result(tag: f64, status: Status) -> CalibrationResult {
         quality: Quality { corner_rms_px: 0.2, hole_rms_px: 0.7, boards: 6 },
         boards: vec![],
         camera_in_room: None,
+    })
+}
+
+#[test]
+fn a_one_pair_record_holds_the_result_file_and_the_bookkeeping_alone() {
+    let dir = Scratch::new("one-pair-record");
+    let store = Store::open(dir.path(), 3).unwrap();
+    let run = result(1.0, Status::Accepted);
+    store.commit(&run, 1_700_000_000).unwrap();
+    let mut v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("current.json")).unwrap()).unwrap();
+    let fields = v.as_object_mut().unwrap();
+    for bookkeeping in ["generation", "time", "crc32"] {
+        assert!(fields.remove(bookkeeping).is_some(), "{bookkeeping} written");
     }
+    // No empty rig members: the record is the one-pair result file, key for key.
+    assert_eq!(v, serde_json::to_value(&run.pair).unwrap());
+    assert_eq!(serde_json::to_string(&run).unwrap(), serde_json::to_string(&run.pair).unwrap());
+    assert!(store.current().unwrap().unwrap().rig().is_none(), "not a rig's record");
+    // A rig's loader names what the one-pair file lacks.
+    let path = dir.join("current.json");
+    let message = roomcal::result::load_rig(&path).unwrap_err().to_string();
+    assert!(message.contains("current.json") && message.contains("not a rig's"), "{message}");
 }
 
 #[test]
@@ -88,7 +113,7 @@ fn rejected_runs_never_replace_current() {
     let rej = store.rejected().unwrap();
     assert_eq!(rej.len(), 2, "bounded");
     assert_eq!(rej[1].time, 23);
-    assert_eq!(rej[1].result.reason.as_deref(), Some("corner RMS too high"));
+    assert_eq!(rej[1].result.pair.reason.as_deref(), Some("corner RMS too high"));
 }
 
 #[test]
@@ -103,7 +128,7 @@ fn corrupt_current_falls_back_to_history_and_is_repaired() {
     assert!(decode(text.as_bytes(), &path).is_err());
     std::fs::write(&path, text).unwrap();
     let cur = store.current().unwrap().unwrap();
-    assert_eq!((cur.generation, cur.result.camera.fx), (2, 1002.0));
+    assert_eq!((cur.generation, cur.result.pair.camera.fx), (2, 1002.0));
     assert!(decode(&std::fs::read(&path).unwrap(), &path).is_ok(), "repaired");
     // Truncated JSON, and a corrupt newest history entry: the one before it wins.
     std::fs::write(&path, b"{\"status\": \"acc").unwrap();
@@ -121,17 +146,16 @@ fn rollback_goes_back_one_generation_at_a_time() {
         store.commit(&result(g as f64, Status::Accepted), g).unwrap();
     }
     let r = store.rollback(100).unwrap();
-    assert_eq!((r.generation, r.restored_from, r.result.camera.fx), (4, Some(2), 1002.0));
+    assert_eq!((r.generation, r.restored_from, r.result.pair.camera.fx), (4, Some(2), 1002.0));
     assert_eq!(store.current().unwrap().unwrap(), r);
     let r = store.rollback(101).unwrap();
-    assert_eq!((r.generation, r.restored_from, r.result.camera.fx), (5, Some(1), 1001.0));
+    assert_eq!((r.generation, r.restored_from, r.result.pair.camera.fx), (5, Some(1), 1001.0));
     assert!(store.rollback(102).is_err(), "generation 1 has no predecessor");
 }
 
 #[test]
 fn encoding_is_checksummed_canonical_json() {
     let store_rec = roomcal::store::Record {
-        rig: Default::default(),
         result: result(0.5, Status::Accepted),
         generation: 7,
         time: 1,
@@ -232,7 +256,7 @@ fn power_loss_leaves_old_or_new_generation() {
             rec.generation
         );
         assert_eq!(
-            rec.result.camera.fx,
+            rec.result.pair.camera.fx,
             1000.0 + f64::from(rec.generation),
             "round {round}: mixed record"
         );
@@ -348,7 +372,6 @@ fn interrupted_update_is_completed_not_skipped() {
     }
     // A kill after the history write of generation 9, before current.json was replaced.
     let nine = roomcal::store::Record {
-        rig: Default::default(),
         result: result(9.0, Status::Accepted),
         generation: 9,
         time: 9,
@@ -412,7 +435,6 @@ fn the_last_generation_is_refused_not_overwritten() {
     let dir = Scratch::new("u32max");
     let store = Store::open(dir.path(), 4).unwrap();
     let near = roomcal::store::Record {
-        rig: Default::default(),
         result: result(1.0, Status::Accepted),
         generation: u32::MAX - 1,
         time: 1,
@@ -442,34 +464,30 @@ fn an_invalid_calibration_with_a_valid_checksum_is_not_in_force() {
     store.commit(&result(1.0, Status::Accepted), 1).unwrap();
     store.commit(&result(2.0, Status::Accepted), 2).unwrap();
     let mut bogus = result(0.0, Status::Accepted);
-    bogus.camera.fx = -5.0;
-    let hand_made = roomcal::store::Record {
-        result: bogus,
-        rig: Default::default(),
-        generation: 3,
-        time: 3,
-        restored_from: None,
-    };
+    bogus.pair.camera.fx = -5.0;
+    let hand_made =
+        roomcal::store::Record { result: bogus, generation: 3, time: 3, restored_from: None };
     let path = dir.join("current.json");
     std::fs::write(&path, encode(&hand_made)).unwrap();
     assert!(decode(&std::fs::read(&path).unwrap(), &path).is_ok(), "the checksum holds");
     let cur = store.current().unwrap().unwrap();
-    assert_eq!((cur.generation, cur.result.camera.fx), (2, 1002.0), "newest valid history");
+    assert_eq!((cur.generation, cur.result.pair.camera.fx), (2, 1002.0), "newest valid history");
     assert_eq!(decode(&std::fs::read(&path).unwrap(), &path).unwrap(), cur, "rewritten");
     assert_eq!(store.commit(&result(4.0, Status::Accepted), 4).unwrap().generation, 4);
     // The validator's reasons, one per kind of nonsense.
     use roomcal::store::is_valid_calibration;
-    let mut r = result(0.0, Status::Accepted);
+    let pair = |status| result(0.0, status).pair;
+    let mut r = pair(Status::Accepted);
     assert_eq!(is_valid_calibration(&r), Ok(()));
     r.camera.cx = f64::NAN;
     assert!(is_valid_calibration(&r).unwrap_err().contains("cx"));
-    let mut r = result(0.0, Status::Accepted);
+    let mut r = pair(Status::Accepted);
     r.lidar_to_camera.as_mut().unwrap().rotation[0][1] = 0.5;
     assert!(is_valid_calibration(&r).unwrap_err().contains("rotation"));
-    let mut r = result(0.0, Status::Accepted);
+    let mut r = pair(Status::Accepted);
     r.camera.distortion.push(f64::INFINITY);
     assert!(is_valid_calibration(&r).unwrap_err().contains("distortion"));
-    assert!(is_valid_calibration(&result(0.0, Status::Rejected)).is_err());
+    assert!(is_valid_calibration(&pair(Status::Rejected)).is_err());
 }
 
 #[test]
