@@ -16,6 +16,10 @@ pub struct DaemonArgs {
     /// Exit after the first calibration run ends.
     #[arg(long)]
     once: bool,
+    /// With --once: give up (exit 1, saying what the daemon waited for) when no run has
+    /// started this many seconds after the start.
+    #[arg(long, value_name = "SECONDS", default_value_t = 600, requires = "once")]
+    give_up_after: u64,
 }
 
 /// `roomcal daemon`: runs until stopped (or, with `--once`, until the first run ends);
@@ -34,6 +38,7 @@ pub fn run(args: DaemonArgs) -> Result<(), Failure> {
     }
     // A rig's report is one picture per camera, `last-run-NAME.png`.
     calibrator = calibrator.with_report(config.store.join("last-run.png"));
+    let store = config.store.clone();
     let runtime = tokio::runtime::Runtime::new()
         .context("starting the async runtime")
         .map_err(|error| Failure::new(1, error))?;
@@ -41,7 +46,10 @@ pub fn run(args: DaemonArgs) -> Result<(), Failure> {
         .block_on(roomcal::daemon::run(
             config,
             calibrator,
-            RunOptions { once: args.once },
+            RunOptions {
+                once: args.once,
+                give_up_after: Some(std::time::Duration::from_secs(args.give_up_after)),
+            },
             stop_signal(),
         ))
         .map_err(|e| Failure::new(1, e));
@@ -58,6 +66,16 @@ pub fn run(args: DaemonArgs) -> Result<(), Failure> {
         summary.failed,
         summary.generation
     );
+    if let Some(record) = &summary.in_force {
+        say!("  in force    {}", super::summary::calibration_line(record.pair()));
+        if let Some(rig) = record.rig() {
+            say!(
+                "  rig         {} sensors (above: the first camera and the first LiDAR)",
+                rig.sensors.len()
+            );
+        }
+        say!("  store       {}", store.join("current.json").display());
+    }
     Ok(())
 }
 

@@ -35,6 +35,42 @@ pub fn status_line(result: &CalibrationResult) -> String {
     }
 }
 
+/// The calibration in one line, as people read it everywhere: the camera's intrinsics and
+/// the LiDAR's pose in the camera's body frame (x forward, y left, z up; roll, pitch, yaw
+/// as [`lines`] gives them), with their largest-axis σ.
+pub fn calibration_line(result: &CalibrationResult) -> String {
+    let (c, u) = (&result.camera, &result.uncertainty);
+    let camera = format!(
+        "{} {}×{}: fx {:.2} fy {:.2} cx {:.2} cy {:.2} px",
+        c.model.name(),
+        c.width,
+        c.height,
+        c.fx,
+        c.fy,
+        c.cx,
+        c.cy
+    );
+    let Some(e) = &result.lidar_to_camera else { return format!("camera {camera}") };
+    let ([roll, pitch, yaw], t) = body_pose(e);
+    format!(
+        "camera {camera}; LiDAR roll {roll:.3}° pitch {pitch:.3}° yaw {yaw:.3}°, x {:.4} y {:.4} \
+         z {:.4} m in the camera's body frame (σ {:.3}°, {:.1} mm)",
+        t.x,
+        t.y,
+        t.z,
+        u.rotation_deg,
+        u.translation_m * 1e3
+    )
+}
+
+/// The LiDAR's pose in the camera's body frame (camera_link: x forward, y left, z up):
+/// roll, pitch, yaw (degrees, R = Rz(yaw)·Ry(pitch)·Rx(roll)) and position (m). A LiDAR
+/// mounted with its axes along the camera's reads roll = pitch = yaw = 0.
+fn body_pose(e: &Extrinsic) -> ([f64; 3], roomcal::geometry::Vec3) {
+    let pose = camera_link_in_lidar(e).inverse();
+    (rotation_to_rpy(&pose.rotation).map(f64::to_degrees), pose.translation)
+}
+
 /// The summary's lines, status line first.
 pub fn lines(
     room: &Room,
@@ -127,12 +163,9 @@ fn extrinsic_lines(
     sigma_deg: f64,
     sigma_m: f64,
 ) -> Vec<String> {
-    // The LiDAR in camera_link (x forward, y left, z up): a LiDAR mounted as the room
-    // says, axes along the camera's, reads roll = pitch = yaw = 0.
     let pose = camera_link_in_lidar(e).inverse();
     let expected = camera_link_in_lidar(nominal).inverse();
-    let [roll, pitch, yaw] = rotation_to_rpy(&pose.rotation).map(f64::to_degrees);
-    let t = pose.translation;
+    let ([roll, pitch, yaw], t) = body_pose(e);
     let turn =
         rotation_to_rpy(&(expected.rotation.transpose() * pose.rotation)).map(f64::to_degrees);
     let shift = (t - expected.translation) * 1e3;

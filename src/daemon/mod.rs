@@ -38,10 +38,11 @@ use std::time::Duration;
 use tokio::sync::{mpsc, watch};
 
 use crate::capture::{Backoff, CaptureError, FrameSource, FrameSum, GreyFrame, ImageReplay};
+use crate::detect::DetectError;
 use crate::lidar::{Calibration, Model, Point};
 use crate::result::{RigResult, Status};
 use crate::service::uds::{DaemonState, Outcome};
-use crate::store::{Store, StoreError};
+use crate::store::{Record, Store, StoreError};
 
 pub use backend::{DaemonBackend, Shared};
 pub use config::{CameraSource, Config, LidarSource};
@@ -53,8 +54,9 @@ use trigger::{Action, Trigger, Verdict};
 /// fake). Called on a blocking thread.
 pub trait Calibrator: Send + 'static {
     /// A cheap detection pass: how many boards camera `camera`'s `frame` shows (about once
-    /// a second; `camera` in the rig file's order, 0 for the one-pair vehicle).
-    fn count_boards(&mut self, camera: usize, frame: &GreyFrame) -> usize;
+    /// a second; `camera` in the rig file's order, 0 for the one-pair vehicle), or why the
+    /// frame cannot be searched (a frame of another size than the camera's).
+    fn count_boards(&mut self, camera: usize, frame: &GreyFrame) -> Result<usize, DetectError>;
 
     /// A full run: one averaged frame per camera and one accumulated sweep per LiDAR, in
     /// the rig file's order (one of each for the one-pair vehicle); `current` is the
@@ -82,6 +84,9 @@ pub enum CalibrationOutcome {
 pub struct RunOptions {
     /// Stop after the first calibration run ends (`roomcal daemon --once`).
     pub once: bool,
+    /// With `once`: end with [`DaemonError::GaveUp`] when no run has started this long
+    /// after the start, saying what the daemon was waiting for.
+    pub give_up_after: Option<Duration>,
 }
 
 /// What a finished daemon run did.
@@ -94,6 +99,8 @@ pub struct RunSummary {
     pub failed: u64,
     /// The generation in force at exit (0: none).
     pub generation: u32,
+    /// The record in force at exit.
+    pub in_force: Option<Record>,
 }
 
 /// Errors that stop the daemon; each names its input.
@@ -112,6 +119,8 @@ pub enum DaemonError {
     #[error("LiDAR angle corrections: {0}")]
     LidarCalibration(String),
     /// `--once`: the run ended without a result in the store.
+    #[error("gave up after {seconds} s without a calibration run: {waiting}")]
+    GaveUp { seconds: u64, waiting: String },
     #[error("the calibration run failed: {0}")]
     RunFailed(String),
 }
@@ -420,22 +429,100 @@ impl SensorNames {
     }
 }
 
-/// Whether every watched camera's latest frame, `(camera, boards it needs, frame)`, shows
-/// its boards; stops at the first that does not, and says so at debug level (the trigger
-/// polls about once a second).
+/// What the latest frames show of the room.
+#[derive(Clone, Debug, PartialEq)]
+enum RoomView {
+    /// Every watched camera shows its boards.
+    Seen,
+    /// A camera shows too few: "2 of 6 boards seen of camera `front`".
+    Short(String),
+    /// A camera's frames cannot be searched (the operator must hear of it once).
+    Unsearchable(String),
+}
+
+/// What every watched camera's latest frame, `(camera, boards it needs, frame)`, shows;
+/// stops at the first camera short of its boards (the trigger polls about once a second).
 fn room_seen<C: Calibrator>(
     calibrator: &mut C,
     latest: &[(usize, usize, Arc<GreyFrame>)],
     names: &SensorNames,
-) -> bool {
-    latest.iter().all(|(camera, need, frame)| {
-        let boards = calibrator.count_boards(*camera, frame);
-        if boards < *need {
-            let name = names.cameras.get(*camera).map_or("", String::as_str);
-            tracing::debug!("{boards} of {need} boards seen{name}");
+) -> RoomView {
+    for (camera, need, frame) in latest {
+        let name = names.cameras.get(*camera).map_or("", String::as_str);
+        match calibrator.count_boards(*camera, frame) {
+            Err(e) => return RoomView::Unsearchable(frame_problem(name, frame, &e)),
+            Ok(boards) if boards < *need => {
+                return RoomView::Short(format!("{boards} of {need} boards seen{name}"))
+            }
+            Ok(_) => {}
         }
-        boards >= *need
-    })
+    }
+    RoomView::Seen
+}
+
+/// Why a camera's frames cannot be searched, in the operator's terms; `name` as
+/// [`SensorNames`] gives it (empty for the one-pair vehicle's camera).
+fn frame_problem(name: &str, frame: &GreyFrame, e: &DetectError) -> String {
+    let camera = match name.strip_prefix(" of ") {
+        Some(named) => named.to_string(),
+        None => "the camera".to_string(),
+    };
+    match e {
+        DetectError::FrameSize { width, height, .. } => format!(
+            "{camera}: its frames are {}x{}, the room's camera is {width}x{height}: no board \
+             can be found in them; check the device's format or the camera's size in the room \
+             (or rig) file",
+            frame.width, frame.height
+        ),
+        e => format!("{camera}: its frames cannot be searched for boards: {e}"),
+    }
+}
+
+/// What the daemon last saw while it waited for a run, for the reason it gives up with.
+#[derive(Default)]
+struct Waiting {
+    /// The latest board count's view (`None`: no frame from every watched camera yet).
+    room: Option<RoomView>,
+    /// Sweeps received from any LiDAR.
+    sweeps: u64,
+}
+
+impl Waiting {
+    /// "the room was never seen: 2 of 6 boards seen of camera `front`", ...
+    fn describe(&self, phase: trigger::Phase, names: &SensorNames) -> String {
+        let lidars = names.lidars.len();
+        match (&self.room, phase) {
+            (None, _) => "no frame from every camera yet (see the camera's warnings)".into(),
+            (Some(RoomView::Unsearchable(problem)), _) => problem.clone(),
+            (Some(RoomView::Short(short)), trigger::Phase::Idle) => {
+                format!("the room was never seen: {short}")
+            }
+            (Some(_), _) if self.sweeps == 0 => format!(
+                "the room is seen but no LiDAR sweep arrived from the {lidars} LiDAR(s) (see \
+                 the LiDAR's warnings)"
+            ),
+            (Some(_), trigger::Phase::Done(_)) => {
+                "a run ended and the room must be left before the next".into()
+            }
+            (Some(_), _) => "the room is seen but the vehicle never stood still long enough \
+                 (the LiDAR's sweeps kept moving; see `[trigger]` settle_s and still_m)"
+                .into(),
+        }
+    }
+}
+
+/// Warnings given once each: a problem that lasts is said when it appears, not every
+/// second.
+#[derive(Default)]
+struct SaidOnce(std::collections::HashSet<String>);
+
+impl SaidOnce {
+    fn warn(&mut self, problem: String) {
+        if !self.0.contains(&problem) {
+            tracing::warn!("{problem}");
+            self.0.insert(problem);
+        }
+    }
 }
 
 /// The configuration of each camera task and each LiDAR task.
@@ -537,6 +624,10 @@ async fn run_daemon<C: Calibrator>(
     let mut summary = RunSummary::default();
     let mut last_state = DaemonState::Idle;
     let mut fatal: Option<DaemonError> = None;
+    let mut said = SaidOnce::default();
+    let mut waiting = Waiting::default();
+    let give_up = options.give_up_after.filter(|_| options.once);
+    let give_up_at = give_up.map(|after| tokio::time::Instant::now() + after);
     tokio::pin!(shutdown);
 
     loop {
@@ -557,11 +648,25 @@ async fn run_daemon<C: Calibrator>(
                     .collect();
                 if let Some(latest) = latest {
                     let (cal, names) = (calibrator.clone(), names.clone());
-                    let seen = tokio::task::spawn_blocking(move || {
-                        cal.lock().is_ok_and(|mut c| room_seen(&mut *c, &latest, &names))
-                    }).await.unwrap_or(false);
-                    action = trigger.on_room(now_s(), seen);
+                    let view = tokio::task::spawn_blocking(move || {
+                        let poisoned = RoomView::Short("the calibrator is poisoned".into());
+                        cal.lock().map_or(poisoned, |mut c| room_seen(&mut *c, &latest, &names))
+                    }).await.unwrap_or(RoomView::Short("the board count failed".into()));
+                    match &view {
+                        RoomView::Short(short) => tracing::debug!("{short}"),
+                        RoomView::Unsearchable(problem) => said.warn(problem.clone()),
+                        RoomView::Seen => {}
+                    }
+                    action = trigger.on_room(now_s(), view == RoomView::Seen);
+                    waiting.room = Some(view);
                 }
+            }
+            _ = sleep_until_opt(give_up_at), if !capturing && solving.is_none() && summary.runs == 0 => {
+                let seconds = give_up.map_or(0, |d| d.as_secs());
+                let waiting = waiting.describe(trigger.phase(), &names);
+                tracing::error!("gave up after {seconds} s without a calibration run: {waiting}");
+                fatal = Some(DaemonError::GaveUp { seconds, waiting });
+                break;
             }
             _ = sleep_until_opt(run.deadline), if capturing => {
                 outcome = Some(CalibrationOutcome::Failed(run.shortfall(&config, &names)));
@@ -580,6 +685,7 @@ async fn run_daemon<C: Calibrator>(
                 }
             }
             Some((lidar, sweep)) = sweeps.recv() => {
+                waiting.sweeps += 1;
                 if lidar == 0 {
                     image_next.fill(&sweep.points);
                     if have_prev {
@@ -656,8 +762,8 @@ async fn run_daemon<C: Calibrator>(
     })
     .await;
     tasks.shutdown().await;
-    summary.generation =
-        shared.lock().ok().and_then(|s| s.current.as_ref().map(|r| r.generation)).unwrap_or(0);
+    summary.in_force = shared.lock().ok().and_then(|s| s.current.clone());
+    summary.generation = summary.in_force.as_ref().map_or(0, |r| r.generation);
     match fatal {
         Some(e) => Err(e),
         None => Ok(summary),

@@ -12,6 +12,7 @@ use crate::calibrate::{
 };
 use crate::capture::GreyFrame;
 use crate::detect::holes::RefusedBoard;
+use crate::detect::DetectError;
 use crate::lidar::Point;
 use crate::result::{CalibrationResult, RigResult};
 use crate::rig::Rig;
@@ -117,9 +118,9 @@ fn write_picture(path: &std::path::Path, picture: &image::RgbImage) {
 }
 
 impl Calibrator for RoomCalibrator {
-    fn count_boards(&mut self, camera: usize, frame: &GreyFrame) -> usize {
-        let Some(detectors) = self.detectors.cameras.get_mut(camera) else { return 0 };
-        detectors.detect_pixels(&frame.pixels).map_or(0, |boards| boards.len())
+    fn count_boards(&mut self, camera: usize, frame: &GreyFrame) -> Result<usize, DetectError> {
+        let Some(detectors) = self.detectors.cameras.get_mut(camera) else { return Ok(0) };
+        detectors.detect_pixels(&frame.pixels).map(|boards| boards.len())
     }
 
     /// A rig's run, or the one-pair room's; a rig's gate compares with the record in force

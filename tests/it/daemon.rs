@@ -10,6 +10,7 @@ use std::time::Duration;
 
 use roomcal::capture::GreyFrame;
 use roomcal::daemon::{self, config, CalibrationOutcome, Calibrator, Daemon, RunOptions};
+use roomcal::detect::DetectError;
 use roomcal::geometry::CameraModel;
 use roomcal::lidar::{pcd, Point};
 use roomcal::result::{
@@ -60,9 +61,9 @@ struct Fake {
 }
 
 impl Calibrator for Fake {
-    fn count_boards(&mut self, _camera: usize, _frame: &GreyFrame) -> usize {
+    fn count_boards(&mut self, _camera: usize, _frame: &GreyFrame) -> Result<usize, DetectError> {
         self.counts.fetch_add(1, Ordering::SeqCst);
-        self.boards
+        Ok(self.boards)
     }
 
     fn calibrate(
@@ -125,6 +126,38 @@ fn scene(name: &str, extra: &str) -> (Scratch, config::Config) {
     (dir, config::load(&path).unwrap())
 }
 
+/// `--once` without giving up: the tests end the run themselves.
+const ONCE: RunOptions = RunOptions { once: true, give_up_after: None };
+
+#[tokio::test(start_paused = true)]
+async fn once_gives_up_saying_the_room_was_never_seen() {
+    let (dir, cfg) = scene("give-up", "");
+    let (cal, _, runs) = fake(5, Status::Accepted); // the room has 6
+    let options = RunOptions { once: true, give_up_after: Some(Duration::from_secs(20)) };
+    let t0 = tokio::time::Instant::now();
+    let err = daemon::run(cfg, cal, options, std::future::pending()).await.unwrap_err();
+    let took = t0.elapsed();
+    let message = err.to_string();
+    assert!(matches!(err, daemon::DaemonError::GaveUp { seconds: 20, .. }), "{message}");
+    assert!(message.contains("the room was never seen: 5 of 6 boards seen"), "{message}");
+    assert!(took >= Duration::from_secs(20) && took < Duration::from_secs(22), "{took:?}");
+    assert_eq!(runs.load(Ordering::SeqCst), 0);
+    assert!(current_bytes(&dir).is_none());
+}
+
+#[tokio::test(start_paused = true)]
+async fn frames_of_another_size_are_named_and_the_run_gives_up_on_them() {
+    let (_dir, cfg) = scene("frame-size", "");
+    let room = roomcal::room::load(&cfg.room).unwrap();
+    let (width, height) = (room.camera.width, room.camera.height);
+    let cal = roomcal::daemon::room_calibrator::RoomCalibrator::new(room).unwrap();
+    let options = RunOptions { once: true, give_up_after: Some(Duration::from_secs(5)) };
+    let err = daemon::run(cfg, cal, options, std::future::pending()).await.unwrap_err();
+    let message = err.to_string();
+    let size = format!("its frames are 64x48, the room's camera is {width}x{height}");
+    assert!(message.contains(&size) && message.contains("gave up after 5 s"), "{message}");
+}
+
 fn current_bytes(dir: &Path) -> Option<Vec<u8>> {
     std::fs::read(dir.join("store/current.json")).ok()
 }
@@ -134,8 +167,7 @@ async fn replay_auto_trigger_stores_a_generation_and_exits_once() {
     let (dir, cfg) = scene("auto", "");
     let (cal, counts, runs) = fake(6, Status::Accepted);
     let t0 = tokio::time::Instant::now();
-    let summary =
-        daemon::run(cfg, cal, RunOptions { once: true }, std::future::pending()).await.unwrap();
+    let summary = daemon::run(cfg, cal, ONCE, std::future::pending()).await.unwrap();
     let took = t0.elapsed();
     assert_eq!((summary.runs, summary.accepted, summary.generation), (1, 1, 1));
     assert_eq!(runs.load(Ordering::SeqCst), 1);
@@ -154,14 +186,8 @@ async fn replay_auto_trigger_stores_a_generation_and_exits_once() {
 async fn too_few_boards_never_trigger() {
     let (dir, cfg) = scene("few", "");
     let (cal, counts, runs) = fake(5, Status::Accepted); // the room has 6
-    let summary = daemon::run(
-        cfg,
-        cal,
-        RunOptions { once: true },
-        tokio::time::sleep(Duration::from_secs(30)),
-    )
-    .await
-    .unwrap();
+    let summary =
+        daemon::run(cfg, cal, ONCE, tokio::time::sleep(Duration::from_secs(30))).await.unwrap();
     assert_eq!(summary.runs, 0);
     assert_eq!(runs.load(Ordering::SeqCst), 0);
     assert!(counts.load(Ordering::SeqCst) >= 25, "about one detection pass a second");
@@ -175,8 +201,7 @@ async fn rejected_run_leaves_current_untouched() {
     store.commit(&result(900.0, Status::Accepted), 1_700_000_000).unwrap();
     let before = current_bytes(&dir).unwrap();
     let (cal, _, runs) = fake(6, Status::Rejected);
-    let summary =
-        daemon::run(cfg, cal, RunOptions { once: true }, std::future::pending()).await.unwrap();
+    let summary = daemon::run(cfg, cal, ONCE, std::future::pending()).await.unwrap();
     assert_eq!((summary.runs, summary.rejected, summary.generation), (1, 1, 1));
     assert_eq!(runs.load(Ordering::SeqCst), 1);
     assert_eq!(current_bytes(&dir).unwrap(), before);
@@ -220,14 +245,8 @@ async fn missing_camera_device_is_named_and_retried() {
     let err = daemon::open_camera(&cfg).err().unwrap().to_string();
     assert!(err.contains("/dev/video-roomcal-missing"), "{err}");
     let (cal, counts, _) = fake(6, Status::Accepted);
-    let s = daemon::run(
-        cfg,
-        cal,
-        RunOptions { once: true },
-        tokio::time::sleep(Duration::from_secs(120)),
-    )
-    .await
-    .unwrap();
+    let s =
+        daemon::run(cfg, cal, ONCE, tokio::time::sleep(Duration::from_secs(120))).await.unwrap();
     assert_eq!(s.runs, 0);
     assert_eq!(counts.load(Ordering::SeqCst), 0, "no frames, no detection");
 }
@@ -437,8 +456,7 @@ fn idle_cpu_of_a_replay_run() {
 async fn once_fails_when_the_store_cannot_be_written() {
     let (dir, cfg) = scene("unwritable", "");
     let (cal, _, _) = fake(6, Status::Accepted);
-    let task =
-        tokio::spawn(daemon::run(cfg, cal, RunOptions { once: true }, std::future::pending()));
+    let task = tokio::spawn(daemon::run(cfg, cal, ONCE, std::future::pending()));
     // The daemon opened its store; now its history becomes a plain file.
     tokio::time::sleep(Duration::from_millis(500)).await;
     std::fs::remove_dir_all(dir.join("store/history")).unwrap();
@@ -564,8 +582,8 @@ impl RigFake {
 }
 
 impl Calibrator for RigFake {
-    fn count_boards(&mut self, camera: usize, _frame: &GreyFrame) -> usize {
-        self.boards[camera]
+    fn count_boards(&mut self, camera: usize, _frame: &GreyFrame) -> Result<usize, DetectError> {
+        Ok(self.boards[camera])
     }
 
     fn calibrate(
@@ -614,8 +632,7 @@ async fn a_rig_daemon_captures_every_sensor_and_keeps_the_rig_in_force() {
     assert_eq!(cfg.rig.as_ref().map(|r| r.cameras.len() + r.lidars.len()), Some(4));
     let seen = Arc::new(std::sync::Mutex::new(Vec::new()));
     let cal = RigFake::new(&seen);
-    let summary =
-        daemon::run(cfg, cal, RunOptions { once: true }, std::future::pending()).await.unwrap();
+    let summary = daemon::run(cfg, cal, ONCE, std::future::pending()).await.unwrap();
     assert_eq!((summary.runs, summary.accepted, summary.generation), (1, 1, 1));
     assert_eq!(*seen.lock().unwrap(), [(2, 2)], "one frame per camera, one sweep per LiDAR");
     let record = Store::open(dir.join("store"), 4).unwrap().current().unwrap().unwrap();
@@ -631,11 +648,10 @@ async fn a_rig_daemon_captures_every_sensor_and_keeps_the_rig_in_force() {
 async fn a_rig_run_times_out_naming_the_sensor_that_delivered_nothing() {
     let (_dir, cfg) = rig_scene("rig-timeout", "replay:missing.pcd");
     let seen = Arc::new(std::sync::Mutex::new(Vec::new()));
-    let error =
-        daemon::run(cfg, RigFake::new(&seen), RunOptions { once: true }, std::future::pending())
-            .await
-            .unwrap_err()
-            .to_string();
+    let error = daemon::run(cfg, RigFake::new(&seen), ONCE, std::future::pending())
+        .await
+        .unwrap_err()
+        .to_string();
     assert!(error.contains("0 of 2 sweeps of LiDAR `bumper`"), "{error}");
     assert!(error.contains("2 of 2 sweeps of LiDAR `top`"), "{error}");
     assert!(seen.lock().unwrap().is_empty(), "calibrated without the bumper LiDAR");
@@ -652,7 +668,7 @@ async fn a_rigs_trigger_waits_for_every_watched_camera() {
         let cal = RigFake { boards: [6, 2], ..RigFake::new(&seen) };
         async move {
             let stop = tokio::time::sleep(Duration::from_secs(30));
-            let summary = daemon::run(cfg, cal, RunOptions { once: true }, stop).await.unwrap();
+            let summary = daemon::run(cfg, cal, ONCE, stop).await.unwrap();
             drop(dir);
             (summary.runs, seen.lock().unwrap().len())
         }

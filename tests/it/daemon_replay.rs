@@ -78,6 +78,16 @@ fn replay_daemon_calibrates_from_the_sensors_packets() {
         run_once(&config_with_lidar(&dir, &fixture("six-boards-pandar64/room.toml"), &lidar));
     assert!(text.contains("1 accepted"), "{text}");
     assert_current_matches_truth(&dir.join("store/current.json"));
+    // The end summary gives the calibration in force in a line, and where it is.
+    let line = |head: &str| text.lines().find(|l| l.trim_start().starts_with(head)).unwrap_or("");
+    let in_force = line("in force");
+    let current: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("store/current.json")).unwrap())
+            .unwrap();
+    let fx = format!("fx {:.2}", current["camera"]["fx"].as_f64().unwrap());
+    assert!(in_force.contains(&fx) && in_force.contains("LiDAR roll"), "{text}");
+    let store = line("store");
+    assert!(store.ends_with(&format!("{}", dir.join("store/current.json").display())), "{text}");
 }
 
 #[test]
