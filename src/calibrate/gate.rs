@@ -2,7 +2,7 @@
 //! from the calibration in force.
 
 use super::{
-    CalibrateOptions, Calibration, FrameDetections, LidarAngles, Pose, Rejection, UsedBoard,
+    CalibrateOptions, Calibration, FrameDetections, LidarAngles, MovedPose, Rejection, UsedBoard,
 };
 use crate::geometry::Camera;
 use crate::result::{CalibrationResult, CameraResult, Extrinsic, Uncertainty};
@@ -247,7 +247,7 @@ fn check_change(
 ) -> Result<(), Rejection> {
     intrinsics_within_change(q, &current.camera, &new.camera)?;
     if let (Some(x), Some(y)) = (&current.lidar_to_camera, &new.lidar_to_camera) {
-        extrinsic_within_change(q, Pose::Extrinsic, x, y)?;
+        extrinsic_within_change(q, MovedPose::Extrinsic, x, y)?;
     }
     Ok(())
 }
@@ -274,7 +274,7 @@ pub(super) fn intrinsics_within_change(
 /// (in force).
 pub(super) fn extrinsic_within_change(
     q: &QualitySpec,
-    pose: Pose,
+    pose: MovedPose,
     x: &Extrinsic,
     y: &Extrinsic,
 ) -> Result<(), Rejection> {

@@ -21,7 +21,9 @@
 //! target (`solve::room`), then held by the survey's joint covariance when the room file
 //! has one (`modes.rs`, `solve::room_modes`). Files: `detectors.rs`, `association.rs`,
 //! `free.rs` (the free-board model), `identify.rs`, `surveyed.rs`, `modes.rs`, `gate.rs`;
-//! `frame_report.rs` is `roomcal detect`'s report of one frame.
+//! `frame_report.rs` is `roomcal detect`'s report of one frame. Why a run was refused is a
+//! [`Rejection`] (the gate's) or a [`SolveFailure`] (the solve's); their Display is the
+//! result file's `reason`.
 
 mod association;
 mod detectors;
@@ -43,7 +45,7 @@ mod surveyed;
 pub use detectors::{expected_in_rig_lidars, Detectors, RigDetectors, RigExpectation};
 pub use faces::plane_points;
 pub use gate::coverage;
-pub use rejection::{Pose, Rejection};
+pub use rejection::{MovedPose, Rejection};
 pub use solve_failure::{MisplacedHoles, SolveFailure};
 pub use surveyed::{identify_detections, FrameIdentities};
 

@@ -40,12 +40,12 @@ pub enum Rejection {
     /// The principal point moved beyond `max_change_principal_px`.
     PrincipalMoved { shift_px: f64, limit_px: f64 },
     /// A pose moved beyond the change limits from the calibration in force.
-    PoseMoved { pose: Pose, angle_deg: f64, shift_m: f64, limit_deg: f64, limit_m: f64 },
+    PoseMoved { pose: MovedPose, angle_deg: f64, shift_m: f64, limit_deg: f64, limit_m: f64 },
 }
 
 /// Which pose a change limit was applied to.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Pose {
+pub enum MovedPose {
     /// A one-pair run's LiDAR → camera.
     Extrinsic,
     /// A rig sensor's pose relative to the first camera.
@@ -140,11 +140,11 @@ impl fmt::Display for Rejection {
     }
 }
 
-impl fmt::Display for Pose {
+impl fmt::Display for MovedPose {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(match self {
-            Pose::Extrinsic => "extrinsic",
-            Pose::Mounting => "mounting",
+            MovedPose::Extrinsic => "extrinsic",
+            MovedPose::Mounting => "mounting",
         })
     }
 }
@@ -208,7 +208,7 @@ mod tests {
             ),
             (
                 Rejection::PoseMoved {
-                    pose: Pose::Mounting,
+                    pose: MovedPose::Mounting,
                     angle_deg: 2.5,
                     shift_m: 0.0123,
                     limit_deg: 2.0,

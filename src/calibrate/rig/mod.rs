@@ -26,7 +26,8 @@
 //!
 //! Gate: each run is gated by the room's `[quality]`; a rig is accepted only when every
 //! sensor is (docs/rigs.md: one failing sensor rejects the whole run and is named).
-//! A joint solve that fails, or puts a board outside its survey σ, rejects the rig.
+//! A joint solve that fails, or puts a board outside its survey σ, rejects the rig
+//! ([`RigFailure`]); a sensor's verdict is a [`SensorRejection`].
 
 mod failure;
 mod joint;
@@ -41,7 +42,7 @@ use nalgebra::{DMatrix, Matrix3};
 
 use super::{
     calibrate_with_clouds, corner_start, gate, CalibrateOptions, Calibration, CameraBoard,
-    FrameDetections, LidarAngles, LidarBoard, Pose, Rejection,
+    FrameDetections, LidarAngles, LidarBoard, MovedPose, Rejection,
 };
 use crate::geometry::{se3::so3_log, Se3, Vec3};
 use crate::lidar::Point;
@@ -242,7 +243,7 @@ fn judge_changes(result: &mut RigResult, current: &RigResult, q: &QualitySpec, r
             gate::intrinsics_within_change(q, &a, &b)?;
         }
         match (mounting(current, name), mounting(result, name)) {
-            (Some(x), Some(y)) => gate::extrinsic_within_change(q, Pose::Mounting, &x, &y),
+            (Some(x), Some(y)) => gate::extrinsic_within_change(q, MovedPose::Mounting, &x, &y),
             _ => Ok(()),
         }
     };
