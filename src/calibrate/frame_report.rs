@@ -10,7 +10,7 @@ use crate::target::Room;
 
 use super::{
     calibrate_detecting, identify_detections, CalibrateOptions, CameraBoard, Detectors,
-    FrameDetections, FrameIdentities, LidarBoard,
+    FrameDetections, FrameIdentities, LidarBoard, SolveFailure,
 };
 
 /// One frame's detections, the refused planes and the detections' identities.
@@ -30,7 +30,7 @@ pub enum Identification {
     /// Every detection named (`None` where one matches no surveyed board).
     Identified(FrameIdentities),
     /// The camera's boards could not be identified: why.
-    Failed(String),
+    Failed(SolveFailure),
     /// A surveyed room without an image: the LiDAR's boards are identified through the
     /// camera's room pose.
     NeedsImage,

@@ -5,8 +5,8 @@ use super::association::{associate, lidar_nominal};
 use super::faces::{expected_face, EXPECTED_FACE_CUT_M};
 use super::register::register_by_faces;
 use super::{
-    default_fov, fov_guesses, median, nominal_camera, solver_reason, CalibrateOptions, Calibration,
-    CameraBoard, FrameDetections, UsedBoard, MAX_OBSERVATIONS,
+    default_fov, fov_guesses, median, nominal_camera, CalibrateOptions, Calibration, CameraBoard,
+    FrameDetections, MisplacedHoles, SolveFailure, UsedBoard, MAX_OBSERVATIONS,
 };
 use crate::geometry::{Camera, CameraModel, Se3, Vec3};
 use crate::lidar::Point;
@@ -34,24 +34,27 @@ pub(super) fn solve_free(
     frames: &[FrameDetections],
     clouds: &[&[Point]],
     options: &CalibrateOptions,
-) -> Result<Calibration, String> {
+) -> Result<Calibration, SolveFailure> {
     let first = solve_all(room, frames, clouds, options)?;
     let Some((index, worst, median)) = hole_outlier(room, &first) else {
         return Ok(first);
     };
     let board = &first.boards[index];
     let frame = board.frame as usize;
-    let name = format!(
-        "frame {frame} board {}: its LiDAR hole RMS {worst:.2} px is {:.0}× the other boards' median ({median:.2} px); its LiDAR placement was left out",
-        first.boards[..index].iter().filter(|b| b.frame == board.frame).count(),
-        worst / median.max(1e-9)
-    );
-    tracing::warn!("{name}");
+    let misplaced = MisplacedHoles {
+        frame: board.frame,
+        board: first.boards[..index].iter().filter(|b| b.frame == board.frame).count(),
+        surveyed: false,
+        rms_px: worst,
+        median_px: median,
+    };
+    tracing::warn!("{misplaced}");
     let mut without = frames.to_vec();
     without[frame].lidar.retain(|l| !same_holes(&l.holes, &board.holes_lidar));
-    let mut second =
-        solve_all(room, &without, clouds, options).map_err(|e| format!("{e}; {name}"))?;
-    second.notes.push(name);
+    let mut second = solve_all(room, &without, clouds, options).map_err(|e| {
+        SolveFailure::AfterLeavingOut { error: Box::new(e), misplaced: misplaced.clone() }
+    })?;
+    second.notes.push(misplaced.to_string());
     Ok(second)
 }
 
@@ -82,7 +85,7 @@ pub(super) fn solve_all(
     frames: &[FrameDetections],
     clouds: &[&[Point]],
     options: &CalibrateOptions,
-) -> Result<Calibration, String> {
+) -> Result<Calibration, SolveFailure> {
     let CameraStart {
         object,
         holes_board,
@@ -120,22 +123,19 @@ pub(super) fn solve_all(
             Some(p) => (&holes_board, &p.holes_lidar),
             None => (&[], &[]),
         };
-        problem
-            .add_board(BoardObservation {
-                object: &object,
-                corners: &board.corners,
-                holes_board: hb,
-                holes_lidar: hl,
-                hole_sigma_px: *sigma,
-                plane: match &faces {
-                    Some(f) => f.faces[i],
-                    None => pair.as_ref().and_then(|p| p.plane).filter(|_| !options.without_planes),
-                },
-            })
-            .map_err(solver_reason)?;
+        problem.add_board(BoardObservation {
+            object: &object,
+            corners: &board.corners,
+            holes_board: hb,
+            holes_lidar: hl,
+            hole_sigma_px: *sigma,
+            plane: match &faces {
+                Some(f) => f.faces[i],
+                None => pair.as_ref().and_then(|p| p.plane).filter(|_| !options.without_planes),
+            },
+        })?;
     }
-    let (mut params, _) =
-        initialise(&problem, camera, IntrinsicsSeed::Given).map_err(solver_reason)?;
+    let (mut params, _) = initialise(&problem, camera, IntrinsicsSeed::Given)?;
     if let Some(f) = &faces {
         params.lidar_to_camera = f.start; // no hole pairs to start it from
     }
@@ -144,14 +144,14 @@ pub(super) fn solve_all(
         mask = mask.fix_intrinsics();
     }
     let lm = LmOptions { mask, ..LmOptions::default() };
-    let report = problem.solve(&mut params, &lm).map_err(solver_reason)?;
+    let report = problem.solve(&mut params, &lm)?;
     iterations += report.iterations;
     // Once more with each kind's σ from its own residuals (corners, holes, faces): the
     // detector's corner σ and the LiDAR's nominal σ are guesses, and the face points,
     // thousands of them, would otherwise outweigh corners that fit better than guessed.
-    let variances = covariance(&problem, &params, mask).map_err(solver_reason)?.kind_variances;
+    let variances = covariance(&problem, &params, mask)?.kind_variances;
     problem.rescale_sigmas(variances);
-    let report = problem.solve(&mut params, &lm).map_err(solver_reason)?;
+    let report = problem.solve(&mut params, &lm)?;
     iterations += report.iterations;
     let sigma = if options.two_stage && problem.has_holes() {
         // The intrinsics came from the corners alone: their σ is that stage's, and it
@@ -160,13 +160,12 @@ pub(super) fn solve_all(
         with_fixed_intrinsics(&problem, &params, &corners_only)
     } else {
         covariance(&problem, &params, mask)
-    }
-    .map_err(solver_reason)?;
+    }?;
     let pose_covariance = lidar_pose_covariance(&sigma);
     let sigma = sigma.uncertainty();
     let with_lidar = room.lidar.is_some() && (problem.has_holes() || faces.is_some());
     if room.lidar.is_some() && !with_lidar {
-        return Err("no LiDAR board could be paired with a camera board".into());
+        return Err(SolveFailure::NoLidarPair);
     }
     let boards: Vec<UsedBoard> = camera_boards
         .iter()
@@ -257,15 +256,15 @@ fn lidar_pose_covariance(
 fn corner_covariance(
     problem: &JointProblem<'_, MAX_OBSERVATIONS>,
     params: &JointParams<Camera, MAX_OBSERVATIONS>,
-) -> Result<SharedCovariance, String> {
+) -> Result<SharedCovariance, SolveFailure> {
     let mut corners: JointProblem<'_, MAX_OBSERVATIONS> =
         JointProblem::new(problem.corner_sigma_px, problem.hole_sigma_px, problem.loss);
     for board in problem.boards() {
         let only =
             BoardObservation { object: board.object, corners: board.corners, ..Default::default() };
-        corners.add_board(only).map_err(solver_reason)?;
+        corners.add_board(only)?;
     }
-    covariance(&corners, params, ParamMask::free()).map_err(solver_reason)
+    covariance(&corners, params, ParamMask::free()).map_err(SolveFailure::Solver)
 }
 
 /// Two starts whose final costs agree within this fraction reached the same minimum.
@@ -300,7 +299,7 @@ pub struct CornerStart {
 
 /// The [`CornerStart`] of `frames` in `room` (its camera and board); an error when no
 /// image holds a complete checkerboard.
-pub fn corner_start(room: &Room, frames: &[FrameDetections]) -> Result<CornerStart, String> {
+pub fn corner_start(room: &Room, frames: &[FrameDetections]) -> Result<CornerStart, SolveFailure> {
     Ok(camera_start(room, frames, None)?.start)
 }
 
@@ -310,7 +309,7 @@ pub(super) fn camera_start<'f>(
     room: &Room,
     frames: &'f [FrameDetections],
     given: Option<&CornerStart>,
-) -> Result<CameraStart<'f>, String> {
+) -> Result<CameraStart<'f>, SolveFailure> {
     let object: Vec<Vec3> = (0..room.board.corner_count()).map(|i| room.board.corner(i)).collect();
     let holes_board: Vec<Vec3> = (0..room.board.holes.len()).map(|h| room.board.hole(h)).collect();
     let boards: Vec<(u32, &CameraBoard)> = frames
@@ -321,7 +320,7 @@ pub(super) fn camera_start<'f>(
         .take(MAX_OBSERVATIONS)
         .collect();
     if boards.is_empty() {
-        return Err("no complete checkerboard was detected in any image".into());
+        return Err(SolveFailure::NoCompleteBoard);
     }
     let corner_sigma = median(boards.iter().map(|(_, b)| b.sigma_px)).max(0.02);
     let start = match given.filter(|g| g.poses.len() == boards.len()) {
@@ -372,17 +371,15 @@ fn intrinsics_start(
     object: &[Vec3],
     boards: &[(u32, &CameraBoard)],
     corner_sigma: f64,
-) -> Result<CornerStart, String> {
+) -> Result<CornerStart, SolveFailure> {
     let mut problem: JointProblem<'_, MAX_OBSERVATIONS> =
         JointProblem::new(corner_sigma, 1.0, Loss::Huber(3.0));
     for (_, board) in boards {
-        problem
-            .add_board(BoardObservation {
-                object,
-                corners: &board.corners,
-                ..BoardObservation::default()
-            })
-            .map_err(solver_reason)?;
+        problem.add_board(BoardObservation {
+            object,
+            corners: &board.corners,
+            ..BoardObservation::default()
+        })?;
     }
     let seeds = intrinsics_seeds(room);
     let mut best: Option<(f64, JointParams<Camera, MAX_OBSERVATIONS>)> = None;
@@ -412,7 +409,7 @@ fn intrinsics_start(
     }
     match best {
         Some((_, params)) => {
-            let (rms_px, _) = problem.rms_px(&params).map_err(solver_reason)?;
+            let (rms_px, _) = problem.rms_px(&params)?;
             Ok(CornerStart {
                 camera: params.camera,
                 poses: params.board_poses.to_vec(),
@@ -421,10 +418,7 @@ fn intrinsics_start(
                 iterations,
             })
         }
-        None => Err(format!(
-            "no start for the intrinsics converged ({})",
-            last_error.map_or("no seed".into(), solver_reason)
-        )),
+        None => Err(SolveFailure::NoStart(last_error)),
     }
 }
 
@@ -503,10 +497,14 @@ pub(super) fn accepted(
     }
 }
 
-pub(super) fn rejected(camera: &Camera, reason: String, with_lidar: bool) -> CalibrationResult {
+pub(super) fn rejected(
+    camera: &Camera,
+    reason: &SolveFailure,
+    with_lidar: bool,
+) -> CalibrationResult {
     CalibrationResult {
         status: Status::Rejected,
-        reason: Some(reason),
+        reason: Some(reason.to_string()),
         camera: CameraResult::from_camera(camera),
         lidar_to_camera: with_lidar.then(|| Extrinsic::from_se3(&Se3::identity())),
         uncertainty: Uncertainty::default(),

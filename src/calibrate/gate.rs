@@ -1,28 +1,32 @@
 //! The quality gate (`target::QualitySpec`): residuals, boards, coverage, σ, and the change
 //! from the calibration in force.
 
-use super::{CalibrateOptions, Calibration, FrameDetections, LidarAngles, UsedBoard};
+use super::{
+    CalibrateOptions, Calibration, FrameDetections, LidarAngles, MovedPose, Rejection, UsedBoard,
+};
 use crate::geometry::Camera;
 use crate::result::{CalibrationResult, CameraResult, Extrinsic, Uncertainty};
 use crate::target::{QualitySpec, Room};
 
-/// The quality gate: `Err(reason)` names the first threshold the run fails.
+/// The quality gate: `Err` is the first threshold the run fails.
 pub(super) fn gate(
     room: &Room,
     frames: &[FrameDetections],
     options: &CalibrateOptions,
     run: &Calibration,
-) -> Result<(), String> {
+) -> Result<(), Rejection> {
     let q = &room.quality;
     let r = &run.result;
     let min_boards = q.min_boards.unwrap_or(room.board.count) as usize;
     for (f, frame) in frames.iter().enumerate() {
         let complete = run.boards.iter().filter(|b| b.frame as usize == f).count();
         if complete < min_boards {
-            return Err(format!(
-                "frame {f}: {complete} complete boards seen by the camera, the room needs {min_boards} ({} detected in all)",
-                frame.camera.len()
-            ));
+            return Err(Rejection::TooFewBoards {
+                frame: f,
+                complete,
+                needed: min_boards,
+                detected: frame.camera.len(),
+            });
         }
     }
     corners_fit(q, r.quality.corner_rms_px)?;
@@ -31,26 +35,19 @@ pub(super) fn gate(
     if room.lidar.is_some() {
         // As the free-board solve refuses a run whose LiDAR pairs no board: accepted as
         // intrinsics only, it would put a calibration without the extrinsic in force.
-        check(run.lidar_to_camera.is_some(), || {
-            format!(
-                "the LiDAR was not calibrated: no board or surveyed plane placed it (the room has a \
-                 LiDAR; at least {} boards seen by both sensors needed)",
-                q.min_lidar_boards
-            )
+        check(run.lidar_to_camera.is_some(), || Rejection::LidarUncalibrated {
+            needed: q.min_lidar_boards,
         })?;
         angles_checked(options.lidar_angles, run.hole_boards())?;
         // In a surveyed room the survey gives every target its pose: the LiDAR registers
         // against boards (by their holes or their face) and planes alike, as a rig's does.
         let lidar_boards = run.boards.iter().filter(|b| b.seen_by_lidar()).count();
-        let (targets, seen) = match r.camera_in_room {
-            Some(_) => {
-                let n = lidar_boards + run.lidar_planes;
-                (n, format!("the LiDAR registers against {n} surveyed boards and planes"))
-            }
-            None => (lidar_boards, format!("{lidar_boards} boards seen by both sensors")),
-        };
-        check(targets >= q.min_lidar_boards as usize, || {
-            format!("{seen}, at least {} needed", q.min_lidar_boards)
+        let surveyed = r.camera_in_room.is_some();
+        let count = if surveyed { lidar_boards + run.lidar_planes } else { lidar_boards };
+        check(count >= q.min_lidar_boards as usize, || Rejection::TooFewLidarTargets {
+            count,
+            surveyed,
+            needed: q.min_lidar_boards,
         })?;
         holes_fit(q, r.quality.hole_rms_px)?;
         if let Some(ext) = &run.lidar_to_camera {
@@ -73,21 +70,16 @@ pub(super) fn gate(
 }
 
 /// The corners' RMS reprojection error within `max_corner_rms_px`.
-pub(super) fn corners_fit(q: &QualitySpec, rms_px: f64) -> Result<(), String> {
-    check(rms_px <= q.max_corner_rms_px, || {
-        format!("corner RMS {rms_px:.3} px exceeds {} px", q.max_corner_rms_px)
+pub(super) fn corners_fit(q: &QualitySpec, rms_px: f64) -> Result<(), Rejection> {
+    check(rms_px <= q.max_corner_rms_px, || Rejection::CornerRms {
+        rms_px,
+        limit_px: q.max_corner_rms_px,
     })
 }
 
 /// The used corners cover at least `min_coverage` of the image.
-pub(super) fn covers(q: &QualitySpec, coverage: f64) -> Result<(), String> {
-    check(coverage >= q.min_coverage, || {
-        format!(
-            "corners cover {:.0} % of the image, at least {:.0} % needed",
-            coverage * 100.0,
-            q.min_coverage * 100.0
-        )
-    })
+pub(super) fn covers(q: &QualitySpec, coverage: f64) -> Result<(), Rejection> {
+    check(coverage >= q.min_coverage, || Rejection::Coverage { coverage, min: q.min_coverage })
 }
 
 /// The focal lengths' and the principal point's σ within their limits.
@@ -95,39 +87,31 @@ pub(super) fn intrinsics_certain(
     q: &QualitySpec,
     c: &CameraResult,
     u: &Uncertainty,
-) -> Result<(), String> {
+) -> Result<(), Rejection> {
     check(u.fx <= q.max_sigma_focal_rel * c.fx && u.fy <= q.max_sigma_focal_rel * c.fy, || {
-        format!(
-            "focal length uncertain: σ fx {:.2} px, fy {:.2} px (limit {} %)",
-            u.fx,
-            u.fy,
-            q.max_sigma_focal_rel * 100.0
-        )
+        Rejection::FocalUncertain { fx_px: u.fx, fy_px: u.fy, limit_rel: q.max_sigma_focal_rel }
     })?;
     check(u.cx <= q.max_sigma_principal_px && u.cy <= q.max_sigma_principal_px, || {
-        format!(
-            "principal point uncertain: σ cx {:.2} px, cy {:.2} px (limit {} px)",
-            u.cx, u.cy, q.max_sigma_principal_px
-        )
+        Rejection::PrincipalUncertain {
+            cx_px: u.cx,
+            cy_px: u.cy,
+            limit_px: q.max_sigma_principal_px,
+        }
     })
 }
 
 /// The hole term's RMS within `max_hole_rms_px`.
-pub(super) fn holes_fit(q: &QualitySpec, rms_px: f64) -> Result<(), String> {
-    check(rms_px <= q.max_hole_rms_px, || {
-        format!("hole RMS {rms_px:.3} px exceeds {} px", q.max_hole_rms_px)
+pub(super) fn holes_fit(q: &QualitySpec, rms_px: f64) -> Result<(), Rejection> {
+    check(rms_px <= q.max_hole_rms_px, || Rejection::HoleRms {
+        rms_px,
+        limit_px: q.max_hole_rms_px,
     })
 }
 
 /// A LiDAR placed without a board's holes (by faces and planes alone) rests on its angle
 /// table unchecked ([`LidarAngles`]): refused when that table is the model's nominal one.
-pub(super) fn angles_checked(angles: LidarAngles, hole_boards: usize) -> Result<(), String> {
-    check(hole_boards > 0 || angles == LidarAngles::Unit, || {
-        "no board placed by its holes, and the LiDAR's packets were decoded with the model's \
-         nominal angle table, which nothing in the run checks: is the unit's angle file given \
-         (`--lidar-calibration`, or `calibration` in the daemon's [lidar])?"
-            .to_string()
-    })
+pub(super) fn angles_checked(angles: LidarAngles, hole_boards: usize) -> Result<(), Rejection> {
+    check(hole_boards > 0 || angles == LidarAngles::Unit, || Rejection::NominalAngles)
 }
 
 /// The LiDAR's hole centres, carried into the camera by the solved extrinsic, against the
@@ -143,7 +127,7 @@ pub(super) fn holes_agree(
     holes_board: &[crate::geometry::Vec3],
     lidar_to_camera: &crate::geometry::Se3,
     corner_sigma_px: f64,
-) -> Result<(), String> {
+) -> Result<(), Rejection> {
     let (mut chi2, mut rows, mut worst) = (0.0, 0usize, 0.0f64);
     for b in boards.iter().filter(|b| !b.holes_lidar.is_empty() && b.hole_sigma_m > 0.0) {
         // Joint σ: the LiDAR's hole and the camera's board, whose depth is the less
@@ -161,12 +145,7 @@ pub(super) fn holes_agree(
         return Ok(());
     }
     let limit = chi2_quantile(dof as f64, HOLES_CHI2_Z);
-    check(chi2 <= limit, || {
-        format!(
-            "the LiDAR's holes and the camera's boards disagree: χ² {chi2:.0} over {dof} degrees of freedom (limit {limit:.0}), holes up to {:.0} mm apart in 3D; check the room file's board (square, holes) against the boards, and the LiDAR's angle file",
-            worst * 1e3
-        )
-    })
+    check(chi2 <= limit, || Rejection::HolesDisagree { chi2, dof, limit, worst_m: worst })
 }
 
 /// The σ of a board's depth from its corners: its image scale `s` (the corners' RMS
@@ -210,7 +189,7 @@ pub(super) fn lidar_boards_on_survey(
     frames: &[FrameDetections],
     holes_board: &[crate::geometry::Vec3],
     lidar_to_room: &crate::geometry::Se3,
-) -> Result<(), String> {
+) -> Result<(), Rejection> {
     let centre =
         holes_board.iter().sum::<crate::geometry::Vec3>() / holes_board.len().max(1) as f64;
     let surveyed: Vec<_> = survey.boards.iter().map(|b| b.pose().act(&centre)).collect();
@@ -225,26 +204,18 @@ pub(super) fn lidar_boards_on_survey(
         })
         .filter(|&d| d > OFF_SURVEY_M)
         .fold((0, 0.0f64), |(n, worst), d| (n + 1, worst.max(d)));
-    check(count == 0, || {
-        format!(
-            "{count} board(s) the LiDAR placed by their holes lie up to {:.2} m from every surveyed board under the solved mounting (limit {OFF_SURVEY_M} m): the LiDAR and the run disagree; is the room's nominal LiDAR mounting right?",
-            off
-        )
-    })
+    check(count == 0, || Rejection::OffSurvey { count, worst_m: off })
 }
 
 /// The LiDAR→camera σ (`u.rotation_deg`, `u.translation_m`) within their limits.
-pub(super) fn extrinsic_certain(q: &QualitySpec, u: &Uncertainty) -> Result<(), String> {
+pub(super) fn extrinsic_certain(q: &QualitySpec, u: &Uncertainty) -> Result<(), Rejection> {
     check(
         u.rotation_deg <= q.max_sigma_rotation_deg && u.translation_m <= q.max_sigma_translation_m,
-        || {
-            format!(
-                "extrinsic uncertain: σ {:.3}° / {:.1} mm (limits {}° / {} mm)",
-                u.rotation_deg,
-                u.translation_m * 1000.0,
-                q.max_sigma_rotation_deg,
-                q.max_sigma_translation_m * 1000.0
-            )
+        || Rejection::ExtrinsicUncertain {
+            rotation_deg: u.rotation_deg,
+            translation_m: u.translation_m,
+            limit_deg: q.max_sigma_rotation_deg,
+            limit_m: q.max_sigma_translation_m,
         },
     )
 }
@@ -257,16 +228,14 @@ pub(super) fn check_parking(
     q: &QualitySpec,
     lidar: &crate::target::LidarSpec,
     camera_in_room: &crate::result::Extrinsic,
-) -> Result<(), String> {
+) -> Result<(), Rejection> {
     let nominal = super::association::lidar_nominal(lidar).inverse();
     let (angle, shift) = crate::result::Extrinsic::from_se3(&nominal).difference(camera_in_room);
-    check(shift <= q.max_parking_offset_m && angle <= q.max_parking_yaw_deg, || {
-        format!(
-            "parked {:.0} mm / {angle:.1}° from the nominal spot (limits {:.0} mm / {}°)",
-            shift * 1000.0,
-            q.max_parking_offset_m * 1000.0,
-            q.max_parking_yaw_deg
-        )
+    check(shift <= q.max_parking_offset_m && angle <= q.max_parking_yaw_deg, || Rejection::Parked {
+        shift_m: shift,
+        angle_deg: angle,
+        limit_m: q.max_parking_offset_m,
+        limit_deg: q.max_parking_yaw_deg,
     })
 }
 
@@ -275,10 +244,10 @@ fn check_change(
     q: &QualitySpec,
     current: &CalibrationResult,
     new: &CalibrationResult,
-) -> Result<(), String> {
+) -> Result<(), Rejection> {
     intrinsics_within_change(q, &current.camera, &new.camera)?;
     if let (Some(x), Some(y)) = (&current.lidar_to_camera, &new.lidar_to_camera) {
-        extrinsic_within_change(q, "extrinsic", x, y)?;
+        extrinsic_within_change(q, MovedPose::Extrinsic, x, y)?;
     }
     Ok(())
 }
@@ -288,43 +257,41 @@ pub(super) fn intrinsics_within_change(
     q: &QualitySpec,
     a: &CameraResult,
     b: &CameraResult,
-) -> Result<(), String> {
+) -> Result<(), Rejection> {
     let focal = ((b.fx - a.fx) / a.fx).abs().max(((b.fy - a.fy) / a.fy).abs());
-    check(focal <= q.max_change_focal_rel, || {
-        format!(
-            "focal length moved {:.2} % from the current calibration (limit {} %)",
-            focal * 100.0,
-            q.max_change_focal_rel * 100.0
-        )
+    check(focal <= q.max_change_focal_rel, || Rejection::FocalMoved {
+        change_rel: focal,
+        limit_rel: q.max_change_focal_rel,
     })?;
     let principal = (b.cx - a.cx).hypot(b.cy - a.cy);
-    check(principal <= q.max_change_principal_px, || {
-        format!(
-            "principal point moved {principal:.1} px from the current calibration (limit {} px)",
-            q.max_change_principal_px
-        )
+    check(principal <= q.max_change_principal_px, || Rejection::PrincipalMoved {
+        shift_px: principal,
+        limit_px: q.max_change_principal_px,
     })
 }
 
-/// A mounting (`what`: "extrinsic", "mounting") within the change limits from `x` (in force).
+/// A pose (a run's extrinsic, a rig sensor's mounting) within the change limits from `x`
+/// (in force).
 pub(super) fn extrinsic_within_change(
     q: &QualitySpec,
-    what: &str,
+    pose: MovedPose,
     x: &Extrinsic,
     y: &Extrinsic,
-) -> Result<(), String> {
+) -> Result<(), Rejection> {
     let (angle, shift) = x.difference(y);
     check(angle <= q.max_change_rotation_deg && shift <= q.max_change_translation_m, || {
-        format!(
-            "{what} moved {angle:.2}° / {:.0} mm from the current calibration (limits {}° / {} mm)",
-            shift * 1000.0,
-            q.max_change_rotation_deg,
-            q.max_change_translation_m * 1000.0
-        )
+        Rejection::PoseMoved {
+            pose,
+            angle_deg: angle,
+            shift_m: shift,
+            limit_deg: q.max_change_rotation_deg,
+            limit_m: q.max_change_translation_m,
+        }
     })
 }
 
-pub(super) fn check(ok: bool, reason: impl FnOnce() -> String) -> Result<(), String> {
+/// `Err(reason())` unless `ok` (the reason made only when needed).
+pub(super) fn check<E>(ok: bool, reason: impl FnOnce() -> E) -> Result<(), E> {
     if ok {
         Ok(())
     } else {
@@ -393,7 +360,12 @@ mod tests {
         // One board off: a common shift would be the extrinsic's, a differing one is not.
         let wrong = [board(-1.5, 0.0), board(1.5, 5.0 * sigma)];
         let reason = holes_agree(&wrong, &holes_board, &identity, 0.0).unwrap_err();
-        assert!(reason.contains("disagree"), "{reason}");
-        assert!(reason.contains("25 mm apart"), "{reason}");
+        let Rejection::HolesDisagree { chi2, dof, limit, worst_m } = reason else {
+            panic!("{reason:?}")
+        };
+        // Two boards of four holes, 3 rows each, less the extrinsic's 6.
+        assert_eq!(dof, 18);
+        assert!(chi2 > limit, "χ² {chi2} within {limit}");
+        assert!((worst_m - 5.0 * sigma).abs() < 1e-9, "{worst_m}");
     }
 }

@@ -21,7 +21,9 @@
 //! target (`solve::room`), then held by the survey's joint covariance when the room file
 //! has one (`modes.rs`, `solve::room_modes`). Files: `detectors.rs`, `association.rs`,
 //! `free.rs` (the free-board model), `identify.rs`, `surveyed.rs`, `modes.rs`, `gate.rs`;
-//! `frame_report.rs` is `roomcal detect`'s report of one frame.
+//! `frame_report.rs` is `roomcal detect`'s report of one frame. Why a run was refused is a
+//! [`Rejection`] (the gate's) or a [`SolveFailure`] (the solve's); their Display is the
+//! result file's `reason`.
 
 mod association;
 mod detectors;
@@ -34,19 +36,23 @@ mod gate;
 pub mod identify;
 mod modes;
 pub mod register;
+mod rejection;
 pub mod rig;
+mod solve_failure;
 pub mod survey;
 mod surveyed;
 
 pub use detectors::{expected_in_rig_lidars, Detectors, RigDetectors, RigExpectation};
 pub use faces::plane_points;
 pub use gate::coverage;
+pub use rejection::{MovedPose, Rejection};
+pub use solve_failure::{MisplacedHoles, SolveFailure};
 pub use surveyed::{identify_detections, FrameIdentities};
 
 use crate::detect::holes::RefusedBoard;
 use crate::geometry::{Camera, CameraModel, Se3, Vec2, Vec3};
 use crate::result::{CalibrationResult, Status};
-use crate::solve::{PlanePoints, SolveError};
+use crate::solve::PlanePoints;
 use crate::target::{BoardSpec, Room};
 
 /// Most board observations (boards × frames) in one run.
@@ -353,7 +359,7 @@ fn gated(
     room: &Room,
     frames: &[FrameDetections],
     options: &CalibrateOptions,
-    solved: Result<Calibration, String>,
+    solved: Result<Calibration, SolveFailure>,
 ) -> Calibration {
     let fallback_camera = nominal_camera(room, default_fov(room.camera.model));
     match solved {
@@ -361,12 +367,12 @@ fn gated(
             if let Err(reason) = gate::gate(room, frames, options, &calibration) {
                 calibration.result.status = Status::Rejected;
                 let notes = calibration.notes.iter().map(|n| format!("; {n}"));
-                calibration.result.reason = Some(notes.fold(reason, |r, n| r + &n));
+                calibration.result.reason = Some(notes.fold(reason.to_string(), |r, n| r + &n));
             }
             calibration
         }
         Err(reason) => Calibration {
-            result: free::rejected(&fallback_camera, reason, room.lidar.is_some()),
+            result: free::rejected(&fallback_camera, &reason, room.lidar.is_some()),
             camera: fallback_camera,
             lidar_to_camera: None,
             boards: Vec::new(),
@@ -429,8 +435,4 @@ fn median(values: impl Iterator<Item = f64>) -> f64 {
     let mut v: Vec<f64> = values.collect();
     v.sort_by(f64::total_cmp);
     v.get(v.len() / 2).copied().unwrap_or(0.0)
-}
-
-fn solver_reason(e: SolveError) -> String {
-    format!("the solver failed: {e}")
 }

@@ -18,8 +18,8 @@ use super::free::{accepted, camera_start, hole_outlier, CameraStart, CornerStart
 use super::identify::{identify, oriented, Identity};
 use super::modes::{SurveyEntry, SurveyModes};
 use super::{
-    solver_reason, Calibration, CameraBoard, FindLidarBoards, FrameDetections, LidarBoard,
-    UsedBoard, MAX_OBSERVATIONS,
+    Calibration, CameraBoard, FindLidarBoards, FrameDetections, LidarBoard, MisplacedHoles,
+    SolveFailure, UsedBoard, MAX_OBSERVATIONS,
 };
 use crate::detect::holes::EXPECTED_REACH_M;
 use crate::detect::planes::{
@@ -61,7 +61,7 @@ pub(super) fn solve_surveyed(
     clouds: &[&[Point]],
     finder: Option<&mut dyn FindLidarBoards>,
     given: Option<&super::free::CornerStart>,
-) -> Result<Calibration, String> {
+) -> Result<Calibration, SolveFailure> {
     let spec = &room.board;
     let CameraStart {
         object,
@@ -114,7 +114,7 @@ pub(super) fn solve_surveyed(
         let mut left_out: Vec<usize> = Vec::new();
         // A LiDAR placement whose holes fit far worse than the other boards' (as in the
         // free-board run) is named, left out, and the room solved again, once.
-        let mut misplaced: Option<String> = None;
+        let mut misplaced: Option<MisplacedHoles> = None;
         loop {
             let (mut unpair, mut regroup) = (None, None);
             let keep: Vec<usize> =
@@ -160,7 +160,7 @@ pub(super) fn solve_surveyed(
                     (p.camera, p.lidar_to_camera, p.room_to_camera) =
                         (previous.camera, previous.lidar_to_camera, previous.room_to_camera);
                 }
-                let report = solve_room(&problem, &mut p, 100).map_err(solver_reason)?;
+                let report = solve_room(&problem, &mut p, 100)?;
                 iterations += report.iterations;
                 if pass == 0 {
                     planes = room_planes(
@@ -189,10 +189,8 @@ pub(super) fn solve_surveyed(
                         left_out.push(board);
                         break;
                     }
-                    return Err(format!(
-                    "board {board} disagrees with the survey (χ² {chi2:.0} over its 6 survey σ, limit {MOVED_BOARD_CHI2}){}: it has moved, or the survey is stale",
-                    if left_out.is_empty() { String::new() } else { format!(" after leaving out board {}", left_out[0]) }
-                ));
+                    let after = left_out.first().copied();
+                    return Err(SolveFailure::BoardMoved { board, chi2, after });
                 }
                 // No second solve re-weighted by the kinds' variance factors here (the
                 // free-board solve has one): over ten new vehicles in a 16-visit surveyed
@@ -217,7 +215,7 @@ pub(super) fn solve_surveyed(
                         (p, joint, sigma)
                     }
                     None => {
-                        let sigma = room_covariance(&problem, &p).map_err(solver_reason)?;
+                        let sigma = room_covariance(&problem, &p)?;
                         (p, report, sigma)
                     }
                 };
@@ -238,10 +236,13 @@ pub(super) fn solve_surveyed(
                 );
                 if let (None, Some((j, worst, median))) = (&misplaced, hole_outlier(room, &run)) {
                     let (frame, _, board, _) = &identified[keep[j]];
-                    let name = format!(
-                    "frame {frame} surveyed board {board}: its LiDAR hole RMS {worst:.2} px is {:.0}× the other boards' median ({median:.2} px); its LiDAR placement was left out",
-                    worst / median.max(1e-9)
-                );
+                    let name = MisplacedHoles {
+                        frame: *frame,
+                        board: *board,
+                        surveyed: true,
+                        rms_px: worst,
+                        median_px: median,
+                    };
                     tracing::warn!("{name}");
                     misplaced = Some(name);
                     unpair = Some(keep[j]);
@@ -258,11 +259,10 @@ pub(super) fn solve_surveyed(
                     dropped.iter().for_each(|&i| again[i] = None);
                     if paired(&again) > paired(&pairs) {
                         if reassociated {
-                            return Err(format!(
-                                "the solved mounting pairs {} of the LiDAR's hole-placed boards with the camera's, the run used {}: the LiDAR and the camera disagree; is the room's nominal LiDAR mounting right?",
-                                paired(&again),
-                                paired(&pairs)
-                            ));
+                            return Err(SolveFailure::MountingDisagrees {
+                                pairs: paired(&again),
+                                used: paired(&pairs),
+                            });
                         }
                         tracing::info!(
                         before = paired(&pairs),
@@ -273,7 +273,7 @@ pub(super) fn solve_surveyed(
                         break;
                     }
                 }
-                run.notes.extend(misplaced.take());
+                run.notes.extend(misplaced.take().map(|m| m.to_string()));
                 run.notes.extend(unmatched);
                 run.notes.extend(joint_note);
                 return Ok(run);
@@ -408,7 +408,7 @@ pub fn identify_detections(
     room: &Room,
     survey: &SurveySpec,
     frame: &FrameDetections,
-) -> Result<FrameIdentities, String> {
+) -> Result<FrameIdentities, SolveFailure> {
     identify_from(room, survey, frame, None)
 }
 
@@ -419,21 +419,21 @@ pub(super) fn identify_from(
     survey: &SurveySpec,
     frame: &FrameDetections,
     given: Option<&super::CornerStart>,
-) -> Result<FrameIdentities, String> {
+) -> Result<FrameIdentities, SolveFailure> {
     let spec = &room.board;
     let complete: Vec<usize> = (0..frame.camera.len())
         .filter(|&i| frame.camera[i].corners.len() == spec.corner_count())
         .take(MAX_OBSERVATIONS)
         .collect();
     if complete.is_empty() {
-        return Err("no complete checkerboard was detected in the image".into());
+        return Err(SolveFailure::NoCompleteBoardInImage);
     }
     // The start's boards are these complete ones, in this order.
     let CameraStart { holes_board, start: CornerStart { poses, .. }, .. } =
         camera_start(room, core::slice::from_ref(frame), given)?;
     let surveyed: Vec<Se3> = survey.boards.iter().map(|b| b.pose()).collect();
-    let (ids, room_to_camera) =
-        identify(spec, &surveyed, &poses).map_err(|e| format!("frame 0: {e}"))?;
+    let (ids, room_to_camera) = identify(spec, &surveyed, &poses)
+        .map_err(|error| SolveFailure::Unidentified { frame: 0, error })?;
     let mut camera = vec![None; frame.camera.len()];
     let mut notes = Vec::new();
     for ((&i, id), pose) in complete.iter().zip(&ids).zip(&poses) {
@@ -497,7 +497,7 @@ fn identify_frames(
     frame_count: usize,
     seen: &[(u32, &CameraBoard)],
     poses: &[Se3],
-) -> Result<(Vec<(u32, CameraBoard, usize, Se3)>, Se3, Vec<String>), String> {
+) -> Result<(Vec<(u32, CameraBoard, usize, Se3)>, Se3, Vec<String>), SolveFailure> {
     let mut identified: Vec<(u32, CameraBoard, usize, Se3)> = Vec::new();
     let mut room_to_camera = None;
     let mut unmatched: Vec<String> = Vec::new();
@@ -507,8 +507,8 @@ fn identify_frames(
             continue;
         }
         let frame_poses: Vec<Se3> = in_frame.iter().map(|&i| poses[i]).collect();
-        let (ids, pose) =
-            identify(spec, surveyed, &frame_poses).map_err(|e| format!("frame {f}: {e}"))?;
+        let (ids, pose) = identify(spec, surveyed, &frame_poses)
+            .map_err(|error| SolveFailure::Unidentified { frame: f, error })?;
         room_to_camera.get_or_insert(pose);
         for (&i, id) in in_frame.iter().zip(&ids) {
             let Some(id) = id else {
@@ -519,7 +519,7 @@ fn identify_frames(
             identified.push((f, board, id.board, oriented(&poses[i], id.half_turned)));
         }
     }
-    let room_to_camera = room_to_camera.ok_or("no board could be identified")?;
+    let room_to_camera = room_to_camera.ok_or(SolveFailure::NoBoardIdentified)?;
     Ok((identified, room_to_camera, unmatched))
 }
 
@@ -564,7 +564,7 @@ fn add_observations<'a>(
     planes: &[(usize, PlanePoints)],
     faces: &[Option<PlanePoints>],
     fx: f64,
-) -> Result<Vec<SurveyEntry>, String> {
+) -> Result<Vec<SurveyEntry>, SolveFailure> {
     let mut blocks: Vec<SurveyEntry> = Vec::new();
     for &i in keep {
         let (_, board, k, pose) = &identified[i];
@@ -578,7 +578,7 @@ fn add_observations<'a>(
                     sigma_rad: s.sigma_deg.to_radians(),
                 };
                 blocks.push(SurveyEntry::Board(*k));
-                problem.add_block(prior).map_err(solver_reason)?
+                problem.add_block(prior)?
             }
         };
         let pair = pairs[i].as_ref();
@@ -594,7 +594,7 @@ fn add_observations<'a>(
             hole_sigma_px: pair.map(|p| hole_sigma_px(fx, p.sigma_m, pose.translation.z)),
             plane: face_of(pairs, faces, i),
         };
-        problem.add_observation(block, observation).map_err(solver_reason)?;
+        problem.add_observation(block, observation)?;
     }
     for (index, points) in planes {
         let s = &survey.planes[*index];
@@ -603,10 +603,10 @@ fn add_observations<'a>(
             sigma_m: s.sigma_m,
             sigma_rad: s.sigma_deg.to_radians(),
         };
-        let block = problem.add_block(prior).map_err(solver_reason)?;
+        let block = problem.add_block(prior)?;
         blocks.push(SurveyEntry::Plane(*index));
         let observation = BoardObservation { plane: Some(*points), ..BoardObservation::default() };
-        problem.add_observation(block, observation).map_err(solver_reason)?;
+        problem.add_observation(block, observation)?;
     }
     Ok(blocks)
 }
@@ -709,20 +709,20 @@ fn jointly(
     modes: &SurveyModes,
     basis: &[ModeBasis],
     start: &Params,
-) -> Result<(Params, RoomReport, nalgebra::SMatrix<f64, ROOM_SHARED, ROOM_SHARED>), String> {
-    let joint = ModesProblem::new(problem, modes.sigma, basis).map_err(solver_reason)?;
+) -> Result<(Params, RoomReport, nalgebra::SMatrix<f64, ROOM_SHARED, ROOM_SHARED>), SolveFailure> {
+    let joint = ModesProblem::new(problem, modes.sigma, basis)?;
     let mut params = ModesParams {
         room: problem.params_at_priors(start.camera, start.lidar_to_camera, start.room_to_camera),
         amplitudes: nalgebra::SVector::zeros(),
     };
-    let initial_cost = joint.cost(&params).map_err(solver_reason)?;
-    let iterations = solve_modes(&joint, &mut params, 100).map_err(solver_reason)?;
-    let sigma = modes_covariance(&joint, &params).map_err(solver_reason)?;
-    let (corner_rms_px, hole_rms_px) = problem.rms_px(&params.room).map_err(solver_reason)?;
+    let initial_cost = joint.cost(&params)?;
+    let iterations = solve_modes(&joint, &mut params, 100)?;
+    let sigma = modes_covariance(&joint, &params)?;
+    let (corner_rms_px, hole_rms_px) = problem.rms_px(&params.room)?;
     let report = RoomReport {
         iterations,
         initial_cost,
-        final_cost: joint.cost(&params).map_err(solver_reason)?,
+        final_cost: joint.cost(&params)?,
         residuals: problem.residual_count() - 6 * problem.priors().len() + joint.mode_count(),
         corner_rms_px,
         hole_rms_px,
@@ -736,8 +736,8 @@ fn worst_moved(
     problem: &Problem<'_>,
     params: &Params,
     blocks: &[SurveyEntry],
-) -> Result<Option<(usize, f64)>, String> {
-    let costs = problem.block_costs(params).map_err(solver_reason)?;
+) -> Result<Option<(usize, f64)>, SolveFailure> {
+    let costs = problem.block_costs(params)?;
     Ok(costs
         .iter()
         .zip(blocks)

@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 use super::super::identify::{half_turn_symmetric, oriented, GATE_DEG, GATE_M};
 use super::super::surveyed::MOVED_BOARD_CHI2;
 use super::super::{median, Calibration, CameraBoard, LidarBoard, MAX_OBSERVATIONS};
-use super::LidarInput;
+use super::{LidarInput, RigFailure};
 
 use crate::geometry::{se3::so3_log, Camera, Se3, Vec2, Vec3};
 use crate::lidar::Point;
@@ -117,7 +117,7 @@ pub(super) fn solve_jointly(
     camera_runs: &[(usize, Option<usize>)],
     inputs: (&[Vec<CameraBoard>], &[LidarInput<'_>]),
     start: &Start,
-) -> Result<Joint, String> {
+) -> Result<Joint, RigFailure> {
     let (camera_inputs, lidar_inputs) = inputs;
     // One input per rig LiDAR (a caller's extra inputs have no sensor).
     let lidar_inputs = &lidar_inputs[..lidar_inputs.len().min(rig.lidars.len())];
@@ -172,14 +172,15 @@ pub(super) fn solve_jointly(
         match (moved, left_out) {
             (None, _) => return Ok(joint),
             (Some((board, _)), None) => {
-                tracing::warn!(board, "board disagrees with the survey in the joint rig solve; left out");
+                tracing::warn!(
+                    board,
+                    "board disagrees with the survey in the joint rig solve; left out"
+                );
                 left_out = Some(board);
                 measured.leave_out(board);
             }
             (Some((board, chi2)), Some(first)) => {
-                return Err(format!(
-                    "board {board} disagrees with the survey in the joint rig solve (χ² {chi2:.0} over its 6 survey σ, limit {MOVED_BOARD_CHI2}) after leaving out board {first}: it has moved, or the survey is stale"
-                ))
+                return Err(RigFailure::BoardMoved { board, chi2, after: first })
             }
         }
     }
@@ -236,7 +237,7 @@ fn solve_passes(
     clouds: &[&[Point]],
     m: &Measured,
     start: JointParams,
-) -> Result<(Joint, Option<(usize, f64)>), String> {
+) -> Result<(Joint, Option<(usize, f64)>), RigFailure> {
     let select = |params: &JointParams, previous: Option<&[Vec<(usize, PlanePoints)>]>| {
         let planes = clouds.iter().enumerate().map(|(l, cloud)| match targets {
             Targets::Surveyed(survey) => super::super::surveyed::room_planes(
@@ -257,17 +258,17 @@ fn solve_passes(
     let mut planes = select(&start, None);
     let (mut problem, mut blocks) = joint_problem(targets, boards, m, &planes)?;
     let mut p = start_blocks(&problem, &start);
-    let mut report = solve_rig(&problem, &mut p, 100).map_err(joint_reason)?;
+    let mut report = solve_rig(&problem, &mut p, 100)?;
     let mut iterations = report.iterations;
     if let Targets::Surveyed(_) = targets {
         planes = select(&p, Some(&planes));
         (problem, blocks) = joint_problem(targets, boards, m, &planes)?;
         p = start_blocks(&problem, &p);
-        report = solve_rig(&problem, &mut p, 100).map_err(joint_reason)?;
+        report = solve_rig(&problem, &mut p, 100)?;
         iterations += report.iterations;
     }
     let moved = moved_board(&problem, &p, &blocks);
-    let covariance = rig_covariance(&problem, &p).map_err(joint_reason)?;
+    let covariance = rig_covariance(&problem, &p)?;
     let evidence = Evidence::of(m, &planes);
     Ok((Joint { params: p, covariance, report, iterations, evidence }, moved))
 }
@@ -291,15 +292,11 @@ fn moved_board(
     worst
 }
 
-fn joint_reason(e: crate::solve::SolveError) -> String {
-    format!("the joint rig solve failed: {e}")
-}
-
 /// The first camera's room → camera pose from its run (surveyed rooms).
-pub(super) fn room_to_first(rig: &Rig, first: &Calibration) -> Result<Se3, String> {
+pub(super) fn room_to_first(rig: &Rig, first: &Calibration) -> Result<Se3, RigFailure> {
     let in_room = first.result.camera_in_room.as_ref();
     let in_room = in_room
-        .ok_or_else(|| format!("camera `{}` has no pose in the room", rig.cameras[0].name))?;
+        .ok_or_else(|| RigFailure::NoRoomPose { camera: rig.cameras[0].name.to_string() })?;
     Ok(in_room.to_se3().inverse())
 }
 
@@ -524,11 +521,11 @@ fn joint_problem<'a>(
     boards: &[Se3],
     m: &'a Measured,
     planes: &[Vec<(usize, PlanePoints)>],
-) -> Result<(JointProblem<'a>, Vec<Block>), String> {
+) -> Result<(JointProblem<'a>, Vec<Block>), RigFailure> {
     let (object, cameras, lidars) = (&m.object, &m.cameras, &m.lidars);
     let mut problem = JointProblem::new(m.corner_sigma, 2.0, Loss::Huber(3.0));
     let mut blocks: Vec<Block> = Vec::new();
-    let mut block = |problem: &mut JointProblem<'a>, which: Block| -> Result<usize, String> {
+    let mut block = |problem: &mut JointProblem<'a>, which: Block| -> Result<usize, RigFailure> {
         if let Some(i) = blocks.iter().position(|b| *b == which) {
             return Ok(i);
         }
@@ -542,7 +539,7 @@ fn joint_problem<'a>(
                     sigma_rad: s.sigma_deg.to_radians(),
                 }
             }
-            (Targets::Free, Block::Plane(_)) => return Err("free boards have no planes".into()),
+            (Targets::Free, Block::Plane(_)) => return Err(RigFailure::FreePlanes),
             (Targets::Surveyed(survey), Block::Plane(i)) => {
                 let s = &survey.planes[i];
                 BlockPrior {
@@ -553,10 +550,10 @@ fn joint_problem<'a>(
             }
         };
         blocks.push(which);
-        problem.add_block(prior).map_err(joint_reason)
+        problem.add_block(prior).map_err(RigFailure::Solver)
     };
     let add = |problem: &mut JointProblem<'a>, o: RigObservation<'a>| {
-        problem.add_observation(o).map(|_| ()).map_err(joint_reason)
+        problem.add_observation(o).map(|_| ()).map_err(RigFailure::Solver)
     };
     for (c, seen) in cameras.iter().enumerate() {
         for (k, corners) in seen {

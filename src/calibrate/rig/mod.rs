@@ -26,9 +26,15 @@
 //!
 //! Gate: each run is gated by the room's `[quality]`; a rig is accepted only when every
 //! sensor is (docs/rigs.md: one failing sensor rejects the whole run and is named).
-//! A joint solve that fails, or puts a board outside its survey σ, rejects the rig.
+//! A joint solve that fails, or puts a board outside its survey σ, rejects the rig
+//! ([`RigFailure`]); a sensor's verdict is a [`SensorRejection`].
 
+mod failure;
 mod joint;
+mod verdict;
+
+pub use failure::RigFailure;
+pub use verdict::SensorRejection;
 
 use std::collections::BTreeMap;
 
@@ -36,7 +42,7 @@ use nalgebra::{DMatrix, Matrix3};
 
 use super::{
     calibrate_with_clouds, corner_start, gate, CalibrateOptions, Calibration, CameraBoard,
-    FrameDetections, LidarAngles, LidarBoard,
+    FrameDetections, LidarAngles, LidarBoard, MovedPose, Rejection,
 };
 use crate::geometry::{se3::so3_log, Se3, Vec3};
 use crate::lidar::Point;
@@ -142,7 +148,7 @@ pub fn calibrate_rig(
             let reference = rig.pair_room(room, c, Some(0));
             if let Some(lidar) = &reference.lidar {
                 if let Err(reason) = super::gate::check_parking(&room.quality, lidar, in_room) {
-                    reject(&mut entry, reason);
+                    reject(&mut entry, &reason);
                 }
             }
         }
@@ -152,7 +158,7 @@ pub fn calibrate_rig(
                     start.camera_to_first[c] = Some(ext.pose);
                     extrinsics.push(ext.named(camera.name.as_str(), rig));
                 }
-                Err(reason) => reject(&mut entry, reason),
+                Err(reason) => reject(&mut entry, &reason),
             }
         }
         note_failure(&mut failures, "camera", camera.name.as_str(), &entry);
@@ -167,7 +173,7 @@ pub fn calibrate_rig(
                 lidar: true,
                 camera_in_room: None,
                 status: Status::Rejected,
-                reason: Some("it places no board that a camera sees".into()),
+                reason: Some(SensorRejection::NoBoardSeen.to_string()),
                 solved_with: None,
             },
         };
@@ -178,7 +184,7 @@ pub fn calibrate_rig(
                     start.lidar_to_first[l] = Some(ext.pose);
                     extrinsics.push(ext.named(lidar.name.as_str(), rig));
                 }
-                Err(reason) => reject(&mut entry, reason),
+                Err(reason) => reject(&mut entry, &reason),
             }
         }
         note_failure(&mut failures, "lidar", lidar.name.as_str(), &entry);
@@ -212,7 +218,7 @@ pub fn calibrate_rig(
                     Runs { runs: &runs, cameras: &camera_runs, lidars: &lidar_cameras };
                 judge_jointly(&mut result, &joint, room, rig, &lidar_runs, options.lidar_angles);
             }
-            Err(reason) => reject_rig(&mut result.pair, reason),
+            Err(reason) => reject_rig(&mut result.pair, &reason),
         }
     }
     if let Some(current) = in_force {
@@ -231,13 +237,13 @@ fn judge_changes(result: &mut RigResult, current: &RigResult, q: &QualitySpec, r
         let e = r.extrinsics.iter().find(|e| e.from == name)?;
         Some(Extrinsic { rotation: e.rotation, translation: e.translation })
     };
-    let change = |name: &str| -> Result<(), String> {
+    let change = |name: &str| -> Result<(), Rejection> {
         let camera = |r: &RigResult| r.sensors.get(name).and_then(|s| s.camera.clone());
         if let (Some(a), Some(b)) = (camera(current), camera(result)) {
             gate::intrinsics_within_change(q, &a, &b)?;
         }
         match (mounting(current, name), mounting(result, name)) {
-            (Some(x), Some(y)) => gate::extrinsic_within_change(q, "mounting", &x, &y),
+            (Some(x), Some(y)) => gate::extrinsic_within_change(q, MovedPose::Mounting, &x, &y),
             _ => Ok(()),
         }
     };
@@ -248,11 +254,11 @@ fn judge_changes(result: &mut RigResult, current: &RigResult, q: &QualitySpec, r
     let mut failures = Vec::new();
     for (kind, name, reason) in changed {
         let Some(entry) = result.sensors.get_mut(name) else { continue };
-        reject(entry, reason);
+        reject(entry, &reason);
         note_failure(&mut failures, kind, name, entry);
     }
     if !failures.is_empty() {
-        reject_rig(&mut result.pair, failures.join("; "));
+        reject_rig(&mut result.pair, &failures.join("; "));
     }
 }
 
@@ -362,29 +368,7 @@ fn judge_jointly(
     for (l, lidar) in rig.lidars.iter().enumerate() {
         let Some(entry) = result.sensors.get_mut(lidar.name.as_str()) else { continue };
         let c = runs.lidars[l].unwrap_or(0);
-        let e = &joint.evidence;
-        let (targets, seen) = match e.free {
-            false => {
-                let n = e.lidar_hole_boards[l] + e.lidar_face_boards[l] + e.lidar_planes[l];
-                (n, format!("it registers against {n} surveyed boards and planes"))
-            }
-            true => {
-                let n = e.lidar_hole_boards[l];
-                (n, format!("it places {n} boards a camera sees by their holes"))
-            }
-        };
-        let verdict = untied(e.lidar_tied[l])
-            .and_then(|()| {
-                gate::check(targets >= q.min_lidar_boards as usize, || {
-                    format!("{seen}, at least {} needed", q.min_lidar_boards)
-                })
-            })
-            .and_then(|()| gate::angles_checked(angles, e.lidar_hole_boards[l]))
-            .and_then(|()| match e.lidar_hole_boards[l] {
-                0 => Ok(()),
-                _ => gate::holes_fit(q, joint.report.hole_rms_px[l]),
-            })
-            .and_then(|()| gate::extrinsic_certain(q, &joint_uncertainty(joint, c, Some(l))));
+        let verdict = judge_lidar(joint, q, l, c, angles);
         entry.solved_with.get_or_insert_with(|| rig.cameras[c].name.to_string());
         set_verdict(entry, verdict);
         note_failure(&mut failures, "lidar", lidar.name.as_str(), entry);
@@ -396,6 +380,32 @@ fn judge_jointly(
     };
 }
 
+/// LiDAR `l`'s joint verdict (see [`judge_jointly`]); `c` is the camera it was solved with.
+fn judge_lidar(
+    joint: &Joint,
+    q: &QualitySpec,
+    l: usize,
+    c: usize,
+    angles: LidarAngles,
+) -> Result<(), SensorRejection> {
+    let e = &joint.evidence;
+    untied(e.lidar_tied[l])?;
+    let count = match e.free {
+        false => e.lidar_hole_boards[l] + e.lidar_face_boards[l] + e.lidar_planes[l],
+        true => e.lidar_hole_boards[l],
+    };
+    gate::check(count >= q.min_lidar_boards as usize, || SensorRejection::TooFewLidarTargets {
+        count,
+        surveyed: !e.free,
+        needed: q.min_lidar_boards,
+    })?;
+    gate::angles_checked(angles, e.lidar_hole_boards[l])?;
+    if e.lidar_hole_boards[l] > 0 {
+        gate::holes_fit(q, joint.report.hole_rms_px[l])?;
+    }
+    Ok(gate::extrinsic_certain(q, &joint_uncertainty(joint, c, Some(l)))?)
+}
+
 /// Camera `c`'s joint verdict (see [`judge_jointly`]); `run` is its pair run (its
 /// detections' coverage) and `entry` holds the joint values.
 fn judge_camera(
@@ -405,15 +415,16 @@ fn judge_camera(
     c: usize,
     run: &Calibration,
     entry: &SensorResult,
-) -> Result<(), String> {
+) -> Result<(), SensorRejection> {
     let q = &room.quality;
     let min_boards = q.min_boards.unwrap_or(room.board.count) as usize;
     let e = &joint.evidence;
     untied(e.camera_tied[c])?;
     let seen = e.camera_boards[c];
-    let kind = if e.free { "" } else { "surveyed " };
-    gate::check(seen >= min_boards, || {
-        format!("it sees {seen} {kind}boards, the room needs {min_boards}")
+    gate::check(seen >= min_boards, || SensorRejection::TooFewBoards {
+        seen,
+        surveyed: !e.free,
+        needed: min_boards,
     })?;
     gate::corners_fit(q, joint.report.corner_rms_px[c])?;
     gate::covers(q, gate::coverage(&run.camera, &run.boards))?;
@@ -423,23 +434,21 @@ fn judge_camera(
     let reference = rig.pair_room(room, c, Some(0));
     match (&entry.camera_in_room, &reference.lidar) {
         (Some(in_room), Some(lidar)) if !rig.lidars.is_empty() => {
-            gate::check_parking(q, lidar, in_room)
+            Ok(gate::check_parking(q, lidar, in_room)?)
         }
         _ => Ok(()),
     }
 }
 
 /// A sensor the free boards do not tie to the first camera: nothing places it.
-fn untied(tied: bool) -> Result<(), String> {
-    gate::check(tied, || {
-        "it shares no board with the first camera, directly or through another sensor".into()
-    })
+fn untied(tied: bool) -> Result<(), SensorRejection> {
+    gate::check(tied, || SensorRejection::Untied)
 }
 
-fn set_verdict(entry: &mut SensorResult, verdict: Result<(), String>) {
+fn set_verdict(entry: &mut SensorResult, verdict: Result<(), SensorRejection>) {
     (entry.status, entry.reason) = match verdict {
         Ok(()) => (Status::Accepted, None),
-        Err(reason) => (Status::Rejected, Some(reason)),
+        Err(reason) => (Status::Rejected, Some(reason.to_string())),
     };
 }
 
@@ -513,21 +522,24 @@ fn sensor_entry(run: &Calibration, solved_with: Option<String>) -> SensorResult 
     }
 }
 
-fn reject(entry: &mut SensorResult, reason: String) {
+/// Rejects a sensor, `reason` added to any it already has.
+fn reject(entry: &mut SensorResult, reason: &dyn core::fmt::Display) {
     entry.status = Status::Rejected;
-    entry.reason = Some(match entry.reason.take() {
-        Some(r) => format!("{r}; {reason}"),
-        None => reason,
-    });
+    entry.reason = Some(joined(entry.reason.take(), reason));
 }
 
 /// Rejects the whole rig, `reason` added to any it already has.
-fn reject_rig(pair: &mut crate::result::CalibrationResult, reason: String) {
+fn reject_rig(pair: &mut crate::result::CalibrationResult, reason: &dyn core::fmt::Display) {
     pair.status = Status::Rejected;
-    pair.reason = Some(match pair.reason.take() {
+    pair.reason = Some(joined(pair.reason.take(), reason));
+}
+
+/// A result's reason with `reason` added (`"; "` between them).
+fn joined(before: Option<String>, reason: &dyn core::fmt::Display) -> String {
+    match before {
         Some(r) => format!("{r}; {reason}"),
-        None => reason,
-    });
+        None => reason.to_string(),
+    }
 }
 
 fn note_failure(failures: &mut Vec<String>, kind: &str, name: &str, entry: &SensorResult) {
@@ -584,12 +596,12 @@ struct Composer<'a, F: Fn(usize, usize) -> usize> {
 
 impl<F: Fn(usize, usize) -> usize> Composer<'_, F> {
     /// Camera `c` → first camera.
-    fn camera_to_first(&self, c: usize) -> Result<Composed, String> {
+    fn camera_to_first(&self, c: usize) -> Result<Composed, RigFailure> {
         self.compose(&self.camera_factors(c)?)
     }
 
     /// LiDAR `l` → first camera, tied through camera `c` (the one it shares most boards with).
-    fn lidar_to_first(&self, l: usize, c: usize) -> Result<Composed, String> {
+    fn lidar_to_first(&self, l: usize, c: usize) -> Result<Composed, RigFailure> {
         let own = Factor { run: (c, Some(l)), slot: Slot::LidarToCamera, inverted: false };
         if c == 0 {
             return self.compose(&[own]);
@@ -609,13 +621,13 @@ impl<F: Fn(usize, usize) -> usize> Composer<'_, F> {
     }
 
     /// The factors of camera `c` → first camera.
-    fn camera_factors(&self, c: usize) -> Result<Vec<Factor>, String> {
+    fn camera_factors(&self, c: usize) -> Result<Vec<Factor>, RigFailure> {
         if self.surveyed {
             let (first, own) = (self.camera_runs[0], self.camera_runs[c]);
             for key in [first, own] {
                 if self.runs[&key].result.camera_in_room.is_none() {
-                    let name = &self.rig.cameras[key.0].name;
-                    return Err(format!("camera `{name}` has no pose in the room"));
+                    let camera = self.rig.cameras[key.0].name.to_string();
+                    return Err(RigFailure::NoRoomPose { camera });
                 }
             }
             return Ok(vec![
@@ -626,10 +638,8 @@ impl<F: Fn(usize, usize) -> usize> Composer<'_, F> {
         // Free boards: through the LiDAR that places most boards in both cameras' runs.
         let shared = best(self.rig.lidars.len(), |l| (self.placed)(0, l).min((self.placed)(c, l)));
         let Some(l) = shared else {
-            return Err(format!(
-                "it shares no LiDAR-placed board with camera `{}` (without a survey, sensors are tied through boards both see)",
-                self.rig.cameras[0].name
-            ));
+            let first_camera = self.rig.cameras[0].name.to_string();
+            return Err(RigFailure::NoSharedLidarBoard { first_camera });
         };
         Ok(vec![
             Factor { run: (0, Some(l)), slot: Slot::LidarToCamera, inverted: false },
@@ -637,15 +647,15 @@ impl<F: Fn(usize, usize) -> usize> Composer<'_, F> {
         ])
     }
 
-    fn pose(&self, f: &Factor, delta: &[f64]) -> Result<Se3, String> {
+    fn pose(&self, f: &Factor, delta: &[f64]) -> Result<Se3, RigFailure> {
         let run = &self.runs[&f.run];
         let pose = match f.slot {
-            Slot::LidarToCamera => run.lidar_to_camera.ok_or("a pair run has no extrinsic")?,
+            Slot::LidarToCamera => run.lidar_to_camera.ok_or(RigFailure::PairRunNoExtrinsic)?,
             Slot::RoomToCamera => run
                 .result
                 .camera_in_room
                 .as_ref()
-                .ok_or("a pair run has no room pose")?
+                .ok_or(RigFailure::PairRunNoRoomPose)?
                 .to_se3()
                 .inverse(),
         };
@@ -656,7 +666,7 @@ impl<F: Fn(usize, usize) -> usize> Composer<'_, F> {
 
     /// The product of `factors` at the solution, and its σ by central differences of the
     /// left perturbations of every run's poses.
-    fn compose(&self, factors: &[Factor]) -> Result<Composed, String> {
+    fn compose(&self, factors: &[Factor]) -> Result<Composed, RigFailure> {
         let mut keys: Vec<(usize, Option<usize>)> = Vec::new();
         for f in factors {
             if !keys.contains(&f.run) {
@@ -664,7 +674,7 @@ impl<F: Fn(usize, usize) -> usize> Composer<'_, F> {
             }
         }
         let n = 12 * keys.len();
-        let product = |x: &[f64]| -> Result<Se3, String> {
+        let product = |x: &[f64]| -> Result<Se3, RigFailure> {
             let mut out = Se3::identity();
             for f in factors {
                 let k = keys.iter().position(|k| *k == f.run).unwrap_or(0);
@@ -677,7 +687,7 @@ impl<F: Fn(usize, usize) -> usize> Composer<'_, F> {
         let pose = product(&zero)?;
         let mut covariance = DMatrix::<f64>::zeros(n, n);
         for (k, key) in keys.iter().enumerate() {
-            let c = self.runs[key].pose_covariance.ok_or("a pair run failed")?;
+            let c = self.runs[key].pose_covariance.ok_or(RigFailure::PairRunFailed)?;
             covariance.view_mut((12 * k, 12 * k), (12, 12)).copy_from(&c);
         }
         let mut jacobian = DMatrix::<f64>::zeros(6, n);
