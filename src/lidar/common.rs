@@ -74,8 +74,8 @@ impl Model {
         }
     }
 
-    /// The canonical lower-case name.
-    pub fn name(self) -> &'static str {
+    /// The canonical lower-case name (also the files' spelling: [`FILE_NAMES`]).
+    pub const fn name(self) -> &'static str {
         match self {
             Model::Vlp16 => "vlp16",
             Model::Vlp32c => "vlp32c",
@@ -132,14 +132,14 @@ impl Model {
 /// A LiDAR's `model` as the room, rig and result files spell it, in the order serde's
 /// messages list them: each packet model's [`Model::name`], then [`PCD`].
 pub const FILE_NAMES: [&str; 9] = [
-    "pandar64",
-    "pandar40p",
-    "vlp16",
-    "vlp32c",
-    "hdl32e",
-    "pandarxt32",
-    "pandarqt64",
-    "ouster",
+    Model::Pandar64.name(),
+    Model::Pandar40p.name(),
+    Model::Vlp16.name(),
+    Model::Vlp32c.name(),
+    Model::Hdl32e.name(),
+    Model::PandarXt32.name(),
+    Model::PandarQt64.name(),
+    Model::Ouster.name(),
     PCD,
 ];
 
@@ -173,6 +173,7 @@ pub mod model_or_pcd {
 
     pub fn serialize<S: Serializer>(model: &Option<Model>, s: S) -> Result<S::Ok, S::Error> {
         let name = Model::file_name(*model);
+        // Only binary formats use the index; every name is in the list.
         let index = FILE_NAMES.iter().position(|n| *n == name).unwrap_or(0) as u32;
         s.serialize_unit_variant(SERDE_NAME, index, name)
     }
@@ -182,13 +183,14 @@ pub mod model_or_pcd {
     }
 }
 
-/// A model where the files name one; [`PCD`] is refused there (no packet format).
+/// A packet model where a file names one (the simulator's truth), spelt as in the room file.
 impl Serialize for Model {
     fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
         model_or_pcd::serialize(&Some(*self), s)
     }
 }
 
+/// [`PCD`] is refused here: the field needs a packet format.
 impl<'de> Deserialize<'de> for Model {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
         model_or_pcd::deserialize(d)?.ok_or_else(|| {
