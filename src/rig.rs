@@ -14,9 +14,8 @@ use core::fmt;
 use serde::{Deserialize, Serialize};
 
 use crate::geometry::{CameraModel, Se3, Vec3};
-use crate::target::{
-    matrix_of, validate_mounting, CameraSpec, LidarModel, LidarSpec, Room, RoomError,
-};
+use crate::lidar::Model;
+use crate::target::{matrix_of, validate_mounting, CameraSpec, LidarSpec, Room, RoomError};
 
 /// Most cameras, and most LiDARs, one rig holds.
 pub const MAX_CAMERAS: usize = 8;
@@ -71,7 +70,9 @@ pub struct CameraEntry {
 #[serde(deny_unknown_fields)]
 pub struct LidarEntry {
     pub name: SensorName,
-    pub model: LidarModel,
+    /// As the room file's `lidar.model`: `None` is `pcd`, points that come as files.
+    #[serde(with = "crate::lidar::common::model_or_pcd")]
+    pub model: Option<Model>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rotation: Option<Rows>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -116,7 +117,8 @@ pub struct RigCamera {
 #[derive(Clone, Debug, PartialEq)]
 pub struct RigLidar {
     pub name: SensorName,
-    pub model: LidarModel,
+    /// The packet model; `None`: points come as files.
+    pub model: Option<Model>,
     /// LiDAR → first camera, nominal.
     pub to_reference: Se3,
 }

@@ -12,6 +12,7 @@ use core::fmt;
 use serde::{Deserialize, Serialize};
 
 use crate::geometry::{CameraModel, Mat3, Vec3};
+use crate::lidar::Model;
 
 /// Most holes a board may carry.
 pub const MAX_HOLES: usize = 8;
@@ -103,46 +104,13 @@ pub struct CameraSpec {
     pub distortion: Option<heapless::Vec<f64, 5>>,
 }
 
-/// The LiDAR kinds roomcal knows (`lidar.model`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum LidarModel {
-    Pandar64,
-    Pandar40p,
-    Vlp16,
-    Vlp32c,
-    Hdl32e,
-    Pandarxt32,
-    Pandarqt64,
-    /// Any Ouster unit (its metadata json is the calibration file).
-    Ouster,
-    /// Points come as files, not packets.
-    Pcd,
-}
-
-impl LidarModel {
-    /// The packet format this model speaks; `None` for point files.
-    pub fn packet_model(self) -> Option<crate::lidar::Model> {
-        use crate::lidar::Model;
-        match self {
-            LidarModel::Pandar64 => Some(Model::Pandar64),
-            LidarModel::Pandar40p => Some(Model::Pandar40p),
-            LidarModel::Vlp16 => Some(Model::Vlp16),
-            LidarModel::Vlp32c => Some(Model::Vlp32c),
-            LidarModel::Hdl32e => Some(Model::Hdl32e),
-            LidarModel::Pandarxt32 => Some(Model::PandarXt32),
-            LidarModel::Pandarqt64 => Some(Model::PandarQt64),
-            LidarModel::Ouster => Some(Model::Ouster),
-            LidarModel::Pcd => None,
-        }
-    }
-}
-
 /// The LiDAR and its nominal mounting (`[lidar]`): `p_camera = rotation · p_lidar + translation`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LidarSpec {
-    pub model: LidarModel,
+    /// The packet model the LiDAR speaks; `None`: its points come as files (`pcd`).
+    #[serde(with = "crate::lidar::common::model_or_pcd")]
+    pub model: Option<Model>,
     #[serde(deserialize_with = "exact::matrix")]
     pub rotation: [[f64; 3]; 3],
     #[serde(deserialize_with = "exact::array")]
@@ -1005,5 +973,99 @@ mod exact {
         fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
             Ok(Exact2(array(d)?))
         }
+    }
+}
+
+#[cfg(all(test, feature = "std"))]
+mod tests {
+    use std::path::Path;
+
+    use super::*;
+    use crate::lidar::common::FILE_NAMES;
+
+    /// Every spelling `lidar.model` has in the room, rig and result files, written out here
+    /// so that renaming a model (or its serde) fails this test.
+    const SPELLINGS: [(&str, Option<Model>); 9] = [
+        ("pandar64", Some(Model::Pandar64)),
+        ("pandar40p", Some(Model::Pandar40p)),
+        ("vlp16", Some(Model::Vlp16)),
+        ("vlp32c", Some(Model::Vlp32c)),
+        ("hdl32e", Some(Model::Hdl32e)),
+        ("pandarxt32", Some(Model::PandarXt32)),
+        ("pandarqt64", Some(Model::PandarQt64)),
+        ("ouster", Some(Model::Ouster)),
+        ("pcd", None),
+    ];
+
+    /// The room file's expected list, as serde reports an unknown model.
+    const EXPECTED: &str = "expected one of `pandar64`, `pandar40p`, `vlp16`, `vlp32c`, \
+                            `hdl32e`, `pandarxt32`, `pandarqt64`, `ouster`, `pcd`";
+
+    fn room_with_model(value: &str) -> String {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/room.toml");
+        let text = std::fs::read_to_string(path).unwrap();
+        assert!(text.contains("model = \"pandar64\""), "config/room.toml changed");
+        text.replacen("model = \"pandar64\"", &format!("model = {value}"), 1)
+    }
+
+    #[test]
+    fn every_lidar_model_spelling_round_trips_through_the_room_file() {
+        assert_eq!(FILE_NAMES, SPELLINGS.map(|(name, _)| name));
+        for (name, model) in SPELLINGS {
+            let text = room_with_model(&format!("\"{name}\""));
+            let room = crate::room::parse(&text, Path::new("room.toml")).unwrap();
+            let lidar = room.lidar.clone().unwrap();
+            assert_eq!(lidar.model, model, "{name}");
+            assert_eq!(Model::file_name(model), name);
+            let emitted = crate::room::to_toml(&room);
+            assert!(emitted.contains(&format!("\nmodel = \"{name}\"\n")), "{name}: {emitted}");
+            assert_eq!(crate::room::parse(&emitted, Path::new("emitted")).unwrap(), room);
+            let json = serde_json::to_value(&lidar).unwrap();
+            assert_eq!(json["model"], name);
+            assert_eq!(serde_json::from_value::<LidarSpec>(json).unwrap(), lidar);
+            rig_round_trips(name, model);
+        }
+    }
+
+    /// The rig file's `[[lidar]] model` takes the room file's spellings.
+    fn rig_round_trips(name: &str, model: Option<Model>) {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/config/rig.toml");
+        let text = std::fs::read_to_string(path).unwrap();
+        assert!(text.contains("model = \"vlp32c\""), "config/rig.toml changed");
+        let text = text.replacen("model = \"vlp32c\"", &format!("model = \"{name}\""), 1);
+        let rig = crate::rig::parse(&text, Path::new("rig.toml")).unwrap();
+        assert_eq!(rig.lidars[1].model, model, "{name}");
+        let file: crate::rig::RigFile = toml::from_str(&text).unwrap();
+        let emitted = toml::to_string(&file).unwrap();
+        assert!(emitted.contains(&format!("\nmodel = \"{name}\"\n")), "{name}: {emitted}");
+    }
+
+    #[test]
+    fn other_lidar_model_spellings_are_refused_with_the_list() {
+        // `Model::from_name`'s aliases and other cases are for the command line only.
+        for bad in ["Pandar64", "PANDAR64", "pandar-64", "pandar_xt32", "xt32", "vlp32", "pcap", ""]
+        {
+            let text = room_with_model(&format!("\"{bad}\""));
+            let e = crate::room::parse(&text, Path::new("room.toml")).unwrap_err().to_string();
+            assert!(e.contains(&format!("unknown variant `{bad}`, expected one of")), "{e}");
+            let json = format!(
+                "{{\"model\": \"{bad}\", \"rotation\": [[1,0,0],[0,1,0],[0,0,1]], \
+                                \"translation\": [0,0,0]}}"
+            );
+            let e = serde_json::from_str::<LidarSpec>(&json).unwrap_err().to_string();
+            assert!(
+                e.starts_with(&format!("unknown variant `{bad}`, {EXPECTED} at line 1")),
+                "{e}"
+            );
+        }
+        let e = crate::room::parse(&room_with_model("5"), Path::new("room.toml")).unwrap_err();
+        assert!(e.to_string().ends_with("wanted string or table"), "{e}");
+    }
+
+    #[test]
+    fn a_packet_model_field_refuses_pcd() {
+        assert_eq!(serde_json::from_str::<Model>("\"vlp16\"").unwrap(), Model::Vlp16);
+        assert_eq!(serde_json::to_string(&Model::PandarXt32).unwrap(), "\"pandarxt32\"");
+        assert!(serde_json::from_str::<Model>("\"pcd\"").is_err());
     }
 }

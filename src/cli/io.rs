@@ -88,7 +88,7 @@ pub fn load_clouds(
 /// A cloud read from disk: PCD, or a capture decoded as the room's LiDAR model with the
 /// unit's angle file when given.
 pub fn load_cloud(room: &Room, path: &Path, angles: Option<&Path>) -> Result<Vec<Point>, Failure> {
-    let model = room.lidar.as_ref().and_then(|l| l.model.packet_model());
+    let model = room.lidar.as_ref().and_then(|l| l.model);
     roomcal::lidar::read_cloud(path, model, angles).map_err(bad_input)
 }
 

@@ -181,7 +181,7 @@ fn load_lidar(
     paths: &[PathBuf],
     angles: Option<&Path>,
 ) -> Result<Vec<Point>, Failure> {
-    let model = rig.lidars[l].model.packet_model();
+    let model = rig.lidars[l].model;
     let sweeps = load_clouds(paths, |path| {
         roomcal::lidar::read_cloud(path, model, angles).map_err(bad_input)
     })?;

@@ -4,11 +4,13 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
+use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::{Args, ValueEnum};
 
 use roomcal::geometry::CameraModel;
+use roomcal::lidar::Model;
 use roomcal::sim::{self, SimOptions};
-use roomcal::target::{LidarModel, Room};
+use roomcal::target::Room;
 
 use super::{bad_input, Failure};
 
@@ -36,8 +38,8 @@ pub struct SimulateArgs {
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
     distortion: Option<Vec<f64>>,
     /// LiDAR model (default: the room's).
-    #[arg(long, value_enum)]
-    lidar: Option<LidarArg>,
+    #[arg(long, value_parser = sim_lidar())]
+    lidar: Option<Model>,
     /// Board arrangement: a grid over the image, or a row at the LiDAR's dense band plus
     /// two boards in the top corners.
     #[arg(long, value_enum, default_value = "grid")]
@@ -118,11 +120,13 @@ enum CameraArg {
     Fisheye,
 }
 
-#[derive(Clone, Copy, ValueEnum)]
-enum LidarArg {
-    Pandar64,
-    Vlp32c,
-    Vlp16,
+/// The models `--lidar` offers (the simulator has beam tables for them).
+const SIM_LIDARS: [Model; 3] = [Model::Pandar64, Model::Vlp32c, Model::Vlp16];
+
+/// `--lidar`: one of [`SIM_LIDARS`] by its room-file name, exactly.
+fn sim_lidar() -> impl TypedValueParser<Value = Model> {
+    PossibleValuesParser::new(SIM_LIDARS.map(Model::name))
+        .try_map(|name| Model::from_file_name(&name).flatten().ok_or("not a packet model"))
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -163,11 +167,7 @@ fn options(args: &SimulateArgs) -> SimOptions {
         }),
         hfov_deg: args.fov,
         distortion: args.distortion.clone(),
-        lidar: args.lidar.map(|m| match m {
-            LidarArg::Pandar64 => LidarModel::Pandar64,
-            LidarArg::Vlp32c => LidarModel::Vlp32c,
-            LidarArg::Vlp16 => LidarModel::Vlp16,
-        }),
+        lidar: args.lidar,
         range_noise_m: args.range_noise,
         layout: match args.layout {
             LayoutArg::Grid => sim::Layout::Grid,

@@ -88,8 +88,9 @@ pub struct RigCameraSource {
 #[derive(Clone, Debug, PartialEq)]
 pub struct RigLidarSource {
     pub name: String,
-    /// The rig file's model; `None` for the one-pair vehicle's LiDAR (the room file's).
-    pub model: Option<crate::target::LidarModel>,
+    /// The rig file's model (itself `None` for `pcd`); `None` for the one-pair vehicle's
+    /// LiDAR (the room file's).
+    pub model: Option<Option<crate::lidar::Model>>,
     pub source: LidarSource,
     pub multicast: Option<Ipv4Addr>,
     pub replay_speed: f64,
@@ -132,8 +133,8 @@ pub struct Config {
     /// one-pair vehicle.
     pub rig: Option<RigSources>,
     /// The LiDAR model of [`Config::lidar`] when it is not the room file's (a rig's
-    /// LiDAR); `None`: the room's.
-    pub lidar_model: Option<crate::target::LidarModel>,
+    /// LiDAR, itself `None` for `pcd`); `None`: the room's.
+    pub lidar_model: Option<Option<crate::lidar::Model>>,
 }
 
 impl Config {
@@ -814,10 +815,10 @@ secret_file = "/etc/roomcal/secret"
             (c.lidar.clone(), c.replay_speed),
             (LidarSource::Udp("0.0.0.0:2368".parse().unwrap()), 2.0)
         );
-        assert_eq!(c.lidar_model, Some(crate::target::LidarModel::Pandar64));
+        assert_eq!(c.lidar_model, Some(Some(crate::lidar::Model::Pandar64)));
         let bumper = c.with_lidar(&rig.lidars[1]);
         assert_eq!(bumper.lidar, LidarSource::Udp("0.0.0.0:2369".parse().unwrap()));
-        assert_eq!(bumper.lidar_model, Some(crate::target::LidarModel::Vlp32c));
+        assert_eq!(bumper.lidar_model, Some(Some(crate::lidar::Model::Vlp32c)));
     }
 
     #[test]

@@ -241,7 +241,7 @@ fn lidar_calibration(config: &Config) -> Result<Calibration, DaemonError> {
         Some(model) => Some(model),
         None => load_room(config)?.lidar.map(|l| l.model),
     };
-    let model = room_model.and_then(|m| m.packet_model()).unwrap_or(Model::Vlp16);
+    let model = room_model.flatten().unwrap_or(Model::Vlp16);
     match &config.lidar_calibration {
         Some(path) => crate::lidar::calibration::load(model, path)
             .map_err(|e| DaemonError::LidarCalibration(e.to_string())),

@@ -1,13 +1,19 @@
-//! What every vendor module speaks: the supported models, return modes, the decode error
-//! enum, the per-return record handed to sinks, the packet summary, and the small helpers
-//! (sensor-frame conversion, civil time, azimuth order) the vendors share. A leaf: it imports
-//! no vendor module; [`super::decoder`] dispatches to them.
+//! What every vendor module speaks: the supported models (and how the room, rig and result
+//! files spell a LiDAR's model), return modes, the decode error enum, the per-return record
+//! handed to sinks, the packet summary, and the small helpers (sensor-frame conversion,
+//! civil time, azimuth order) the vendors share. A leaf: it imports no vendor module;
+//! [`super::decoder`] dispatches to them.
 
 use core::fmt;
 
+use serde::de::{self, Deserializer, EnumAccess, Unexpected, VariantAccess, Visitor};
+use serde::{Deserialize, Serialize, Serializer};
+
 use super::Point;
 
-/// A supported LiDAR model.
+/// A supported LiDAR model: the packet format a unit speaks. A LiDAR whose points come as
+/// files has none; the files spell that `pcd` and the types say `Option<Model>` = `None`
+/// ([`model_or_pcd`]), so a decoder is never handed a model without a packet format.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Model {
     /// Velodyne VLP-16 (Puck), also the Puck Hi-Res / LITE (same packet format).
@@ -68,8 +74,8 @@ impl Model {
         }
     }
 
-    /// The canonical lower-case name.
-    pub fn name(self) -> &'static str {
+    /// The canonical lower-case name (also the files' spelling: [`FILE_NAMES`]).
+    pub const fn name(self) -> &'static str {
         match self {
             Model::Vlp16 => "vlp16",
             Model::Vlp32c => "vlp32c",
@@ -119,6 +125,131 @@ impl Model {
             Model::Ouster => 7503,
             m if m.is_velodyne() => 8308,
             _ => 10110,
+        }
+    }
+}
+
+/// A LiDAR's `model` as the room, rig and result files spell it, in the order serde's
+/// messages list them: each packet model's [`Model::name`], then [`PCD`].
+pub const FILE_NAMES: [&str; 9] = [
+    Model::Pandar64.name(),
+    Model::Pandar40p.name(),
+    Model::Vlp16.name(),
+    Model::Vlp32c.name(),
+    Model::Hdl32e.name(),
+    Model::PandarXt32.name(),
+    Model::PandarQt64.name(),
+    Model::Ouster.name(),
+    PCD,
+];
+
+/// The files' spelling of a LiDAR whose points come as files, not packets.
+pub const PCD: &str = "pcd";
+
+/// The type name serde's messages give a LiDAR model ("expected enum LidarModel"), kept so
+/// a file's error reads as it always has.
+const SERDE_NAME: &str = "LidarModel";
+
+impl Model {
+    /// The files' spelling of a LiDAR's model: its [`Model::name`], or [`PCD`] for `None`.
+    pub fn file_name(model: Option<Model>) -> &'static str {
+        model.map_or(PCD, Model::name)
+    }
+
+    /// Reads the files' spelling exactly (one of [`FILE_NAMES`], no aliases or other case,
+    /// unlike [`Model::from_name`]): `Some(None)` for [`PCD`], `None` for anything else.
+    pub fn from_file_name(name: &str) -> Option<Option<Model>> {
+        if name == PCD {
+            return Some(None);
+        }
+        Model::ALL.into_iter().find(|m| m.name() == name).map(Some)
+    }
+}
+
+/// A LiDAR's `model` field of type `Option<Model>` (`None`: points come as files), read and
+/// written as one of [`FILE_NAMES`] (`#[serde(with = "crate::lidar::common::model_or_pcd")]`).
+pub mod model_or_pcd {
+    use super::*;
+
+    pub fn serialize<S: Serializer>(model: &Option<Model>, s: S) -> Result<S::Ok, S::Error> {
+        let name = Model::file_name(*model);
+        // Only binary formats use the index; every name is in the list.
+        let index = FILE_NAMES.iter().position(|n| *n == name).unwrap_or(0) as u32;
+        s.serialize_unit_variant(SERDE_NAME, index, name)
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<Model>, D::Error> {
+        d.deserialize_enum(SERDE_NAME, &FILE_NAMES, ModelVisitor)
+    }
+}
+
+/// A packet model where a file names one (the simulator's truth), spelt as in the room file.
+impl Serialize for Model {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        model_or_pcd::serialize(&Some(*self), s)
+    }
+}
+
+/// [`PCD`] is refused here: the field needs a packet format.
+impl<'de> Deserialize<'de> for Model {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        model_or_pcd::deserialize(d)?.ok_or_else(|| {
+            de::Error::invalid_value(Unexpected::UnitVariant, &"a LiDAR model with packets")
+        })
+    }
+}
+
+/// A unit enum's value as serde's derive reads one (a string, or a one-key table whose
+/// value is empty), so the files' messages are the derive's.
+struct ModelVisitor;
+
+impl<'de> Visitor<'de> for ModelVisitor {
+    type Value = Option<Model>;
+
+    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        write!(f, "enum {SERDE_NAME}")
+    }
+
+    fn visit_enum<A: EnumAccess<'de>>(self, data: A) -> Result<Self::Value, A::Error> {
+        let (FileName(model), variant) = data.variant()?;
+        variant.unit_variant()?;
+        Ok(model)
+    }
+}
+
+/// One of [`FILE_NAMES`] as an enum's variant name (or its index).
+struct FileName(Option<Model>);
+
+impl<'de> Deserialize<'de> for FileName {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        d.deserialize_identifier(FileNameVisitor)
+    }
+}
+
+struct FileNameVisitor;
+
+impl<'de> Visitor<'de> for FileNameVisitor {
+    type Value = FileName;
+
+    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        f.write_str("variant identifier")
+    }
+
+    fn visit_u64<E: de::Error>(self, v: u64) -> Result<FileName, E> {
+        match FILE_NAMES.get(v as usize) {
+            Some(name) => self.visit_str(name),
+            None => Err(E::invalid_value(Unexpected::Unsigned(v), &"variant index 0 <= i < 9")),
+        }
+    }
+
+    fn visit_str<E: de::Error>(self, v: &str) -> Result<FileName, E> {
+        Model::from_file_name(v).map(FileName).ok_or_else(|| E::unknown_variant(v, &FILE_NAMES))
+    }
+
+    fn visit_bytes<E: de::Error>(self, v: &[u8]) -> Result<FileName, E> {
+        match core::str::from_utf8(v) {
+            Ok(s) => self.visit_str(s),
+            Err(_) => Err(E::invalid_value(Unexpected::Bytes(v), &self)),
         }
     }
 }

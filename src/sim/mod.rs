@@ -23,9 +23,9 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::geometry::{se3::so3_exp, Camera, CameraModel, Se3, Vec3};
-use crate::lidar::Point;
+use crate::lidar::{Model, Point};
 use crate::result::{CameraResult, Extrinsic};
-use crate::target::{LidarModel, Room};
+use crate::target::Room;
 
 pub use capture::{write_capture, CaptureFiles};
 pub use layout::Layout;
@@ -54,7 +54,7 @@ pub struct SimOptions {
     /// Distortion coefficients (default: the room's, else a typical lens of the model).
     pub distortion: Option<Vec<f64>>,
     /// LiDAR model (default: the room's).
-    pub lidar: Option<LidarModel>,
+    pub lidar: Option<Model>,
     pub range_noise_m: f64,
     pub image: ImageNoise,
     /// How the boards are arranged ([`Layout::Band`] needs a LiDAR).
@@ -106,10 +106,12 @@ impl Default for SimOptions {
 pub enum SimError {
     #[error("cannot lay out {count} boards without overlap or leaving the image (board {board} did not fit); use fewer boards or a wider field of view")]
     Layout { count: usize, board: usize },
+    /// The room's LiDAR model (`None`: `pcd`) has no beam table.
     #[error(
-        "the simulator has no beam table for LiDAR model {0:?} (use pandar64, pandar40p, vlp32c or vlp16)"
+        "the simulator has no beam table for LiDAR model {} (use pandar64, pandar40p, vlp32c or vlp16)",
+        capitalised(Model::file_name(*.0))
     )]
-    NoBeamTable(LidarModel),
+    NoBeamTable(Option<Model>),
     #[error("distortion needs {expected} coefficients for this camera model, got {got}")]
     Distortion { expected: usize, got: usize },
     #[error("field of view {0}° is out of range (10–170°)")]
@@ -130,6 +132,13 @@ pub enum SimError {
     RingWithoutVehicles,
 }
 
+/// `name` with its first letter upper case: the message has always named the model so
+/// (`Pandar64`, `Pandarxt32`, `Pcd`).
+fn capitalised(name: &str) -> String {
+    let mut chars = name.chars();
+    chars.next().map(|c| c.to_ascii_uppercase()).into_iter().chain(chars).collect()
+}
+
 impl SimError {
     /// Writing `path` failed with `e`.
     pub fn write(path: &Path, e: &dyn std::fmt::Display) -> Self {
@@ -143,7 +152,7 @@ pub struct Truth {
     pub seed: u64,
     pub camera: CameraResult,
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub lidar_model: Option<LidarModel>,
+    pub lidar_model: Option<Model>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lidar_to_camera: Option<Extrinsic>,
     pub range_noise_m: f64,
@@ -207,7 +216,7 @@ pub(crate) fn with_options_models(room: &Room, options: &SimOptions) -> Room {
         room.camera.model = model;
     }
     if let (Some(model), Some(lidar)) = (options.lidar, room.lidar.as_mut()) {
-        lidar.model = model;
+        lidar.model = Some(model);
     }
     room
 }
@@ -235,8 +244,10 @@ pub fn simulate(room: &Room, options: &SimOptions) -> Result<Scene, SimError> {
         (Layout::Grid, _) => None,
         (Layout::Band, None) => return Err(SimError::BandWithoutLidar),
         (Layout::Band, Some(lidar)) => {
-            let elevations =
-                raycast::beam_elevations(lidar.model).ok_or(SimError::NoBeamTable(lidar.model))?;
+            let elevations = lidar
+                .model
+                .and_then(raycast::beam_elevations)
+                .ok_or(SimError::NoBeamTable(lidar.model))?;
             Some(band_row_px(&camera, &lidar_to_camera, elevations))
         }
     };
@@ -247,7 +258,9 @@ pub fn simulate(room: &Room, options: &SimOptions) -> Result<Scene, SimError> {
     let beams = room
         .lidar
         .as_ref()
-        .map(|lidar| raycast::calibration(lidar.model).ok_or(SimError::NoBeamTable(lidar.model)))
+        .map(|lidar| {
+            lidar.model.and_then(raycast::calibration).ok_or(SimError::NoBeamTable(lidar.model))
+        })
         .transpose()?;
     let (cloud, firings, sweep_truth) = match &beams {
         Some(cal) => {
@@ -289,7 +302,7 @@ pub fn simulate(room: &Room, options: &SimOptions) -> Result<Scene, SimError> {
     let truth = Truth {
         seed: options.seed,
         camera: CameraResult::from_camera(&camera),
-        lidar_model: room.lidar.as_ref().map(|l| l.model),
+        lidar_model: room.lidar.as_ref().and_then(|l| l.model),
         lidar_to_camera: room.lidar.as_ref().map(|_| Extrinsic::from_se3(&lidar_to_camera)),
         range_noise_m: options.range_noise_m,
         image_noise_grey: options.image.noise_grey,
@@ -475,5 +488,31 @@ fn board_truth(
         occluded_corners: 0,
         lidar_points: sweep.map_or(0, |(t, i)| t.board_points[i]),
         hole_scan_lines: sweep.map_or(Vec::new(), |(t, i)| t.hole_rings[i].clone()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn no_beam_table_names_the_model_as_it_always_has() {
+        for (model, shown) in [
+            (Some(Model::Hdl32e), "Hdl32e"),
+            (Some(Model::PandarXt32), "Pandarxt32"),
+            (Some(Model::PandarQt64), "Pandarqt64"),
+            (Some(Model::Ouster), "Ouster"),
+            (None, "Pcd"),
+        ] {
+            assert_eq!(
+                SimError::NoBeamTable(model).to_string(),
+                format!(
+                    "the simulator has no beam table for LiDAR model {shown} \
+                     (use pandar64, pandar40p, vlp32c or vlp16)"
+                )
+            );
+            assert!(model.and_then(raycast::calibration).is_none());
+            assert!(model.and_then(raycast::beam_elevations).is_none());
+        }
     }
 }

@@ -16,8 +16,8 @@
 //! in a Pandar64's band, 4.4–4.6 m away).
 
 use crate::geometry::{Mat3, Se3, Vec3};
-use crate::lidar::Point;
-use crate::target::{BoardSpec, LidarModel};
+use crate::lidar::{Model, Point};
+use crate::target::BoardSpec;
 
 use super::raycast;
 use super::rng::Rng;
@@ -48,7 +48,7 @@ pub struct RandomRoom {
     pub seed: u64,
     pub layout: HoleLayout,
     pub board: BoardSpec,
-    pub lidar: LidarModel,
+    pub lidar: Model,
     /// The LiDAR's origin above the floor (m).
     pub lidar_height_m: f64,
     pub range_noise_m: f64,
@@ -88,14 +88,10 @@ impl RandomBoard {
 }
 
 /// The randomised room of `seed` swept by `lidar` with Gaussian range noise σ `range_noise_m`.
-pub fn random_room(
-    seed: u64,
-    lidar: LidarModel,
-    range_noise_m: f64,
-) -> Result<RandomRoom, SimError> {
+pub fn random_room(seed: u64, lidar: Model, range_noise_m: f64) -> Result<RandomRoom, SimError> {
     let mut rng = Rng::new(seed ^ 0x5EED_0014);
     let (layout, board) = random_board(&mut rng.fork(1));
-    let elevations = raycast::beam_elevations(lidar).ok_or(SimError::NoBeamTable(lidar))?;
+    let elevations = raycast::beam_elevations(lidar).ok_or(SimError::NoBeamTable(Some(lidar)))?;
     let mut shape = rng.fork(2);
     let lidar_height_m = shape.range(1.0, 2.2);
     let room = Shell {
@@ -181,7 +177,7 @@ pub fn issue_room(noise_seed: u64, range_noise_m: f64) -> RandomRoom {
         room.front_x,
         room.side_y,
     );
-    let lidar = LidarModel::Pandar64;
+    let lidar = Model::Pandar64;
     sweep_room(
         0,
         HoleLayout::Issue,
@@ -414,7 +410,7 @@ fn sweep_room(
     seed: u64,
     layout: HoleLayout,
     board: BoardSpec,
-    lidar: LidarModel,
+    lidar: Model,
     lidar_height_m: f64,
     range_noise_m: f64,
     world: &World,
@@ -456,8 +452,8 @@ mod tests {
 
     #[test]
     fn rooms_are_deterministic_and_boards_valid() {
-        let a = random_room(3, LidarModel::Vlp32c, 0.02).unwrap();
-        let b = random_room(3, LidarModel::Vlp32c, 0.02).unwrap();
+        let a = random_room(3, Model::Vlp32c, 0.02).unwrap();
+        let b = random_room(3, Model::Vlp32c, 0.02).unwrap();
         assert_eq!(a.cloud, b.cloud);
         assert!(a.board.validate().is_ok(), "{:?}", a.board);
         assert!(!a.boards.is_empty());

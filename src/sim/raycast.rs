@@ -7,7 +7,6 @@
 use crate::geometry::Vec3;
 use crate::lidar::calibration::{self, Calibration};
 use crate::lidar::{beam_direction, firing_azimuth, range_resolution, Model, Point, SimReturn};
-use crate::target::LidarModel;
 
 use super::rng::Rng;
 use super::world::{Surface, World, BLACK};
@@ -30,29 +29,27 @@ const MAX_RANGE_M: f64 = 200.0;
 /// always cast it (the fixtures' truth depends on it; tests/it/sim_capture.rs also casts and
 /// decodes the unit's real offsets); the nominal tables, offsets included, for the VLP-32C,
 /// VLP-16 and Pandar40P.
-pub fn calibration(model: LidarModel) -> Option<Calibration> {
+pub fn calibration(model: Model) -> Option<Calibration> {
     match model {
-        LidarModel::Pandar64 => Calibration::from_degrees(
+        Model::Pandar64 => Calibration::from_degrees(
             Model::Pandar64,
             &calibration::PANDAR64_UNIT_ELEVATION,
             &[0.0; 64],
         )
         .ok(),
-        LidarModel::Vlp32c => Some(Calibration::nominal(Model::Vlp32c)),
-        LidarModel::Vlp16 => Some(Calibration::nominal(Model::Vlp16)),
-        LidarModel::Pandar40p => Some(Calibration::nominal(Model::Pandar40p)),
+        Model::Vlp32c | Model::Vlp16 | Model::Pandar40p => Some(Calibration::nominal(model)),
         _ => None,
     }
 }
 
 /// Elevation of every laser (degrees, in laser order) of the simulated unit of `model`: the
 /// elevations of [`calibration`]'s table, for code that reasons about the beams' spacing.
-pub fn beam_elevations(model: LidarModel) -> Option<&'static [f64]> {
+pub fn beam_elevations(model: Model) -> Option<&'static [f64]> {
     match model {
-        LidarModel::Pandar64 => Some(&PANDAR64_DEG),
-        LidarModel::Vlp32c => Some(&VLP32C_DEG),
-        LidarModel::Vlp16 => Some(&VLP16_DEG),
-        LidarModel::Pandar40p => Some(&PANDAR40P_DEG),
+        Model::Pandar64 => Some(&PANDAR64_DEG),
+        Model::Vlp32c => Some(&VLP32C_DEG),
+        Model::Vlp16 => Some(&VLP16_DEG),
+        Model::Pandar40p => Some(&PANDAR40P_DEG),
         _ => None,
     }
 }

@@ -23,10 +23,10 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::geometry::{Camera, Se3};
-use crate::lidar::Point;
+use crate::lidar::{Model, Point};
 use crate::result::{CameraResult, Extrinsic};
 use crate::rig::Rig;
-use crate::target::{LidarModel, Room};
+use crate::target::Room;
 
 use super::rng::Rng;
 use super::visits::{
@@ -77,7 +77,7 @@ pub struct SensorTruth {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub camera: Option<CameraResult>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub lidar_model: Option<LidarModel>,
+    pub lidar_model: Option<Model>,
     /// Sensor → first camera, the true mounting: `p_first = rotation · p + translation`.
     pub to_reference: Extrinsic,
     /// Room → sensor: `p_sensor = rotation · p_room + translation`.
@@ -214,7 +214,7 @@ fn simulate_from(
         );
         let sensor = SensorTruth {
             camera: None,
-            lidar_model: Some(lidar.model),
+            lidar_model: lidar.model,
             to_reference: Extrinsic::from_se3(&to_reference),
             room_to_sensor: Extrinsic::from_se3(&room_to_lidar),
             boards,
@@ -333,12 +333,12 @@ impl SceneContext<'_> {
     /// A LiDAR's sweep and its boards' truth (hole centres in its frame, scan lines).
     fn lidar_view(
         &self,
-        model: LidarModel,
+        model: Option<Model>,
         room_to_lidar: &Se3,
         rng: &mut Rng,
     ) -> Result<(Vec<Point>, Vec<BoardTruth>), SimError> {
         let (world, to_lidar) = self.world(room_to_lidar);
-        let cal = raycast::calibration(model).ok_or(SimError::NoBeamTable(model))?;
+        let cal = model.and_then(raycast::calibration).ok_or(SimError::NoBeamTable(model))?;
         let phase = (rng.next_u64() % u64::from(raycast::AZIMUTH_STEP)) as u16;
         let cast =
             raycast::sweep(&world, &cal, self.options.range_noise_m, phase, &mut rng.fork(5));

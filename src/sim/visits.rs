@@ -271,8 +271,10 @@ pub(super) fn lay_out_room(
         (Layout::Grid, _) => None,
         (Layout::Band, None) => return Err(SimError::BandWithoutLidar),
         (Layout::Band, Some(lidar)) => {
-            let elevations =
-                raycast::beam_elevations(lidar.model).ok_or(SimError::NoBeamTable(lidar.model))?;
+            let elevations = lidar
+                .model
+                .and_then(raycast::beam_elevations)
+                .ok_or(SimError::NoBeamTable(lidar.model))?;
             Some(band_row_px(&inner, &lidar_to_camera, elevations))
         }
     };
@@ -335,8 +337,10 @@ impl VehicleContext<'_> {
             render::render(&world, &camera, &camera_in_lidar, &options.image, &mut rng.fork(4));
         let (cloud, sweep_truth) = match &self.room.lidar {
             Some(lidar) => {
-                let cal =
-                    raycast::calibration(lidar.model).ok_or(SimError::NoBeamTable(lidar.model))?;
+                let cal = lidar
+                    .model
+                    .and_then(raycast::calibration)
+                    .ok_or(SimError::NoBeamTable(lidar.model))?;
                 let phase = (rng.next_u64() % u64::from(raycast::AZIMUTH_STEP)) as u16;
                 let cast =
                     raycast::sweep(&world, &cal, options.range_noise_m, phase, &mut rng.fork(5));
@@ -358,7 +362,7 @@ impl VehicleContext<'_> {
         let truth = Truth {
             seed: options.seed,
             camera: crate::result::CameraResult::from_camera(&camera),
-            lidar_model: self.room.lidar.as_ref().map(|l| l.model),
+            lidar_model: self.room.lidar.as_ref().and_then(|l| l.model),
             lidar_to_camera: self
                 .room
                 .lidar
@@ -390,9 +394,12 @@ impl VehicleContext<'_> {
     ) -> Result<Vec<StandingFrame>, SimError> {
         let frames = self.options.standing_frames.max(1);
         let beams = match &self.room.lidar {
-            Some(lidar) if frames > 1 => {
-                Some(raycast::calibration(lidar.model).ok_or(SimError::NoBeamTable(lidar.model))?)
-            }
+            Some(lidar) if frames > 1 => Some(
+                lidar
+                    .model
+                    .and_then(raycast::calibration)
+                    .ok_or(SimError::NoBeamTable(lidar.model))?,
+            ),
             _ => None,
         };
         Ok((1..frames)

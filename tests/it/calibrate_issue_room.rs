@@ -20,9 +20,10 @@ use roomcal::calibrate::{calibrate, CalibrateOptions, CameraBoard, Detectors, Fr
 use roomcal::geometry::se3::so3_exp;
 use roomcal::geometry::{Camera, CameraModel};
 use roomcal::geometry::{Mat3, Se3, Vec2, Vec3};
+use roomcal::lidar::Model;
 use roomcal::result::{Extrinsic, Status};
 use roomcal::sim::random_room::{issue_room, RandomRoom};
-use roomcal::target::{LidarModel, LidarSpec, Room};
+use roomcal::target::{LidarSpec, Room};
 
 const CORNER_NOISE_PX: f64 = 0.05;
 
@@ -69,7 +70,7 @@ fn room_of(issue: &RandomRoom) -> Room {
         translation: Vec3::new(0.05, -0.2, 0.1),
     });
     room.lidar = Some(LidarSpec {
-        model: LidarModel::Pandar64,
+        model: Some(Model::Pandar64),
         rotation: nominal.rotation,
         translation: nominal.translation,
     });

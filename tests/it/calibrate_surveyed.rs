@@ -17,11 +17,11 @@ use roomcal::calibrate::{
 };
 use roomcal::geometry::se3::so3_exp;
 use roomcal::geometry::{Se3, Vec2, Vec3};
-use roomcal::lidar::Point;
+use roomcal::lidar::{Model, Point};
 use roomcal::result::Status;
 use roomcal::sim::visits::{simulate_visits, RoomTruth, Visit};
 use roomcal::sim::{ImageNoise, Layout, SimOptions};
-use roomcal::target::{LidarModel, Room, SurveySpec, SurveyedBoard, SurveyedPlane};
+use roomcal::target::{Room, SurveySpec, SurveyedBoard, SurveyedPlane};
 
 const CORNER_NOISE_PX: f64 = 0.025;
 const HOLE_NOISE_M: f64 = 0.003;
@@ -49,7 +49,7 @@ fn options(seed: u64, hfov_deg: f64, layout: Layout) -> SimOptions {
     SimOptions {
         seed,
         boards: Some(7),
-        lidar: Some(LidarModel::Pandar64),
+        lidar: Some(Model::Pandar64),
         hfov_deg: Some(hfov_deg),
         layout,
         range_noise_m: 0.02,

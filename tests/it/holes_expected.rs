@@ -6,8 +6,8 @@
 
 use roomcal::detect::holes::{HoleConfig, HoleDetector, LidarBoard};
 use roomcal::geometry::{Se3, Vec3, Vec6};
+use roomcal::lidar::Model;
 use roomcal::sim::random_room::{random_room, RandomBoard};
-use roomcal::target::LidarModel;
 
 /// A placed hole farther than this from the truth makes the placement false (m), as in
 /// `tests/it/holes_study.rs`.
@@ -51,7 +51,7 @@ struct Tally {
 /// Over `rooms` random rooms of `model`: every board expected at its truth moved by a
 /// mounting error of `deg` and `m` (see [`mounting_error`]) and turned by `spin_deg` about
 /// its own normal, one way on even boards and the other on odd ones.
-fn tally(model: LidarModel, rooms: u64, (deg, m): (f64, f64), spin_deg: f64) -> Tally {
+fn tally(model: Model, rooms: u64, (deg, m): (f64, f64), spin_deg: f64) -> Tally {
     let mut t = Tally::default();
     for seed in 1..=rooms {
         let room = random_room(seed, model, 0.02).expect("the model");
@@ -109,7 +109,7 @@ fn tally(model: LidarModel, rooms: u64, (deg, m): (f64, f64), spin_deg: f64) -> 
 /// allowed: the expectation sees the same evidence, gathered from another start).
 #[test]
 fn expected_boards_are_placed_as_the_global_detector_places_them() {
-    for (name, model) in [("Pandar64", LidarModel::Pandar64), ("VLP-32C", LidarModel::Vlp32c)] {
+    for (name, model) in [("Pandar64", Model::Pandar64), ("VLP-32C", Model::Vlp32c)] {
         let t = tally(model, 12, (1.0, 0.05), 0.0);
         check_placed_as_global(name, &t);
         assert!(t.global_right >= 20, "{name}: too few boards placed to judge: {t:?}");
@@ -126,7 +126,7 @@ fn expected_boards_are_placed_as_the_global_detector_places_them() {
 /// global detector places it.
 #[test]
 fn boards_expected_turned_in_their_plane_are_still_placed() {
-    for (name, model) in [("Pandar64", LidarModel::Pandar64), ("VLP-32C", LidarModel::Vlp32c)] {
+    for (name, model) in [("Pandar64", Model::Pandar64), ("VLP-32C", Model::Vlp32c)] {
         check_placed_as_global(name, &tally(model, 12, (1.0, 0.05), 10.0));
     }
 }
@@ -142,7 +142,7 @@ fn check_placed_as_global(name: &str, t: &Tally) {
 /// Nothing where nothing is: a board expected 3 m above every real one is not placed.
 #[test]
 fn no_board_is_placed_where_none_stands() {
-    let room = random_room(1, LidarModel::Pandar64, 0.02).expect("the model");
+    let room = random_room(1, Model::Pandar64, 0.02).expect("the model");
     let mut detector = HoleDetector::new(&room.board, HoleConfig::default());
     let lift = Se3::from_rvec_t(&Vec3::zeros(), &Vec3::new(0.0, 0.0, 3.0));
     let expected: Vec<Se3> = room.boards.iter().map(|b| lift.compose(&b.pose)).collect();

@@ -11,12 +11,12 @@ use std::path::Path;
 
 use roomcal::detect::holes::{HoleConfig, HoleDetector};
 use roomcal::geometry::{Se3, Vec3};
-use roomcal::lidar::Point;
+use roomcal::lidar::{Model, Point};
 use roomcal::sim::raycast::{beam_elevations, AZIMUTH_STEP_DEG};
 use roomcal::sim::rng::Rng;
 use roomcal::sim::world::World;
 use roomcal::sim::{simulate, BoardTruth, ImageNoise, Scene, SimOptions};
-use roomcal::target::{LidarModel, Room};
+use roomcal::target::Room;
 use truth::best_truth;
 
 fn room() -> Room {
@@ -42,7 +42,7 @@ struct Figures {
     normalised: Vec<f64>,
 }
 
-fn run(model: LidarModel, seeds: &[u64]) -> Figures {
+fn run(model: Model, seeds: &[u64]) -> Figures {
     let room = room();
     let mut detector = HoleDetector::new(&room.board, HoleConfig::default());
     let mut found = Vec::new();
@@ -147,7 +147,7 @@ fn report(name: &str, f: &Figures) -> (f64, f64) {
 
 #[test]
 fn pandar64_places_every_placeable_board() {
-    let f = run(LidarModel::Pandar64, &[1, 2, 3, 7]);
+    let f = run(Model::Pandar64, &[1, 2, 3, 7]);
     let (mean, rms_norm) = report("Pandar64", &f);
     assert_eq!(f.false_boards, 0);
     assert_eq!(f.found_placeable, f.placeable);
@@ -159,7 +159,7 @@ fn pandar64_places_every_placeable_board() {
 
 #[test]
 fn vlp32c_and_vlp16_figures() {
-    for (name, model) in [("VLP-32C", LidarModel::Vlp32c), ("VLP-16", LidarModel::Vlp16)] {
+    for (name, model) in [("VLP-32C", Model::Vlp32c), ("VLP-16", Model::Vlp16)] {
         let f = run(model, &[1, 2]);
         let (mean, _) = report(name, &f);
         assert_eq!(f.false_boards, 0, "{name}");
@@ -173,7 +173,7 @@ fn vlp32c_and_vlp16_figures() {
 /// `n` sweeps of the static scene of `scene`, concatenated: each fired at azimuths offset
 /// by a fraction of the 0.2° step (a spinning LiDAR is not phase-locked to the room) and
 /// with its own range noise, ray-cast through the scene's own board poses.
-fn sweeps(scene: &Scene, model: LidarModel, n: usize, noise_seed: u64) -> Vec<Point> {
+fn sweeps(scene: &Scene, model: Model, n: usize, noise_seed: u64) -> Vec<Point> {
     let camera_in_lidar = scene.truth.lidar_to_camera.as_ref().unwrap().to_se3().inverse();
     let poses: Vec<Se3> = scene
         .truth
@@ -217,7 +217,7 @@ fn errors_from_sweeps(seeds: &[u64], n: usize) -> BTreeMap<(u64, usize), Vec<f64
             ..SimOptions::default()
         };
         let scene = simulate(&room, &options).unwrap();
-        let cloud = sweeps(&scene, LidarModel::Pandar64, n, 1000 + seed);
+        let cloud = sweeps(&scene, Model::Pandar64, n, 1000 + seed);
         let start = std::time::Instant::now();
         detector.detect(&cloud, &mut found);
         let ms = start.elapsed().as_secs_f64() * 1e3;
@@ -278,11 +278,8 @@ fn several_sweeps_reduce_the_hole_error() {
 #[ignore = "about a minute: many scenes"]
 fn sigma_calibration_over_many_scenes() {
     let seeds: Vec<u64> = (1..=12).collect();
-    let models = [
-        ("Pandar64", LidarModel::Pandar64),
-        ("VLP-32C", LidarModel::Vlp32c),
-        ("VLP-16", LidarModel::Vlp16),
-    ];
+    let models =
+        [("Pandar64", Model::Pandar64), ("VLP-32C", Model::Vlp32c), ("VLP-16", Model::Vlp16)];
     for (name, model) in models {
         let f = run(model, &seeds);
         report(name, &f);

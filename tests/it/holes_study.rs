@@ -20,17 +20,14 @@
 use std::collections::BTreeMap;
 
 use roomcal::detect::holes::{HoleConfig, HoleDetector, LidarBoard};
+use roomcal::lidar::Model;
 use roomcal::sim::random_room::{issue_room, random_room, RandomBoard, RandomRoom};
-use roomcal::target::LidarModel;
 
 /// A placed hole farther than this from the truth makes the placement false (m).
 const FALSE_HOLE_M: f64 = 0.02;
 const NOISE_M: f64 = 0.02;
-const MODELS: [(&str, LidarModel); 3] = [
-    ("Pandar64", LidarModel::Pandar64),
-    ("Pandar40P", LidarModel::Pandar40p),
-    ("VLP-32C", LidarModel::Vlp32c),
-];
+const MODELS: [(&str, Model); 3] =
+    [("Pandar64", Model::Pandar64), ("Pandar40P", Model::Pandar40p), ("VLP-32C", Model::Vlp32c)];
 
 /// Figures of one model over its rooms.
 #[derive(Debug, Default)]
@@ -315,7 +312,7 @@ fn issue_room_places_every_placeable_board_right() {
 #[test]
 fn boards_among_coplanar_clutter_are_placed() {
     for (seed, board) in [(76, 1), (68, 2), (94, 1), (105, 5), (159, 5), (160, 1)] {
-        assert_placed_right(seed, LidarModel::Pandar40p, board);
+        assert_placed_right(seed, Model::Pandar40p, board);
     }
 }
 
@@ -331,11 +328,11 @@ fn boards_among_coplanar_clutter_are_placed() {
 #[test]
 fn walls_and_tilted_mixtures_are_not_placed() {
     let rooms = [
-        (201, LidarModel::Pandar40p),
-        (328, LidarModel::Pandar40p),
-        (175, LidarModel::Pandar40p),
-        (374, LidarModel::Vlp32c),
-        (536, LidarModel::Pandar64),
+        (201, Model::Pandar40p),
+        (328, Model::Pandar40p),
+        (175, Model::Pandar40p),
+        (374, Model::Vlp32c),
+        (536, Model::Pandar64),
     ];
     for (seed, model) in rooms {
         let room = random_room(seed, model, NOISE_M).expect("the model");
@@ -352,7 +349,7 @@ fn walls_and_tilted_mixtures_are_not_placed() {
 /// board ("no plane found"). A voxel must now also agree with its region's mean normal.
 #[test]
 fn boards_whose_edges_meet_are_grown_apart() {
-    assert_placed_right(241, LidarModel::Pandar40p, 4);
+    assert_placed_right(241, Model::Pandar40p, 4);
 }
 
 /// A stand or box below a board that grows into a region of its own (Pandar40P room 208,
@@ -361,7 +358,7 @@ fn boards_whose_edges_meet_are_grown_apart() {
 /// board is placed once, from the plane with the most returns.
 #[test]
 fn a_board_is_placed_once() {
-    for (seed, model) in [(208, LidarModel::Pandar40p), (347, LidarModel::Pandar64)] {
+    for (seed, model) in [(208, Model::Pandar40p), (347, Model::Pandar64)] {
         let room = random_room(seed, model, NOISE_M).expect("the model");
         let mut f = Figures::default();
         score(&room, "placed once", &mut f);
@@ -378,8 +375,8 @@ fn a_board_is_placed_once() {
 /// now loses its returns in front of the plane.
 #[test]
 fn an_occluders_side_closing_in_on_the_plane_does_not_tilt_it() {
-    assert_placed_right(783, LidarModel::Pandar40p, 0);
-    assert_placed_right(783, LidarModel::Vlp32c, 0);
+    assert_placed_right(783, Model::Pandar40p, 0);
+    assert_placed_right(783, Model::Vlp32c, 0);
 }
 
 /// A board whose scan lines cross only its lower row of holes, one of them behind an
@@ -390,7 +387,7 @@ fn an_occluders_side_closing_in_on_the_plane_does_not_tilt_it() {
 /// points.
 #[test]
 fn an_occluded_stretch_beside_a_hole_is_no_part_of_it() {
-    assert_placed_right(383, LidarModel::Vlp32c, 5);
+    assert_placed_right(383, Model::Vlp32c, 5);
 }
 
 /// A board 2.6 m away, rolled 16°, whose band about its plane also held 719 returns of a
@@ -400,7 +397,7 @@ fn an_occluded_stretch_beside_a_hole_is_no_part_of_it() {
 /// within the placed outline, and the board placed again on it.
 #[test]
 fn clutter_in_the_band_beyond_the_outline_does_not_tilt_the_plane() {
-    assert_placed_right(505, LidarModel::Pandar64, 1);
+    assert_placed_right(505, Model::Pandar64, 1);
 }
 
 /// OpenCalib's board 4.1 m away, pitched −29°, with a thin stand 8–12 cm beyond its left
@@ -410,7 +407,7 @@ fn clutter_in_the_band_beyond_the_outline_does_not_tilt_the_plane() {
 /// are no part of it.
 #[test]
 fn a_stand_beside_the_side_is_no_part_of_the_outline() {
-    assert_placed_right(247, LidarModel::Pandar64, 1);
+    assert_placed_right(247, Model::Pandar64, 1);
 }
 
 /// OpenCalib's board 8 m away behind another (Pandar40P room 303, held out, board 3): the
@@ -420,12 +417,12 @@ fn a_stand_beside_the_side_is_no_part_of_the_outline() {
 /// a line's runs.
 #[test]
 fn a_board_behind_another_is_placed_from_the_pieces_left_between_occluders() {
-    assert_placed_right(303, LidarModel::Pandar40p, 3);
+    assert_placed_right(303, Model::Pandar40p, 3);
 }
 
 /// Board `board` of room `seed` seen by `model` must be placed with every hole within
 /// [`FALSE_HOLE_M`] and within 3 of its reported σ of the truth.
-fn assert_placed_right(seed: u64, model: LidarModel, board: usize) {
+fn assert_placed_right(seed: u64, model: Model, board: usize) {
     let room = random_room(seed, model, NOISE_M).expect("the model");
     let mut detector = HoleDetector::new(&room.board, study_config());
     let mut found = Vec::new();

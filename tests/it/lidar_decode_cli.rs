@@ -4,8 +4,6 @@
 
 use std::process::Command;
 
-use roomcal::target::LidarModel;
-
 use crate::common::pcap_data;
 use pcap_data::{data_dir, file_with};
 
@@ -76,7 +74,8 @@ fn unknown_model_lists_the_known_ones() {
 fn room_file_names_the_new_models() {
     #[derive(serde::Deserialize)]
     struct Lidar {
-        model: LidarModel,
+        #[serde(with = "roomcal::lidar::common::model_or_pcd")]
+        model: Option<roomcal::lidar::Model>,
     }
     for (name, model) in [
         ("pandarxt32", roomcal::lidar::Model::PandarXt32),
@@ -84,7 +83,7 @@ fn room_file_names_the_new_models() {
         ("ouster", roomcal::lidar::Model::Ouster),
     ] {
         let lidar: Lidar = toml::from_str(&format!("model = \"{name}\"")).unwrap();
-        assert_eq!(lidar.model.packet_model(), Some(model));
+        assert_eq!(lidar.model, Some(model));
         assert_eq!(model.name(), name);
     }
 }

@@ -18,7 +18,7 @@ use roomcal::sim::world::World;
 use roomcal::sim::{
     raycast, simulate, write_capture, write_scene, BoardTruth, ImageNoise, SimOptions,
 };
-use roomcal::target::{LidarModel, Room};
+use roomcal::target::Room;
 use truth::best_truth;
 
 fn room() -> Room {
@@ -43,7 +43,7 @@ struct Run {
     sweeps: usize,
 }
 
-fn run(model: LidarModel, seed: u64) -> Run {
+fn run(model: Model, seed: u64) -> Run {
     let options = SimOptions {
         seed,
         lidar: Some(model),
@@ -56,16 +56,15 @@ fn run(model: LidarModel, seed: u64) -> Run {
     let files = write_capture(&scene, &dir).unwrap();
     assert_eq!(files.capture, dir.join("cloud.pcap"));
 
-    let packet_model = model.packet_model().unwrap();
     let cal = match &files.calibration {
-        Some(path) => calibration::load(packet_model, path).unwrap(),
-        None => Calibration::nominal(packet_model),
+        Some(path) => calibration::load(model, path).unwrap(),
+        None => Calibration::nominal(model),
     };
     // The file holds exactly the table the rays were cast with.
     assert_eq!(cal, scene.firings.as_ref().unwrap().calibration);
 
     let capture = pcap::Capture::open(&files.capture).unwrap();
-    let mut buffer = vec![Point::default(); 2 * packet_model.lasers() * 1800];
+    let mut buffer = vec![Point::default(); 2 * model.lasers() * 1800];
     let mut assembler = SweepAssembler::new(cal, SweepConfig::for_calibration(&cal), &mut buffer);
     let (mut from_packets, mut sweeps) = (Vec::new(), 0);
     let mut collect = |s: roomcal::lidar::Sweep<'_>| {
@@ -82,7 +81,7 @@ fn run(model: LidarModel, seed: u64) -> Run {
     assert_eq!(stats.dropped() + stats.lost + stats.position, 0, "{stats:?}");
     // `roomcal decode --calibration angles.csv cloud.pcap` decodes the same points.
     let (decoded, _, _) =
-        roomcal::lidar::decode_capture(packet_model, files.calibration.as_deref(), &files.capture)
+        roomcal::lidar::decode_capture(model, files.calibration.as_deref(), &files.capture)
             .unwrap();
     assert_eq!(decoded, from_packets);
     Run {
@@ -183,7 +182,7 @@ fn packets_and_pcd_place_every_board(name: &str, run: &Run) -> f64 {
 
 #[test]
 fn pandar64_capture_decodes_to_the_cast_points_and_the_boards() {
-    let run = run(LidarModel::Pandar64, 7);
+    let run = run(Model::Pandar64, 7);
     assert_eq!(run.sweeps, 1, "one turn from the cut to the cut");
     assert!(max_point_error(&run) < 1e-3);
     let mean = packets_and_pcd_place_every_board("Pandar64", &run);
@@ -193,7 +192,7 @@ fn pandar64_capture_decodes_to_the_cast_points_and_the_boards() {
 
 #[test]
 fn vlp32c_capture_decodes_to_the_cast_points_and_the_same_detections() {
-    let run = run(LidarModel::Vlp32c, 8);
+    let run = run(Model::Vlp32c, 8);
     assert_eq!(run.sweeps, 1);
     assert!(max_point_error(&run) < 1e-3);
     let mean = packets_and_pcd_place_every_board("VLP-32C", &run);
@@ -204,7 +203,7 @@ fn vlp32c_capture_decodes_to_the_cast_points_and_the_same_detections() {
 #[test]
 fn vlp16_capture_decodes_to_the_cast_points() {
     // Two firings per block: the second's azimuth is only implied by interpolation.
-    let run = run(LidarModel::Vlp16, 3);
+    let run = run(Model::Vlp16, 3);
     assert!(max_point_error(&run) < 1e-3);
     assert_eq!(run.packets, 1800 / 24);
 }
@@ -258,7 +257,7 @@ fn real_pandar64_azimuth_offsets_decode_in_place() {
 
 #[test]
 fn hesai_angle_file_round_trips_exactly() {
-    let cal = roomcal::sim::raycast::calibration(LidarModel::Pandar64).unwrap();
+    let cal = roomcal::sim::raycast::calibration(Model::Pandar64).unwrap();
     let text = calibration::to_hesai_csv(&cal);
     let back = calibration::parse_hesai_csv(Model::Pandar64, &text, Path::new("angles.csv"));
     assert_eq!(back.unwrap(), cal);
@@ -269,7 +268,7 @@ fn hesai_angle_file_round_trips_exactly() {
 
 #[test]
 fn beam_elevations_are_the_angle_tables() {
-    for model in [LidarModel::Pandar64, LidarModel::Vlp32c, LidarModel::Vlp16] {
+    for model in [Model::Pandar64, Model::Vlp32c, Model::Vlp16] {
         let cal = raycast::calibration(model).unwrap();
         let degrees = raycast::beam_elevations(model).unwrap();
         assert_eq!(degrees.len(), cal.model.lasers());
