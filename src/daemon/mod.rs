@@ -497,10 +497,15 @@ impl Waiting {
             (Some(RoomView::Short(short)), trigger::Phase::Idle) => {
                 format!("the room was never seen: {short}")
             }
-            (Some(_), _) if self.sweeps == 0 => format!(
-                "the room is seen but no LiDAR sweep arrived from the {lidars} LiDAR(s) (see \
-                 the LiDAR's warnings)"
-            ),
+            (Some(_), _) if self.sweeps == 0 => {
+                let from = match lidars {
+                    1 => "the LiDAR".to_string(),
+                    n => format!("any of the {n} LiDARs"),
+                };
+                format!(
+                    "the room is seen but no LiDAR sweep arrived from {from} (see its warnings)"
+                )
+            }
             (Some(_), trigger::Phase::Done(_)) => {
                 "a run ended and the room must be left before the next".into()
             }

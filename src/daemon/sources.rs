@@ -4,7 +4,8 @@
 //! over a small channel; a full channel drops sweeps instead of stalling the socket. Each
 //! sweep carries its packet counts (decoded, lost, dropped), so a run on an incomplete
 //! sweep can say so; the live UDP task logs, at most every [`REPORT_EVERY`], what it
-//! dropped and, while no sweep completes, what it is waiting for.
+//! dropped and, while no sweep completes, what it is waiting for. Packets of another model
+//! than the configured one are named at the first one, by UDP and replay alike.
 
 use std::future::Future;
 use std::net::{Ipv4Addr, SocketAddr};
@@ -14,8 +15,11 @@ use std::time::Duration;
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 
+use crate::lidar::decoder::detect_model;
 use crate::lidar::pcap::{read_udp, ReplayPacer};
-use crate::lidar::{pcd, Calibration, Point, Sweep, SweepAssembler, SweepConfig, SweepStats};
+use crate::lidar::{
+    pcd, Calibration, Model, Point, Sweep, SweepAssembler, SweepConfig, SweepStats,
+};
 
 /// One sweep (or one replayed cloud), owned.
 #[derive(Clone, Debug, PartialEq)]
@@ -138,7 +142,11 @@ fn owned(s: &Sweep<'_>) -> OwnedSweep {
 }
 
 impl Feeder {
-    fn push(&mut self, port: u16, payload: &[u8]) {
+    /// Feeds one payload; true when the assembler dropped it as no packet of its model
+    /// (unknown, truncated, oversized or corrupted).
+    fn push(&mut self, port: u16, payload: &[u8]) -> bool {
+        let malformed = |s: SweepStats| s.unknown + s.truncated + s.oversized + s.corrupted;
+        let before = malformed(self.asm.stats());
         let (tx, sent) = (&self.tx, &mut self.sent);
         self.asm.push(port, payload, &mut |s| {
             if s.complete {
@@ -146,6 +154,7 @@ impl Feeder {
                 *sent += 1;
             }
         });
+        malformed(self.asm.stats()) > before
     }
 
     /// The end of a replayed capture: a capture of exactly one turn (as the simulator
@@ -159,6 +168,39 @@ impl Feeder {
         self.asm.flush(&mut |s| {
             let _ = tx.try_send(Ok(owned(&s)));
         });
+    }
+}
+
+/// Says once, at the first such payload, that a source's packets are another model's
+/// (by size and magic, [`detect_model`]): a configured model that is not the sensor's
+/// makes no sweep, and the operator must hear why at once, not from drop counts.
+struct ForeignModel {
+    name: String,
+    model: Model,
+    said: bool,
+}
+
+impl ForeignModel {
+    fn new(name: &str, model: Model) -> Self {
+        ForeignModel { name: name.to_string(), model, said: false }
+    }
+
+    /// Looks at a payload the assembler dropped.
+    fn dropped(&mut self, payload: &[u8]) {
+        if self.said {
+            return;
+        }
+        let Some(other) = detect_model(payload).filter(|m| *m != self.model) else { return };
+        self.said = true;
+        tracing::warn!(
+            "{}: its packets are a `{}`'s ({} bytes), not the configured `{}`'s: no sweep can \
+             be made of them; check the LiDAR's `model` in the room file (or the rig file, or \
+             the daemon's [lidar])",
+            self.name,
+            other.name(),
+            payload.len(),
+            self.model.name()
+        );
     }
 }
 
@@ -245,6 +287,7 @@ pub async fn udp(
         // The largest UDP datagram: Ouster packets run to 33 KB (128 beams, dual returns).
         let mut packet = vec![0u8; 65_536];
         let mut reporter = Reporter { stats: SweepStats::default(), sent: 0, payloads: 0 };
+        let mut foreign = ForeignModel::new(&task_name, cal.model);
         let mut payloads = 0u64;
         let mut report = tokio::time::interval(REPORT_EVERY);
         report.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
@@ -254,7 +297,9 @@ pub async fn udp(
                 got = socket.recv_from(&mut packet) => match got {
                     Ok((n, _)) => {
                         payloads += 1;
-                        feeder.push(addr.port(), &packet[..n]);
+                        if feeder.push(addr.port(), &packet[..n]) {
+                            foreign.dropped(&packet[..n]);
+                        }
                     }
                     Err(source) => {
                         let e = SweepError::Udp { addr: task_name.clone(), source };
@@ -284,6 +329,8 @@ pub fn pcap_replay(path: &Path, cal: Calibration, speed: f64) -> Result<PacketSw
     };
     let pacer = ReplayPacer::new(first.timestamp_ns).with_speed(speed);
     let (tx, rx) = mpsc::channel(4);
+    let name = format!("replay {}", path.display());
+    let mut foreign = ForeignModel::new(&name, cal.model);
     let task = tokio::spawn(async move {
         let config = SweepConfig::for_calibration(&cal);
         loop {
@@ -297,7 +344,9 @@ pub fn pcap_replay(path: &Path, cal: Calibration, speed: f64) -> Result<PacketSw
                 if due > tokio::time::Instant::now() {
                     tokio::time::sleep_until(due).await;
                 }
-                feeder.push(d.dst.port(), &d.payload);
+                if feeder.push(d.dst.port(), &d.payload) {
+                    foreign.dropped(&d.payload);
+                }
             }
             feeder.end_of_capture();
             if feeder.tx.is_closed() {
@@ -307,7 +356,7 @@ pub fn pcap_replay(path: &Path, cal: Calibration, speed: f64) -> Result<PacketSw
             tokio::time::sleep(Duration::from_millis(1)).await;
         }
     });
-    Ok(PacketSweeps { name: format!("replay {}", path.display()), rx, task })
+    Ok(PacketSweeps { name, rx, task })
 }
 
 /// Replays a PCD file or a folder of them (sorted by name), one cloud every `period`, looped.

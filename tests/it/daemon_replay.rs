@@ -2,7 +2,8 @@
 //! notices the fixture room, calibrates, writes `current.json` matching the truth — from
 //! the PCD cloud and from the sensor's own packets (the capture replayed at its pace,
 //! decoded with the unit's angle file); a room that expects one board more is rejected
-//! and leaves `current.json` untouched.
+//! and leaves `current.json` untouched; packets of another model than the room's are
+//! named at once, and `--once` gives up saying what it waited for.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -126,4 +127,31 @@ fn replay_daemon_calibrates_and_a_short_room_is_rejected() {
     );
     let exports = std::fs::read(store.join("calib.txt")).unwrap();
     assert_eq!(exports, exports_before, "a rejected run changed the exports");
+}
+
+#[test]
+fn packets_of_another_model_are_named_and_once_gives_up_on_them() {
+    let dir = Scratch::new("daemon-foreign");
+    let room = dir.join("room-vlp16.toml");
+    let text = std::fs::read_to_string(fixture("six-boards-pandar64/room.toml")).unwrap();
+    assert!(text.contains("model = \"pandar64\""));
+    std::fs::write(&room, text.replace("model = \"pandar64\"", "model = \"vlp16\"")).unwrap();
+    let lidar =
+        format!("source = \"replay:{}\"", fixture("six-boards-pandar64/cloud.pcap").display());
+    let config = config_with_lidar(&dir, &room, &lidar);
+    let out = Command::new(crate::common::BIN)
+        .args(["daemon", "--config", config.to_str().unwrap(), "--once", "--give-up-after", "4"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stderr).to_string();
+    assert_eq!(out.status.code(), Some(1), "{text}");
+    assert!(
+        text.contains("its packets are a `pandar64`'s")
+            && text.contains("not the configured `vlp16`'s"),
+        "{text}"
+    );
+    assert_eq!(text.matches("its packets are").count(), 1, "said once: {text}");
+    assert!(text.contains("gave up after 4 s without a calibration run"), "{text}");
+    assert!(text.contains("no LiDAR sweep arrived"), "the reason says what was missing: {text}");
+    assert!(!dir.join("store/current.json").exists());
 }
