@@ -32,6 +32,16 @@ pub fn roomcal<S: AsRef<OsStr>>(args: &[S]) -> (i32, String, String) {
     (out.status.code().unwrap_or(-1), text(&out.stdout), text(&out.stderr))
 }
 
+/// Says that a test skipped its work, and why, where `cargo test` shows it: written to the
+/// process's stderr directly, past the harness's capture of `println!`/`eprintln!` (which
+/// would hide it behind a passing test). The test thread's name is the test's.
+pub fn skipped(why: impl std::fmt::Display) {
+    use std::io::Write;
+    let thread = std::thread::current();
+    let test = thread.name().unwrap_or("a test");
+    let _ = writeln!(std::io::stderr().lock(), "SKIPPED {test}: {why}");
+}
+
 /// A fixture file or folder: `fixtures/PATH` in the repository, e.g.
 /// `fixture("six-boards-pandar64/cloud.pcd")`.
 pub fn fixture(path: &str) -> PathBuf {

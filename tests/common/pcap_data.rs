@@ -12,7 +12,7 @@ pub fn data_dir(folder: &str) -> Option<PathBuf> {
     if dir.is_dir() {
         Some(dir)
     } else {
-        println!("skipped: {} is absent", dir.display());
+        crate::common::skipped(format_args!("{} is absent", dir.display()));
         None
     }
 }

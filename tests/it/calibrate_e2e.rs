@@ -137,7 +137,7 @@ fn bad_input_exits_2_naming_the_file() {
 fn intrinsics_on_the_real_opencv_images() {
     let data = root().join("../shared/data/chessboard/opencv-left");
     if !data.exists() {
-        eprintln!("skipped: {} is absent", data.display());
+        crate::common::skipped(format_args!("{} is absent", data.display()));
         return;
     }
     let dir = Scratch::new("e2e-opencv");

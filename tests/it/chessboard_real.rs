@@ -58,7 +58,7 @@ fn assert_ordered(board: &Board, name: &str) {
 #[test]
 fn opencv_left_all_boards_complete() {
     let Some(files) = images() else {
-        eprintln!("skipping: {DATA} is absent");
+        crate::common::skipped(format_args!("{DATA} is absent"));
         return;
     };
     assert_eq!(files.len(), 13, "expected the 13 left images");

@@ -55,7 +55,7 @@ fn a_pipe_gets_no_progress() {
 fn a_terminal_sees_each_step_then_a_cleared_line() {
     let dir = Scratch::new("progress-tty");
     let Some(screen) = on_a_terminal(&two_frame_args(&dir, &[])) else {
-        println!("skipped: util-linux `script` is not installed (no pseudo-terminal)");
+        crate::common::skipped("util-linux `script` is not installed (no pseudo-terminal)");
         return;
     };
     // Two images, two clouds, two frames' detection, the solve, the writing.
@@ -82,7 +82,7 @@ fn a_terminal_sees_each_step_then_a_cleared_line() {
 fn quiet_silences_the_progress_on_a_terminal() {
     let dir = Scratch::new("progress-quiet");
     let Some(screen) = on_a_terminal(&two_frame_args(&dir, &["--quiet"])) else {
-        println!("skipped: util-linux `script` is not installed (no pseudo-terminal)");
+        crate::common::skipped("util-linux `script` is not installed (no pseudo-terminal)");
         return;
     };
     assert!(!screen.contains("[1/8]"), "progress despite --quiet: {screen:?}");

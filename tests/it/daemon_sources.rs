@@ -17,7 +17,7 @@ fn vlp16_pcap() -> Option<PathBuf> {
     if p.exists() {
         Some(p.to_path_buf())
     } else {
-        eprintln!("skipped: {} not found", p.display());
+        crate::common::skipped(format_args!("{} not found", p.display()));
         None
     }
 }

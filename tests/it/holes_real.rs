@@ -64,7 +64,7 @@ fn ring_gap_estimate(points: &[Point], guess: [f64; 3]) -> Option<([f64; 2], usi
 fn real_board_holes_on_a_0_6_m_grid() {
     let dir = opencalib_data_dir();
     let Ok(entries) = std::fs::read_dir(&dir) else {
-        println!("skipped: {} is absent", dir.display());
+        crate::common::skipped(format_args!("{} is absent", dir.display()));
         return;
     };
     let mut files: Vec<_> = entries

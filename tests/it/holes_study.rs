@@ -451,7 +451,7 @@ fn assert_placed_right(seed: u64, model: Model, board: usize) {
 #[ignore = "a diagnostic: the room named by HOLES_STUDY_ROOM"]
 fn one_room() {
     let Some(seed) = std::env::var("HOLES_STUDY_ROOM").ok().and_then(|v| v.parse().ok()) else {
-        println!("skipped: set HOLES_STUDY_ROOM to a room's seed");
+        crate::common::skipped("set HOLES_STUDY_ROOM to a room's seed");
         return;
     };
     let only = std::env::var("HOLES_STUDY_MODEL").ok();

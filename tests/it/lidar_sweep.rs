@@ -202,7 +202,7 @@ fn buffer_overflow_is_counted_not_fatal() {
 fn capture(name: &str) -> Option<Vec<(u16, Vec<u8>)>> {
     let path = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data/pcap")).join(name);
     if !path.exists() {
-        println!("skipped: {} is absent", path.display());
+        crate::common::skipped(format_args!("{} is absent", path.display()));
         return None;
     }
     let data = std::fs::read(path).unwrap();

@@ -490,7 +490,7 @@ fn real_lidar_captures() {
         let dir = data_dir().join(name);
         let path = dir.join(format!("{name}.pcap"));
         if !path.exists() {
-            eprintln!("skipping: {} absent", path.display());
+            crate::common::skipped(format_args!("{} absent", path.display()));
             continue;
         }
         let capture = pcap::Capture::open(&path).unwrap();
@@ -523,7 +523,7 @@ fn real_lidar_captures() {
 fn real_capture_speed() {
     let path = data_dir().join("hesai-pandar64/hesai-pandar64.pcap");
     if !path.exists() {
-        eprintln!("skipping: {} absent", path.display());
+        crate::common::skipped(format_args!("{} absent", path.display()));
         return;
     }
     let capture = pcap::Capture::open(&path).unwrap();
@@ -594,7 +594,7 @@ fn writer_output_reads_back() {
 fn real_capture_rewritten_reads_back_the_same() {
     let path = data_dir().join("velodyne-vlp16/velodyne-vlp16.pcap");
     if !path.exists() {
-        eprintln!("skipping: {} absent", path.display());
+        crate::common::skipped(format_args!("{} absent", path.display()));
         return;
     }
     let capture = pcap::Capture::open(&path).unwrap();

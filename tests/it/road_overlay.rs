@@ -13,7 +13,7 @@ fn data_dir() -> Option<PathBuf> {
     if dir.is_dir() {
         Some(dir.to_path_buf())
     } else {
-        println!("skipped: {} is absent", dir.display());
+        crate::common::skipped(format_args!("{} is absent", dir.display()));
         None
     }
 }
