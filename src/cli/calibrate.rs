@@ -18,7 +18,7 @@ use roomcal::result::{RigResult, Status};
 use roomcal::rig::Rig;
 use roomcal::target::Room;
 
-use super::detect::refused_message;
+use super::detect::refused_lines;
 use super::io::{
     check_image_sized, load_cloud, load_clouds, load_image, mean_image, result_json, write_result,
 };
@@ -250,15 +250,15 @@ fn load_inputs(
     Ok((images, clouds))
 }
 
-/// Each refused LiDAR plane as a sentence that stays above the progress line.
+/// The refused LiDAR planes as sentences that stay above the progress line.
 fn note_refused(args: &CalibrateArgs, refused: &[Vec<RefusedBoard>], progress: &mut Progress) {
     for (i, planes) in refused.iter().enumerate() {
         let name = match args.standing {
             true => "the accumulated sweeps".to_string(),
             false => args.cloud[i].display().to_string(),
         };
-        for plane in planes {
-            progress.note(&refused_message(&name, plane));
+        for line in refused_lines(&name, planes) {
+            progress.note(&line);
         }
     }
 }

@@ -63,8 +63,8 @@ pub fn run(args: DetectArgs) -> Result<(), Failure> {
     };
     let report = detect_frame(&room, &mut detectors, camera, cloud.as_deref());
     if let Some(path) = args.cloud.first() {
-        for refused in &report.refused {
-            eprintln!("{}", refused_message(&path.display().to_string(), refused));
+        for line in refused_lines(&path.display().to_string(), &report.refused) {
+            eprintln!("{line}");
         }
     }
     match &report.identities {
@@ -99,6 +99,34 @@ pub fn run(args: DetectArgs) -> Result<(), Failure> {
 /// board, and what to do.
 pub fn refused_message(cloud: &str, plane: &RefusedBoard) -> String {
     format!("{cloud}: {plane}; not used as a board ({})", plane.reason.advice())
+}
+
+/// Refused planes of one cloud listed per reason, at most this many each; the rest of a
+/// reason's planes (a standing vehicle's walls and floor) are summed up in one line.
+const LISTED_PER_REASON: usize = 3;
+
+/// The sentences for `cloud`'s refused planes: [`refused_message`] for the first
+/// [`LISTED_PER_REASON`] planes refused for each piece of advice, one line for the rest.
+pub fn refused_lines(cloud: &str, planes: &[RefusedBoard]) -> Vec<String> {
+    let mut advices: Vec<&'static str> = Vec::new();
+    for plane in planes {
+        if !advices.contains(&plane.reason.advice()) {
+            advices.push(plane.reason.advice());
+        }
+    }
+    let mut lines = Vec::new();
+    for advice in advices {
+        let alike: Vec<&RefusedBoard> =
+            planes.iter().filter(|p| p.reason.advice() == advice).collect();
+        lines.extend(alike.iter().take(LISTED_PER_REASON).map(|p| refused_message(cloud, p)));
+        if let Some(more) = alike.len().checked_sub(LISTED_PER_REASON).filter(|&n| n > 0) {
+            lines.push(format!(
+                "{cloud}: {more} more plane(s) refused likewise, not listed ({advice}; the \
+                 report picture of `calibrate --report` marks them all)"
+            ));
+        }
+    }
+    lines
 }
 
 /// One line per board of a surveyed room's detections: which surveyed board it is.

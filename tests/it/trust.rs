@@ -37,6 +37,13 @@ fn a_capture_decoded_without_its_angle_file_is_refused_naming_it() {
     assert!(reason.contains("no board placed by its holes"), "{reason}");
     assert!(reason.contains("angle file"), "the reason names what to check: {reason}");
     assert!(stdout.contains("angle file"), "the summary says it: {stdout}");
+    // Its 13 refused planes: at most three sentences per piece of advice, the rest counted
+    // in one line that still says what to do.
+    let summed = stderr.lines().find(|l| l.contains("more plane(s) refused likewise"));
+    let summed = summed.unwrap_or_else(|| panic!("no summed-up line: {stderr}"));
+    assert!(summed.contains("too few scan lines cross its holes"), "{summed}");
+    let sentences = stderr.lines().filter(|l| l.contains("; not used as a board (")).count();
+    assert!(sentences < 13, "every refused plane listed: {stderr}");
 }
 
 #[test]
