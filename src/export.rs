@@ -27,11 +27,7 @@ pub const CAMERA_NAME: &str = "camera";
 /// The LiDAR's name in `sensor_kit_calibration.yaml` for a one-LiDAR room.
 pub const LIDAR_NAME: &str = "lidar";
 
-/// `p_optical = OPTICAL_FROM_LINK · p_link`: the optical frame (x right, y down, z
-/// forward; camera_info's and the result file's) from ROS's `camera_link` body frame (x
-/// forward, y left, z up). The same fixed joint as Autoware's sensor kits,
-/// `camera_link → camera_optical_link` = rpy(−π/2, 0, −π/2).
-pub const OPTICAL_FROM_LINK: [[f64; 3]; 3] = [[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]];
+pub use crate::geometry::body::{optical_from_link, OPTICAL_FROM_LINK};
 
 /// One export file: its name in the export directory and its text.
 #[derive(Clone, Debug, PartialEq)]
@@ -138,12 +134,6 @@ pub fn write_dir(dir: &Path, files: &[ExportFile]) -> Result<Vec<PathBuf>, Expor
 pub fn camera_link_in_lidar(lidar_to_camera: &Extrinsic) -> Se3 {
     let camera_to_lidar = lidar_to_camera.to_se3().inverse();
     camera_to_lidar.compose(&Se3 { rotation: optical_from_link(), translation: Default::default() })
-}
-
-/// [`OPTICAL_FROM_LINK`] as a matrix.
-pub fn optical_from_link() -> Mat3 {
-    let m = &OPTICAL_FROM_LINK;
-    Mat3::new(m[0][0], m[0][1], m[0][2], m[1][0], m[1][1], m[1][2], m[2][0], m[2][1], m[2][2])
 }
 
 /// ROS `camera_info` YAML (camera_calibration_parsers' keys and layout).

@@ -13,6 +13,7 @@ use roomcal::calibrate::{
 };
 use roomcal::detect::holes::RefusedBoard;
 use roomcal::detect::GreyImage;
+use roomcal::geometry::body::BodyPose;
 use roomcal::lidar::Point;
 use roomcal::result::{RigResult, Status};
 use roomcal::rig::Rig;
@@ -360,28 +361,28 @@ fn print_rig_summary(result: &RigResult, quiet: bool, out: &Path, written: &[Pat
         };
         match (&sensor.camera, &sensor.uncertainty) {
             (Some(c), Some(u)) => say!(
-                "  camera {name}: fx {:.2} ± {:.2} fy {:.2} cx {:.2} ± {:.2} cy {:.2} ± {:.2} px; {verdict}",
-                c.fx, u.fx, c.fy, c.cx, u.cx, c.cy, u.cy
+                "  camera {name}: fx {:.3} fy {:.3} px (σ {:.3} {:.3}), cx {:.3} cy {:.3} px (σ {:.3} {:.3}); {verdict}",
+                c.fx, c.fy, u.fx, u.fy, c.cx, c.cy, u.cx, u.cy
             ),
-            _ => say!("  lidar {name}: {verdict}"),
+            _ => say!("  LiDAR {name}: {verdict}"),
         }
     }
+    // Each mounting as the one-pair summary gives a LiDAR's: in the first camera's body
+    // frame (a camera's own optical axes turned to its body axes).
     for e in &result.extrinsics {
-        let t = e.translation;
+        let is_camera = result.sensors.get(&e.from).is_some_and(|s| s.camera.is_some());
         say!(
-            "  {} → {}: translation [{:.4}, {:.4}, {:.4}] m (σ {:.1} mm), σ rotation {:.3}°",
+            "  {} in {}'s body frame: {} (σ {:.3}°, {:.1} mm, largest axis)",
             e.from,
             e.to,
-            t[0],
-            t[1],
-            t[2],
-            e.sigma_translation_m * 1000.0,
-            e.sigma_rotation_deg
+            BodyPose::of(&e.to_se3(), is_camera),
+            e.sigma_rotation_deg,
+            e.sigma_translation_m * 1000.0
         );
     }
-    say!("  wrote {}", out.display());
+    say!("  written     {}", out.display());
     for path in written {
-        say!("  wrote {}", path.display());
+        say!("  written     {}", path.display());
     }
 }
 

@@ -118,8 +118,11 @@ pub fn refused_lines(cloud: &str, planes: &[RefusedBoard]) -> Vec<String> {
     for advice in advices {
         let alike: Vec<&RefusedBoard> =
             planes.iter().filter(|p| p.reason.advice() == advice).collect();
-        lines.extend(alike.iter().take(LISTED_PER_REASON).map(|p| refused_message(cloud, p)));
-        if let Some(more) = alike.len().checked_sub(LISTED_PER_REASON).filter(|&n| n > 0) {
+        // A summary line in place of a single plane's sentence would say less in as much.
+        let listed =
+            if alike.len() > LISTED_PER_REASON + 1 { LISTED_PER_REASON } else { alike.len() };
+        lines.extend(alike.iter().take(listed).map(|p| refused_message(cloud, p)));
+        if let Some(more) = alike.len().checked_sub(listed).filter(|&n| n > 0) {
             lines.push(format!(
                 "{cloud}: {more} more plane(s) refused likewise, not listed ({advice}; the \
                  report picture of `calibrate --report` marks them all)"

@@ -5,6 +5,7 @@
 
 use roomcal::calibrate::{Calibration, FrameDetections};
 use roomcal::export::camera_link_in_lidar;
+use roomcal::geometry::body::BodyPose;
 use roomcal::geometry::se3::rotation_to_rpy;
 use roomcal::geometry::{CameraModel, Se3};
 use roomcal::result::{CalibrationResult, Extrinsic, Status};
@@ -51,24 +52,12 @@ pub fn calibration_line(result: &CalibrationResult) -> String {
         c.cy
     );
     let Some(e) = &result.lidar_to_camera else { return format!("camera {camera}") };
-    let ([roll, pitch, yaw], t) = body_pose(e);
     format!(
-        "camera {camera}; LiDAR roll {roll:.3}° pitch {pitch:.3}° yaw {yaw:.3}°, x {:.4} y {:.4} \
-         z {:.4} m in the camera's body frame (σ {:.3}°, {:.1} mm)",
-        t.x,
-        t.y,
-        t.z,
+        "camera {camera}; LiDAR {} in the camera's body frame (σ {:.3}°, {:.1} mm)",
+        BodyPose::of(&e.to_se3(), false),
         u.rotation_deg,
         u.translation_m * 1e3
     )
-}
-
-/// The LiDAR's pose in the camera's body frame (camera_link: x forward, y left, z up):
-/// roll, pitch, yaw (degrees, R = Rz(yaw)·Ry(pitch)·Rx(roll)) and position (m). A LiDAR
-/// mounted with its axes along the camera's reads roll = pitch = yaw = 0.
-fn body_pose(e: &Extrinsic) -> ([f64; 3], roomcal::geometry::Vec3) {
-    let pose = camera_link_in_lidar(e).inverse();
-    (rotation_to_rpy(&pose.rotation).map(f64::to_degrees), pose.translation)
 }
 
 /// The summary's lines, status line first.
@@ -165,7 +154,7 @@ fn extrinsic_lines(
 ) -> Vec<String> {
     let pose = camera_link_in_lidar(e).inverse();
     let expected = camera_link_in_lidar(nominal).inverse();
-    let ([roll, pitch, yaw], t) = body_pose(e);
+    let BodyPose { rpy_deg: [roll, pitch, yaw], position_m: t } = BodyPose::of(&e.to_se3(), false);
     let turn =
         rotation_to_rpy(&(expected.rotation.transpose() * pose.rotation)).map(f64::to_degrees);
     let shift = (t - expected.translation) * 1e3;

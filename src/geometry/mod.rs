@@ -1,6 +1,7 @@
 //! Geometry core (no_std, no heap): rigid motions on rotation vectors and the camera
 //! models, each with the analytic Jacobians the solver needs.
 
+pub mod body;
 pub mod camera;
 pub mod se3;
 

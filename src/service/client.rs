@@ -10,7 +10,8 @@ use super::isotp::{self, Event, IsoTp};
 use super::transport::{CanTransport, TransportError};
 use super::uds::{
     did, rid, security_key, sid, DecodeError, ExtrinsicRecord, IntrinsicsRecord, Nrc, Outcome,
-    QualityRecord, RequestRepr, ResponseRepr, SensorTable, Session, StateRecord, SEED_LEN,
+    QualityRecord, RequestRepr, ResponseRepr, SensorKind, SensorTable, Session, StateRecord,
+    SEED_LEN,
 };
 use super::{Instant, DEFAULT_REQUEST_ID, DEFAULT_RESPONSE_ID};
 
@@ -235,15 +236,20 @@ impl<T: CanTransport> UdsClient<T> {
         ExtrinsicRecord::parse(&b).map_err(|error| ClientError::Decode { did: id, error })
     }
 
-    /// The index and name of `sensor`, from the sensor table (read from the server).
-    pub async fn resolve(&mut self, sensor: &SensorRef) -> Result<(u8, String), ClientError> {
+    /// The index, name and kind of `sensor`, from the sensor table (read from the server).
+    pub async fn resolve(
+        &mut self,
+        sensor: &SensorRef,
+    ) -> Result<(u8, String, SensorKind), ClientError> {
         let table = self.sensors().await?;
-        let found = match sensor {
-            SensorRef::Index(i) => {
-                table.sensors.get(usize::from(*i)).map(|s| (*i, s.name.to_string()))
-            }
-            SensorRef::Name(name) => table.index_of(name).map(|i| (i, name.clone())),
+        let index = match sensor {
+            SensorRef::Index(i) => Some(*i).filter(|&i| usize::from(i) < table.sensors.len()),
+            SensorRef::Name(name) => table.index_of(name),
         };
+        let found = index.and_then(|i| {
+            let entry = table.sensors.get(usize::from(i))?;
+            Some((i, entry.name.to_string(), entry.kind))
+        });
         found.ok_or_else(|| ClientError::UnknownSensor {
             name: match sensor {
                 SensorRef::Index(i) => i.to_string(),
@@ -489,14 +495,19 @@ async fn run_query<T: CanTransport>(
         QueryCommand::Intrinsics(None) => client.intrinsics().await?.to_string(),
         QueryCommand::Extrinsic(None) => client.extrinsic().await?.to_string(),
         QueryCommand::Intrinsics(Some(sensor)) => {
-            let (index, name) = client.resolve(sensor).await?;
+            let (index, name, _) = client.resolve(sensor).await?;
             format!("camera {name} ({index}):\n{}", client.sensor_intrinsics(index).await?)
         }
         QueryCommand::Extrinsic(Some(sensor)) => {
-            let (index, name) = client.resolve(sensor).await?;
+            let (index, name, kind) = client.resolve(sensor).await?;
+            let record = client.sensor_extrinsic(index).await?;
+            let pose = match record.body_pose(kind == SensorKind::Camera) {
+                Some(pose) => format!("{pose}"),
+                None => record.to_string(),
+            };
             format!(
-                "sensor {name} ({index}) → the first camera:\n{}",
-                client.sensor_extrinsic(index).await?
+                "sensor {name} ({index}) in the first camera's body frame (x forward, y left, z \
+                 up):\n{pose}"
             )
         }
         QueryCommand::Quality => client.quality().await?.to_string(),

@@ -118,10 +118,11 @@ async fn query_pieces_print_every_did() {
     let mut opts = QueryOptions::new(&format!("socketcand:{addr}"));
     let status = query(&opts, QueryCommand::Status).await.unwrap();
     assert!(status.contains("generation: 7"), "{status}");
+    assert!(status.contains("time:       2023-11-14T22:13:20Z"), "ISO 8601, UTC: {status}");
     let intr = query(&opts, QueryCommand::Intrinsics(None)).await.unwrap();
     assert!(intr.contains("pinhole-radtan") && intr.contains("1000.000, 1000.500"), "{intr}");
     let ext = query(&opts, QueryCommand::Extrinsic(None)).await.unwrap();
-    assert!(ext.contains("[0.0500, 0.4200, -0.2800]") && ext.contains("(120.000 deg)"), "{ext}");
+    assert!(ext.contains("x -0.2800 y -0.0500 z -0.4200 m in the camera's body frame"), "{ext}");
     let q = query(&opts, QueryCommand::Quality).await.unwrap();
     assert!(q.contains("boards:     6"), "{q}");
     for text in [&status, &intr, &ext, &q] {
@@ -173,10 +174,15 @@ async fn query_reads_every_sensor_of_a_rig_by_name_or_index() {
     assert!(wide.starts_with("camera wide (1):") && wide.contains("600.000, 600.250"), "{wide}");
     assert_eq!(ask("intrinsics:1").await.unwrap(), wide);
     let top = ask("extrinsic:top").await.unwrap();
-    assert!(
-        top.contains("→ the first camera") && top.contains("[0.0500, 0.4200, -0.2800]"),
-        "{top}"
-    );
+    // Poses as people read them: in the first camera's body frame (x forward, y left, z
+    // up), the expected figures from numpy (the records' quaternions through the optical →
+    // body turn): the LiDAR at (z, -x, -y) of its optical translation, the wide camera
+    // turned 30° about the optical y axis, i.e. yaw -30° about the body's z.
+    assert!(top.contains("in the first camera's body frame"), "{top}");
+    assert!(top.contains("x -0.2800 y -0.0500 z -0.4200 m"), "{top}");
+    let wide_pose = ask("extrinsic:wide").await.unwrap();
+    assert!(wide_pose.contains("roll 0.000° pitch 0.000° yaw -30.000°"), "{wide_pose}");
+    assert!(wide_pose.contains("x 0.1000 y -0.4000 z 0.0000 m"), "{wide_pose}");
     // A sensor the vehicle lacks is named with the ones it has; a LiDAR has no intrinsics;
     // an uncalibrated sensor is explained.
     let err = ask("intrinsics:rear").await.unwrap_err();

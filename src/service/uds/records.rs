@@ -4,6 +4,9 @@
 
 use core::fmt;
 
+use crate::geometry::body::BodyPose;
+use crate::geometry::{Se3, Vec3};
+
 /// Service identifiers.
 pub mod sid {
     pub const DIAGNOSTIC_SESSION_CONTROL: u8 = 0x10;
@@ -341,7 +344,14 @@ impl fmt::Display for StateRecord {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(f, "state:      {}", self.state.name())?;
         writeln!(f, "generation: {}", self.generation)?;
-        write!(f, "time:       {} (unix s)", self.time)
+        write!(f, "time:       ")?;
+        match self.time {
+            0 => write!(f, "none"),
+            t => {
+                let (y, mo, d, h, mi, s) = crate::lidar::common::civil_from_unix(i64::from(t));
+                write!(f, "{y:04}-{mo:02}-{d:02}T{h:02}:{mi:02}:{s:02}Z")
+            }
+        }
     }
 }
 
@@ -476,14 +486,25 @@ impl ExtrinsicRecord {
     }
 }
 
+impl ExtrinsicRecord {
+    /// The sensor's pose in the camera's body frame; `None` for a record whose quaternion
+    /// is no rotation (zero, or not finite).
+    pub fn body_pose(&self, sensor_is_camera: bool) -> Option<BodyPose> {
+        let q = self.rotation.map(f64::from);
+        let t = self.translation.map(f64::from);
+        let pose = Se3::from_quaternion(&q, &Vec3::new(t[0], t[1], t[2]))?;
+        Some(BodyPose::of(&pose, sensor_is_camera))
+    }
+}
+
 impl fmt::Display for ExtrinsicRecord {
+    /// A LiDAR's pose as people read it ([`BodyPose`]); for a camera sensor the client
+    /// uses [`ExtrinsicRecord::body_pose`] with its kind.
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let [w, x, y, z] = self.rotation;
-        // Rotation angle of the quaternion, for a quick plausibility read.
-        let angle = 2.0 * libm::acosf(libm::fabsf(w).min(1.0)) * (180.0 / core::f32::consts::PI);
-        writeln!(f, "rotation (w x y z): [{w:.6}, {x:.6}, {y:.6}, {z:.6}] ({angle:.3} deg)")?;
-        let [tx, ty, tz] = self.translation;
-        write!(f, "translation (m):    [{tx:.4}, {ty:.4}, {tz:.4}]")
+        match self.body_pose(false) {
+            Some(pose) => write!(f, "{pose} in the camera's body frame (x forward, y left, z up)"),
+            None => write!(f, "no rotation: quaternion {:?}", self.rotation),
+        }
     }
 }
 
