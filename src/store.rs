@@ -151,29 +151,47 @@ impl StoreError {
 }
 
 /// Why a record cannot be in force: the first thing wrong with its calibration.
+#[derive(Debug, PartialEq, thiserror::Error)]
+pub enum InvalidRecord {
+    #[error("status is not \"accepted\"")]
+    NotAccepted,
+    /// The one-pair fields fail the result file's own validation.
+    #[error("{0}")]
+    Calibration(crate::target::RoomError),
+    #[error("sensor `{name}` is not accepted")]
+    SensorNotAccepted { name: String },
+    #[error("camera `{name}`: {problem}")]
+    Camera { name: String, problem: crate::target::RoomError },
+    #[error("extrinsic {from} → {to}: {problem}")]
+    Extrinsic { from: String, to: String, problem: crate::target::RoomError },
+}
+
+/// Why a calibration cannot be in force.
 ///
 /// A record in force must be accepted and pass the result file's own validation
 /// ([`CalibrationResult::validate`]: image size, focal lengths within the image's scale,
 /// principal point on the image, finite bounded distortion of the model's length, a
 /// proper rotation with a translation within the vehicle's size).
-pub fn is_valid_calibration(result: &CalibrationResult) -> Result<(), String> {
+pub fn is_valid_calibration(result: &CalibrationResult) -> Result<(), InvalidRecord> {
     if result.status != Status::Accepted {
-        return Err("status is not \"accepted\"".into());
+        return Err(InvalidRecord::NotAccepted);
     }
-    result.validate().map_err(|e| e.to_string())
+    result.validate().map_err(InvalidRecord::Calibration)
 }
 
 /// Why a record cannot be in force: [`is_valid_calibration`] of its one-pair fields, and
 /// for a rig every sensor accepted, every camera valid and every extrinsic a proper
 /// rotation with a translation within the vehicle's size.
-pub fn is_valid_record(record: &Record) -> Result<(), String> {
+pub fn is_valid_record(record: &Record) -> Result<(), InvalidRecord> {
     is_valid_calibration(record.pair())?;
     for (name, sensor) in &record.result.sensors {
         if sensor.status != Status::Accepted {
-            return Err(format!("sensor `{name}` is not accepted"));
+            return Err(InvalidRecord::SensorNotAccepted { name: name.clone() });
         }
         if let Some(camera) = &sensor.camera {
-            camera.validate().map_err(|e| format!("camera `{name}`: {e}"))?;
+            camera
+                .validate()
+                .map_err(|problem| InvalidRecord::Camera { name: name.clone(), problem })?;
         }
     }
     for e in &record.result.extrinsics {
@@ -183,7 +201,11 @@ pub fn is_valid_record(record: &Record) -> Result<(), String> {
             "extrinsics.translation",
             &e.translation,
         )
-        .map_err(|err| format!("extrinsic {} → {}: {err}", e.from, e.to))?;
+        .map_err(|problem| InvalidRecord::Extrinsic {
+            from: e.from.clone(),
+            to: e.to.clone(),
+            problem,
+        })?;
     }
     Ok(())
 }
