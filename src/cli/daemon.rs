@@ -64,7 +64,7 @@ pub fn run(args: DaemonArgs) -> Result<(), Failure> {
         summary.accepted,
         summary.rejected,
         summary.failed,
-        summary.generation
+        summary.generation()
     );
     if let Some(record) = &summary.in_force {
         say!("  in force    {}", super::summary::calibration_line(record.pair()));

@@ -4,7 +4,6 @@
 //! mounting, the residuals, and one line per board.
 
 use roomcal::calibrate::{Calibration, FrameDetections};
-use roomcal::export::camera_link_in_lidar;
 use roomcal::geometry::body::BodyPose;
 use roomcal::geometry::se3::rotation_to_rpy;
 use roomcal::geometry::{CameraModel, Se3};
@@ -152,12 +151,13 @@ fn extrinsic_lines(
     sigma_deg: f64,
     sigma_m: f64,
 ) -> Vec<String> {
-    let pose = camera_link_in_lidar(e).inverse();
-    let expected = camera_link_in_lidar(nominal).inverse();
     let BodyPose { rpy_deg: [roll, pitch, yaw], position_m: t } = BodyPose::of(&e.to_se3(), false);
-    let turn =
-        rotation_to_rpy(&(expected.rotation.transpose() * pose.rotation)).map(f64::to_degrees);
-    let shift = (t - expected.translation) * 1e3;
+    let expected = BodyPose::of(&nominal.to_se3(), false);
+    // The turn about the LiDAR's own axes, nominal → solved (the optical → body turn
+    // cancels in it).
+    let (solved, mounted) = (e.to_se3().rotation, nominal.to_se3().rotation);
+    let turn = rotation_to_rpy(&(mounted.transpose() * solved)).map(f64::to_degrees);
+    let shift = (t - expected.position_m) * 1e3;
     let (angle, distance) = nominal.difference(e);
     vec![
         "  LiDAR       pose in the camera's body frame (x forward, y left, z up), \

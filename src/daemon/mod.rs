@@ -97,10 +97,15 @@ pub struct RunSummary {
     pub accepted: u64,
     pub rejected: u64,
     pub failed: u64,
-    /// The generation in force at exit (0: none).
-    pub generation: u32,
     /// The record in force at exit.
     pub in_force: Option<Record>,
+}
+
+impl RunSummary {
+    /// The generation in force at exit (0: none).
+    pub fn generation(&self) -> u32 {
+        self.in_force.as_ref().map_or(0, |r| r.generation)
+    }
 }
 
 /// Errors that stop the daemon; each names its input.
@@ -118,9 +123,10 @@ pub enum DaemonError {
     Service(String),
     #[error("LiDAR angle corrections: {0}")]
     LidarCalibration(String),
-    /// `--once`: the run ended without a result in the store.
+    /// `--once`: no run started within the time given.
     #[error("gave up after {seconds} s without a calibration run: {waiting}")]
     GaveUp { seconds: u64, waiting: String },
+    /// `--once`: the run ended without a result in the store.
     #[error("the calibration run failed: {0}")]
     RunFailed(String),
 }
@@ -768,7 +774,6 @@ async fn run_daemon<C: Calibrator>(
     .await;
     tasks.shutdown().await;
     summary.in_force = shared.lock().ok().and_then(|s| s.current.clone());
-    summary.generation = summary.in_force.as_ref().map_or(0, |r| r.generation);
     match fatal {
         Some(e) => Err(e),
         None => Ok(summary),

@@ -169,7 +169,7 @@ async fn replay_auto_trigger_stores_a_generation_and_exits_once() {
     let t0 = tokio::time::Instant::now();
     let summary = daemon::run(cfg, cal, ONCE, std::future::pending()).await.unwrap();
     let took = t0.elapsed();
-    assert_eq!((summary.runs, summary.accepted, summary.generation), (1, 1, 1));
+    assert_eq!((summary.runs, summary.accepted, summary.generation()), (1, 1, 1));
     assert_eq!(runs.load(Ordering::SeqCst), 1);
     // Settling needs 2 s of still sweeps after the room was seen; the board count runs ~1 Hz.
     assert!(took >= Duration::from_secs(2) && took < Duration::from_secs(10), "{took:?}");
@@ -202,7 +202,7 @@ async fn rejected_run_leaves_current_untouched() {
     let before = current_bytes(&dir).unwrap();
     let (cal, _, runs) = fake(6, Status::Rejected);
     let summary = daemon::run(cfg, cal, ONCE, std::future::pending()).await.unwrap();
-    assert_eq!((summary.runs, summary.rejected, summary.generation), (1, 1, 1));
+    assert_eq!((summary.runs, summary.rejected, summary.generation()), (1, 1, 1));
     assert_eq!(runs.load(Ordering::SeqCst), 1);
     assert_eq!(current_bytes(&dir).unwrap(), before);
     let rejected = store.rejected().unwrap();
@@ -398,7 +398,7 @@ async fn service_listens_on_socketcand_and_runs_a_calibration() {
     assert_eq!(store.current().unwrap().unwrap().restored_from, Some(1));
     stop.send(()).unwrap();
     let summary = task.await.unwrap().unwrap();
-    assert_eq!((summary.runs, summary.accepted, summary.generation), (1, 1, 3));
+    assert_eq!((summary.runs, summary.accepted, summary.generation()), (1, 1, 3));
 }
 
 #[test]
@@ -633,7 +633,7 @@ async fn a_rig_daemon_captures_every_sensor_and_keeps_the_rig_in_force() {
     let seen = Arc::new(std::sync::Mutex::new(Vec::new()));
     let cal = RigFake::new(&seen);
     let summary = daemon::run(cfg, cal, ONCE, std::future::pending()).await.unwrap();
-    assert_eq!((summary.runs, summary.accepted, summary.generation), (1, 1, 1));
+    assert_eq!((summary.runs, summary.accepted, summary.generation()), (1, 1, 1));
     assert_eq!(*seen.lock().unwrap(), [(2, 2)], "one frame per camera, one sweep per LiDAR");
     let record = Store::open(dir.join("store"), 4).unwrap().current().unwrap().unwrap();
     assert_eq!(record.rig(), Some(&results::rig_result()));

@@ -40,6 +40,19 @@ fn assert_refused(what: &str, (code, stderr): (i32, String), words: &[&str]) {
     }
 }
 
+/// `roomcal detect` on the image `image` in the example room, its output in `dir`.
+fn detect_image(dir: &Path, image: &Path) -> (i32, String) {
+    roomcal_no_crash(&[
+        "detect".as_ref(),
+        "--room".as_ref(),
+        ROOM_PATH.as_ref(),
+        "--image".as_ref(),
+        image.as_ref(),
+        "--out".as_ref(),
+        dir.join("o.json").as_ref(),
+    ])
+}
+
 /// `roomcal detect` on the fixture's image and cloud with the room file `room`.
 fn detect_with_room(dir: &Path, room: &str) -> (i32, String) {
     let path = dir.join("room.toml");
@@ -142,30 +155,13 @@ fn truncated_images_are_refused_as_truncated() {
         let cut = if name == "cut.jpg" { bytes.len() - 2 } else { bytes.len() / 2 };
         let path = dir.join(name);
         std::fs::write(&path, &bytes[..cut]).unwrap();
-        let out = dir.join("o.json");
-        let outcome = roomcal_no_crash(&[
-            "detect".as_ref(),
-            "--room".as_ref(),
-            ROOM_PATH.as_ref(),
-            "--image".as_ref(),
-            path.as_ref(),
-            "--out".as_ref(),
-            out.as_ref(),
-        ]);
+        let outcome = detect_image(&dir, &path);
         assert_refused(name, outcome, &[name, "truncated"]);
     }
     // The whole JPEG still decodes (the end marker is found).
     let whole = dir.join("whole.jpg");
     std::fs::write(&whole, &jpeg).unwrap();
-    let (code, stderr) = roomcal_no_crash(&[
-        "detect".as_ref(),
-        "--room".as_ref(),
-        ROOM_PATH.as_ref(),
-        "--image".as_ref(),
-        whole.as_ref(),
-        "--out".as_ref(),
-        dir.join("o.json").as_ref(),
-    ]);
+    let (code, stderr) = detect_image(&dir, &whole);
     assert_eq!(code, 0, "{stderr}");
 }
 
@@ -174,15 +170,7 @@ fn huge_png_is_refused_from_its_header() {
     let dir = scratch("huge_png");
     let path = dir.join("huge.png");
     std::fs::write(&path, png_claiming(20000, 20000)).unwrap();
-    let outcome = roomcal_no_crash(&[
-        "detect".as_ref(),
-        "--room".as_ref(),
-        ROOM_PATH.as_ref(),
-        "--image".as_ref(),
-        path.as_ref(),
-        "--out".as_ref(),
-        dir.join("o.json").as_ref(),
-    ]);
+    let outcome = detect_image(&dir, &path);
     assert_refused("20000² PNG", outcome, &["huge.png", "20000x20000"]);
 }
 
@@ -368,15 +356,7 @@ fn a_jpeg_whose_header_claims_more_than_its_data_holds_is_refused_as_truncated()
     jpeg[sof + 7..sof + 9].copy_from_slice(&1920u16.to_be_bytes());
     let path = dir.join("lying.jpg");
     std::fs::write(&path, &jpeg).unwrap();
-    let outcome = roomcal_no_crash(&[
-        "detect".as_ref(),
-        "--room".as_ref(),
-        ROOM_PATH.as_ref(),
-        "--image".as_ref(),
-        path.as_ref(),
-        "--out".as_ref(),
-        dir.join("o.json").as_ref(),
-    ]);
+    let outcome = detect_image(&dir, &path);
     assert_refused(
         "lying.jpg",
         outcome,

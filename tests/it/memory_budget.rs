@@ -204,9 +204,8 @@ fn a_compressed_cloud_beyond_the_point_limit_is_refused_from_its_header() {
     std::fs::write(&cloud, pcd_bomb(16 << 20)).unwrap();
     let image = fixture("six-boards-pandar64/image.png");
     let room = root().join("config/room.toml");
-    let out = dir.join("r.json");
-    let calibrate = run(
-        &args(&[
+    let calibrate_with = |cloud: &Path, out: &Path| {
+        let words: [&dyn AsRef<std::ffi::OsStr>; 9] = [
             &"calibrate",
             &"--room",
             &room,
@@ -216,9 +215,10 @@ fn a_compressed_cloud_beyond_the_point_limit_is_refused_from_its_header() {
             &cloud,
             &"--out",
             &out,
-        ]),
-        None,
-    );
+        ];
+        run(&args(&words), None)
+    };
+    let calibrate = calibrate_with(&cloud, &dir.join("r.json"));
     assert_refused(
         "calibrate, 16 Mi point bomb",
         &calibrate,
@@ -226,21 +226,7 @@ fn a_compressed_cloud_beyond_the_point_limit_is_refused_from_its_header() {
     );
     assert!(calibrate.peak < 64 << 20, "refused from the header: {:.0} MiB", mib(calibrate.peak));
     let good = dir.join("good.json");
-    let fixture_cloud = fixture("six-boards-pandar64/cloud.pcd");
-    let made = run(
-        &args(&[
-            &"calibrate",
-            &"--room",
-            &room,
-            &"--image",
-            &image,
-            &"--cloud",
-            &fixture_cloud,
-            &"--out",
-            &good,
-        ]),
-        None,
-    );
+    let made = calibrate_with(&fixture("six-boards-pandar64/cloud.pcd"), &good);
     assert_eq!(made.code, 0, "{}", made.stderr);
     let overlay = run(
         &args(&[

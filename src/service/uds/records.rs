@@ -484,9 +484,7 @@ impl ExtrinsicRecord {
         }
         Some(w.pos)
     }
-}
 
-impl ExtrinsicRecord {
     /// The sensor's pose in the camera's body frame; `None` for a record whose quaternion
     /// is no rotation (zero, or not finite).
     pub fn body_pose(&self, sensor_is_camera: bool) -> Option<BodyPose> {
