@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::geometry::{Camera, CameraModel};
+use crate::geometry::{Camera, CameraModel, Vec2};
 use crate::target::{CameraSpec, RoomError};
 
 /// Why a result file (or the store's `current.json`) read back cannot be used; names the file.
@@ -146,6 +146,9 @@ pub struct CalibrationResult {
     /// Surveyed rooms: the camera's pose in the room frame (camera → room).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub camera_in_room: Option<Extrinsic>,
+    /// How far off a projection can be over the image (a solved run).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub projection_uncertainty: Option<ProjectionMap>,
 }
 
 impl CameraResult {
@@ -267,6 +270,57 @@ impl CalibrationResult {
     }
 }
 
+/// The projection uncertainty over a camera's image, as the result file carries it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ProjectionMap {
+    /// Range along each pixel's ray (m) at which the point is held.
+    pub range_m: f64,
+    /// Whether the LiDAR → camera extrinsic's uncertainty is included (a run with a
+    /// LiDAR) or the intrinsics' alone.
+    pub lidar: bool,
+    /// Pixel columns (u) of the grid, left to right.
+    pub columns: Vec<f64>,
+    /// Pixel rows (v) of the grid, top to bottom.
+    pub rows: Vec<f64>,
+    /// `sigma_px[row][column]`: 1σ of the projection in its worst direction (px);
+    /// `null` where the camera model does not invert.
+    pub sigma_px: Vec<Vec<Option<f64>>>,
+}
+
+/// The worst grid value over a region of the image.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Worst {
+    pub sigma_px: f64,
+    /// The grid pixel where it is.
+    pub at_px: Vec2,
+}
+
+impl ProjectionMap {
+    /// The largest value at the grid pixels inside `region` (fractions of the image's
+    /// width and height: u0, v0, u1, v1, borders included); `None` when no grid pixel
+    /// there has a value.
+    pub fn worst_in(&self, region: [f64; 4]) -> Option<Worst> {
+        let (w, h) = (self.columns.last().copied()?, self.rows.last().copied()?);
+        let inside = |x: f64, lo: f64, hi: f64, extent: f64| {
+            // Half a pixel of slack so a region's border on a grid pixel includes it.
+            x >= lo * extent - 0.5 && x <= hi * extent + 0.5
+        };
+        let mut worst: Option<Worst> = None;
+        for (r, &v) in self.rows.iter().enumerate() {
+            for (c, &u) in self.columns.iter().enumerate() {
+                let Some(sigma_px) = self.sigma_px[r][c] else { continue };
+                if !inside(u, region[0], region[2], w) || !inside(v, region[1], region[3], h) {
+                    continue;
+                }
+                if worst.is_none_or(|x| sigma_px > x.sigma_px) {
+                    worst = Some(Worst { sigma_px, at_px: Vec2::new(u, v) });
+                }
+            }
+        }
+        worst
+    }
+}
+
 /// A run's result file: the one-pair fields for the (first) camera and (first) LiDAR and,
 /// for a rig (DESIGN.md "Vehicles with several sensors"), every sensor and every
 /// extrinsic to the first camera. A one-pair room's run has neither, and its file is the
@@ -309,6 +363,9 @@ pub struct SensorResult {
     /// The camera (for a LiDAR) or LiDAR (for a camera) whose pair solve gave this sensor.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub solved_with: Option<String>,
+    /// Cameras: how far off a projection can be over the image (its pair solve's map).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub projection_uncertainty: Option<ProjectionMap>,
 }
 
 /// One extrinsic of a rig: `p_to = rotation · p_from + translation`, with worst-axis 1σ.

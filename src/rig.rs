@@ -63,6 +63,9 @@ pub struct CameraEntry {
     pub rotation: Option<Rows>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub translation: Option<heapless::Vec<f64, 3>>,
+    /// The part of the image this camera is used in (the room's `[quality] region` for it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub region: Option<[f64; 4]>,
 }
 
 /// A `[[lidar]]` table as written.
@@ -111,6 +114,8 @@ pub struct RigCamera {
     pub spec: CameraSpec,
     /// Camera → first camera (identity for the first).
     pub to_reference: Se3,
+    /// The part of the image it is used in, when the rig file says (else the room's).
+    pub region: Option<[f64; 4]>,
 }
 
 /// A checked LiDAR of a rig.
@@ -220,6 +225,7 @@ impl Rig {
             name: name_of(PAIR_CAMERA),
             spec: room.camera.clone(),
             to_reference: Se3::identity(),
+            region: None,
         });
         if let Some(lidar) = &room.lidar {
             let to_reference =
@@ -253,6 +259,9 @@ impl Rig {
     pub fn pair_room(&self, room: &Room, camera: usize, lidar: Option<usize>) -> Room {
         let mut pair = room.clone();
         pair.camera = self.cameras[camera].spec.clone();
+        if let Some(region) = self.cameras[camera].region {
+            pair.quality.region = region;
+        }
         pair.lidar = lidar.map(|l| {
             let nominal = self.lidar_to_camera(l, camera);
             LidarSpec {
@@ -314,11 +323,11 @@ fn checked_camera(entry: &CameraEntry, reference: bool) -> Result<RigCamera, Rig
         distortion: entry.distortion.clone(),
     };
     let name = &entry.name;
-    spec.validate().map_err(|error| RigError::Invalid {
-        kind: SensorKind::Camera,
-        name: name.clone(),
-        error,
-    })?;
+    let invalid = |error| RigError::Invalid { kind: SensorKind::Camera, name: name.clone(), error };
+    spec.validate().map_err(invalid)?;
+    if let Some(region) = &entry.region {
+        crate::target::validate_region("region", region).map_err(invalid)?;
+    }
     let to_reference = if reference {
         if entry.rotation.is_some() || entry.translation.is_some() {
             let key = if entry.rotation.is_some() { "rotation" } else { "translation" };
@@ -328,7 +337,7 @@ fn checked_camera(entry: &CameraEntry, reference: bool) -> Result<RigCamera, Rig
     } else {
         mounting(SensorKind::Camera, name, entry)?
     };
-    Ok(RigCamera { name: name.clone(), spec, to_reference })
+    Ok(RigCamera { name: name.clone(), spec, to_reference, region: entry.region })
 }
 
 /// The two mounting keys of an entry.

@@ -132,7 +132,9 @@ pub struct QualitySpec {
     /// room, fewest surveyed targets the LiDAR registers against (boards by their holes or
     /// their face, and planes).
     pub min_lidar_boards: u32,
-    /// Smallest fraction of the image (a 4×4 grid of cells) holding detected corners.
+    /// Smallest fraction of the image (a 4×4 grid of cells) holding detected corners; not
+    /// applied where `max_projection_sigma_px` is given (the map then judges what the
+    /// boards cover).
     pub min_coverage: f64,
     /// Largest 1σ of fx and fy relative to their value.
     pub max_sigma_focal_rel: f64,
@@ -153,6 +155,15 @@ pub struct QualitySpec {
     /// the nominal LiDAR frame at the nominal spot). Defaults 0.5 m and 10°.
     pub max_parking_offset_m: f64,
     pub max_parking_yaw_deg: f64,
+    /// The part of the image the camera is used in, as fractions of its width and height
+    /// (u0, v0, u1, v1): the gate judges the projection uncertainty over it.
+    pub region: [f64; 4],
+    /// Largest 1σ (px) of a projection over `region`, its point held at
+    /// `projection_range_m` along the ray (`calibrate::projection_map`); not judged unless
+    /// given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_projection_sigma_px: Option<f64>,
+    pub projection_range_m: f64,
 }
 
 impl Default for QualitySpec {
@@ -173,6 +184,9 @@ impl Default for QualitySpec {
             max_change_translation_m: 0.1,
             max_parking_offset_m: 0.5,
             max_parking_yaw_deg: 10.0,
+            region: [0.0, 0.0, 1.0, 1.0],
+            max_projection_sigma_px: None,
+            projection_range_m: 10.0,
         }
     }
 }
@@ -293,6 +307,8 @@ pub enum RoomError {
     SurveyNormal { index: usize, length: f64 },
     /// A surveyed σ is negative.
     SurveyNegativeSigma { key: &'static str, index: usize },
+    /// `quality.region` holds no pixel: its right (bottom) edge is not past its left (top).
+    EmptyRegion { key: &'static str, region: [f64; 4] },
     /// `survey.covariance` is not the lower triangle of a covariance over every surveyed
     /// board and plane (`row` the first wrong row; `what` says how).
     SurveyCovariance { row: usize, what: &'static str },
@@ -431,6 +447,11 @@ impl fmt::Display for RoomError {
             RoomError::RotationNotOrthonormal { key, deviation } => write!(
                 f,
                 "`{key}` is not orthonormal with determinant +1 (off by {deviation:.3e}, tolerance {ROTATION_TOLERANCE:e})"
+            ),
+            RoomError::EmptyRegion { key, region: [u0, v0, u1, v1] } => write!(
+                f,
+                "`{key}`: [{u0}, {v0}, {u1}, {v1}] is empty: it is (u0, v0, u1, v1), \
+                 fractions of the image's width and height, with u0 < u1 and v0 < v1"
             ),
             RoomError::LidarWithoutHoles => {
                 write!(f, "`lidar`: a LiDAR calibration needs `board.holes`, and the list is empty")
@@ -660,6 +681,8 @@ impl QualitySpec {
             ("quality.max_change_translation_m", self.max_change_translation_m),
             ("quality.max_parking_offset_m", self.max_parking_offset_m),
             ("quality.max_parking_yaw_deg", self.max_parking_yaw_deg),
+            ("quality.max_projection_sigma_px", self.max_projection_sigma_px.unwrap_or(1.0)),
+            ("quality.projection_range_m", self.projection_range_m),
         ];
         for (key, value) in limits {
             positive.check(key, Index::None, value)?;
@@ -669,6 +692,7 @@ impl QualitySpec {
             Index::None,
             self.min_coverage,
         )?;
+        validate_region("quality.region", &self.region)?;
         if let Some(n) = self.min_boards {
             let boards = Range::closed(0.0, MAX_BOARDS as f64, "boards");
             boards.check("quality.min_boards", Index::None, f64::from(n))?;
@@ -692,6 +716,19 @@ impl LidarSpec {
     pub fn validate(&self) -> Result<(), RoomError> {
         validate_mounting("lidar.rotation", &self.rotation, "lidar.translation", &self.translation)
     }
+}
+
+/// Checks a part of the image given as fractions of its width and height (u0, v0, u1,
+/// v1): each in [0, 1], and holding pixels (u0 < u1, v0 < v1).
+pub fn validate_region(key: &'static str, region: &[f64; 4]) -> Result<(), RoomError> {
+    for (i, value) in region.iter().enumerate() {
+        Range::closed(0.0, 1.0, "").check(key, Index::One(i as u8), *value)?;
+    }
+    let [u0, v0, u1, v1] = *region;
+    if u1 <= u0 || v1 <= v0 {
+        return Err(RoomError::EmptyRegion { key, region: *region });
+    }
+    Ok(())
 }
 
 /// A row-major 3×3 array as a matrix.

@@ -162,6 +162,7 @@ pub(super) fn solve_all(
         covariance(&problem, &params, mask)
     }?;
     let pose_covariance = lidar_pose_covariance(&sigma);
+    let shared_covariance = sigma.matrix;
     let sigma = sigma.uncertainty();
     let with_lidar = room.lidar.is_some() && (problem.has_holes() || faces.is_some());
     if room.lidar.is_some() && !with_lidar {
@@ -192,6 +193,7 @@ pub(super) fn solve_all(
         iterations,
         notes: faces.iter().map(FacesOnly::note).collect(),
         pose_covariance: Some(pose_covariance),
+        shared_covariance: Some(shared_covariance),
         lidar_planes: 0,
     })
 }
@@ -494,6 +496,7 @@ pub(super) fn accepted(
             })
             .collect(),
         camera_in_room: None,
+        projection_uncertainty: None,
     }
 }
 
@@ -511,5 +514,6 @@ pub(super) fn rejected(
         quality: Quality::default(),
         boards: Vec::new(),
         camera_in_room: None,
+        projection_uncertainty: None,
     }
 }

@@ -5,7 +5,7 @@ use super::{
     CalibrateOptions, Calibration, FrameDetections, LidarAngles, MovedPose, Rejection, UsedBoard,
 };
 use crate::geometry::Camera;
-use crate::result::{CalibrationResult, CameraResult, Extrinsic, Uncertainty};
+use crate::result::{CalibrationResult, CameraResult, Extrinsic, ProjectionMap, Uncertainty};
 use crate::target::{QualitySpec, Room};
 
 /// The quality gate: `Err` is the first threshold the run fails.
@@ -32,6 +32,9 @@ pub(super) fn gate(
     corners_fit(q, r.quality.corner_rms_px)?;
     covers(q, coverage(&run.camera, &run.boards))?;
     intrinsics_certain(q, &r.camera, &r.uncertainty)?;
+    if let Some(map) = &r.projection_uncertainty {
+        projection_certain(q, map)?;
+    }
     if room.lidar.is_some() {
         // As the free-board solve refuses a run whose LiDAR pairs no board: accepted as
         // intrinsics only, it would put a calibration without the extrinsic in force.
@@ -77,8 +80,12 @@ pub(super) fn corners_fit(q: &QualitySpec, rms_px: f64) -> Result<(), Rejection>
     })
 }
 
-/// The used corners cover at least `min_coverage` of the image.
+/// The used corners cover at least `min_coverage` of the image, unless the room judges the
+/// projection map instead (`max_projection_sigma_px`).
 pub(super) fn covers(q: &QualitySpec, coverage: f64) -> Result<(), Rejection> {
+    if q.max_projection_sigma_px.is_some() {
+        return Ok(());
+    }
     check(coverage >= q.min_coverage, || Rejection::Coverage { coverage, min: q.min_coverage })
 }
 
@@ -97,6 +104,19 @@ pub(super) fn intrinsics_certain(
             cy_px: u.cy,
             limit_px: q.max_sigma_principal_px,
         }
+    })
+}
+
+/// The projection uncertainty over the room's `region` within `max_projection_sigma_px`.
+pub(super) fn projection_certain(q: &QualitySpec, map: &ProjectionMap) -> Result<(), Rejection> {
+    let Some(limit_px) = q.max_projection_sigma_px else { return Ok(()) };
+    let Some(worst) = map.worst_in(q.region) else { return Ok(()) };
+    check(worst.sigma_px <= limit_px, || Rejection::ProjectionUncertain {
+        sigma_px: worst.sigma_px,
+        at_px: [worst.at_px.x, worst.at_px.y],
+        range_m: map.range_m,
+        limit_px,
+        region: q.region,
     })
 }
 

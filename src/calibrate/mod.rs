@@ -35,6 +35,7 @@ pub use free::{corner_start, CornerStart};
 mod gate;
 pub mod identify;
 mod modes;
+pub mod projection_map;
 pub mod register;
 mod rejection;
 pub mod rig;
@@ -178,12 +179,19 @@ pub struct Calibration {
     /// 0–5) and, in a surveyed room, room → camera (rows 6–11; zero otherwise), for
     /// composing a rig's extrinsics (`rig.rs`). `None` for a failed run.
     pub pose_covariance: Option<PoseCovariance>,
+    /// Covariance of the shared parameters `[fx fy cx cy d0..d4 | δω δt]` (the extrinsic
+    /// as a left perturbation), for the projection map ([`projection_map`]). `None` for a
+    /// failed run.
+    pub shared_covariance: Option<SharedMatrix>,
     /// Surveyed planes whose LiDAR points entered the solve (0 with free boards).
     pub lidar_planes: usize,
 }
 
 /// See [`Calibration::pose_covariance`].
 pub type PoseCovariance = nalgebra::SMatrix<f64, 12, 12>;
+
+/// See [`Calibration::shared_covariance`].
+pub type SharedMatrix = nalgebra::SMatrix<f64, { crate::solve::SHARED }, { crate::solve::SHARED }>;
 
 impl Calibration {
     /// Boards the run placed with the LiDAR by their holes (0 without an extrinsic).
@@ -192,6 +200,14 @@ impl Calibration {
             Some(_) => self.boards.iter().filter(|b| !b.holes_lidar.is_empty()).count(),
             None => 0,
         }
+    }
+
+    /// How far off a projection can be over the image, its point held at `range_m`
+    /// ([`projection_map`]); `None` for a failed run.
+    pub fn projection_map(&self, range_m: f64) -> Option<crate::result::ProjectionMap> {
+        let covariance = self.shared_covariance.as_ref()?;
+        let lidar = self.lidar_to_camera.as_ref();
+        Some(projection_map::projection_map(&self.camera, covariance, lidar, range_m))
     }
 
     /// A used board's hole centres in the camera frame, placed by its solved pose.
@@ -364,6 +380,8 @@ fn gated(
     let fallback_camera = nominal_camera(room, default_fov(room.camera.model));
     match solved {
         Ok(mut calibration) => {
+            calibration.result.projection_uncertainty =
+                calibration.projection_map(room.quality.projection_range_m);
             if let Err(reason) = gate::gate(room, frames, options, &calibration) {
                 calibration.result.status = Status::Rejected;
                 let notes = calibration.notes.iter().map(|n| format!("; {n}"));
@@ -380,6 +398,7 @@ fn gated(
             iterations: 0,
             notes: Vec::new(),
             pose_covariance: None,
+            shared_covariance: None,
             lidar_planes: 0,
         },
     }

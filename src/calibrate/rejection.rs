@@ -18,6 +18,15 @@ pub enum Rejection {
     FocalUncertain { fx_px: f64, fy_px: f64, limit_rel: f64 },
     /// The principal point's σ over `max_sigma_principal_px`.
     PrincipalUncertain { cx_px: f64, cy_px: f64, limit_px: f64 },
+    /// A projection over the room's `region` more uncertain than `max_projection_sigma_px`:
+    /// the worst grid pixel `at_px`, its point held `range_m` along the ray.
+    ProjectionUncertain {
+        sigma_px: f64,
+        at_px: [f64; 2],
+        range_m: f64,
+        limit_px: f64,
+        region: [f64; 4],
+    },
     /// The room has a LiDAR and nothing placed it.
     LidarUncalibrated { needed: u32 },
     /// No board placed by its holes, and the LiDAR's angle table is the model's nominal one.
@@ -77,6 +86,17 @@ impl fmt::Display for Rejection {
                 f,
                 "principal point uncertain: σ cx {cx_px:.2} px, cy {cy_px:.2} px (limit {limit_px} px)"
             ),
+            Rejection::ProjectionUncertain { sigma_px, at_px, range_m, limit_px, region } => {
+                let over = match region {
+                    [0.0, 0.0, 1.0, 1.0] => "the image".to_string(),
+                    [u0, v0, u1, v1] => format!("the room's region [{u0}, {v0}, {u1}, {v1}]"),
+                };
+                write!(
+                    f,
+                    "a projection is uncertain by {sigma_px:.2} px (1σ, a point {range_m} m away) at pixel ({:.0}, {:.0}), at most {limit_px} px allowed over {over}: add boards that cover that part of the image, or narrow `[quality] region` to the part the camera is used in",
+                    at_px[0], at_px[1]
+                )
+            }
             Rejection::LidarUncalibrated { needed } => write!(
                 f,
                 "the LiDAR was not calibrated: no board or surveyed plane placed it (the room has a \
@@ -168,6 +188,26 @@ mod tests {
             (
                 Rejection::Coverage { coverage: 0.3125, min: 0.4 },
                 "corners cover 31 % of the image, at least 40 % needed",
+            ),
+            (
+                Rejection::ProjectionUncertain {
+                    sigma_px: 8.4249,
+                    at_px: [1919.0, 0.0],
+                    range_m: 10.0,
+                    limit_px: 3.0,
+                    region: [0.0, 0.0, 1.0, 1.0],
+                },
+                "a projection is uncertain by 8.42 px (1σ, a point 10 m away) at pixel (1919, 0), at most 3 px allowed over the image: add boards that cover that part of the image, or narrow `[quality] region` to the part the camera is used in",
+            ),
+            (
+                Rejection::ProjectionUncertain {
+                    sigma_px: 4.41,
+                    at_px: [119.9375, 599.5],
+                    range_m: 5.0,
+                    limit_px: 2.5,
+                    region: [0.05, 0.0, 0.95, 1.0],
+                },
+                "a projection is uncertain by 4.41 px (1σ, a point 5 m away) at pixel (120, 600), at most 2.5 px allowed over the room's region [0.05, 0, 0.95, 1]: add boards that cover that part of the image, or narrow `[quality] region` to the part the camera is used in",
             ),
             (
                 Rejection::FocalUncertain { fx_px: 12.346, fy_px: 9.0, limit_rel: 0.01 },

@@ -814,6 +814,7 @@ fn calibration(
         iterations,
         notes,
         pose_covariance: Some(pose_covariance(sigma)),
+        shared_covariance: Some(shared.matrix),
         lidar_planes: if with_lidar { planes } else { 0 },
     }
 }

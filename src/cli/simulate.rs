@@ -41,8 +41,9 @@ pub struct SimulateArgs {
     #[arg(long, value_parser = sim_lidar())]
     lidar: Option<Model>,
     /// Board arrangement: a grid over the image, or a row at the LiDAR's dense band plus
-    /// two boards in the top corners.
-    #[arg(long, value_enum, default_value = "grid")]
+    /// two boards in the top corners; `auto`: the band for one scene of a room with a
+    /// LiDAR (where the LiDAR places the boards by their holes), the grid otherwise.
+    #[arg(long, value_enum, default_value = "auto")]
     layout: LayoutArg,
     /// Seed of the rig's true LiDAR mounting (default: --seed): scenes with one rig seed
     /// are frames of one vehicle, for multi-frame calibrations.
@@ -131,6 +132,7 @@ fn sim_lidar() -> impl TypedValueParser<Value = Model> {
 
 #[derive(Clone, Copy, ValueEnum)]
 enum LayoutArg {
+    Auto,
     Grid,
     Band,
 }
@@ -138,7 +140,7 @@ enum LayoutArg {
 /// `roomcal simulate`: a scene, a visited room, or a rig (in a visited room).
 pub fn run(args: SimulateArgs) -> Result<(), Failure> {
     let room = roomcal::room::load(&args.room).map_err(bad_input)?;
-    let options = options(&args);
+    let options = options(&args, &room);
     let mut layout = None;
     if let Some(visits) = args.visits {
         let count = usize::from(visits);
@@ -157,7 +159,12 @@ pub fn run(args: SimulateArgs) -> Result<(), Failure> {
 }
 
 /// The simulation's options from the command line's.
-fn options(args: &SimulateArgs) -> SimOptions {
+fn options(args: &SimulateArgs, room: &roomcal::target::Room) -> SimOptions {
+    // A scene's boards at the LiDAR's dense band get scan lines across their holes; visits
+    // and rigs keep the grid their surveys and rooms were made with.
+    let one_scene = args.visits.is_none() && args.rig.is_none() && args.ring_boards.is_none();
+    let beams = room.lidar.as_ref().and_then(|l| args.lidar.or(l.model));
+    let band = one_scene && beams.and_then(sim::raycast::beam_elevations).is_some();
     SimOptions {
         seed: args.seed,
         boards: args.boards,
@@ -170,7 +177,8 @@ fn options(args: &SimulateArgs) -> SimOptions {
         lidar: args.lidar,
         range_noise_m: args.range_noise,
         layout: match args.layout {
-            LayoutArg::Grid => sim::Layout::Grid,
+            LayoutArg::Auto if band => sim::Layout::Band,
+            LayoutArg::Auto | LayoutArg::Grid => sim::Layout::Grid,
             LayoutArg::Band => sim::Layout::Band,
         },
         rig_seed: args.rig_seed,

@@ -43,6 +43,7 @@ pub fn result(model: CameraModel) -> CalibrationResult {
         quality: Quality::default(),
         boards: Vec::new(),
         camera_in_room: None,
+        projection_uncertainty: None,
     }
 }
 
@@ -72,6 +73,7 @@ pub fn rig_result() -> RigResult {
         status: Status::Accepted,
         reason: None,
         solved_with: None,
+        projection_uncertainty: None,
     };
     let sensors = [
         ("front", sensor(Some(pair.camera.clone()))),

@@ -81,7 +81,7 @@ fn rejected_run_keeps_exit_code_3_and_says_why_in_one_plain_line() {
     // Six boards needed, the four-board fixture's room asks for them all: at count 7 the
     // gate must reject (the room file is the fixture's with a larger count).
     let dir = Scratch::new("cli-rejected");
-    let room = std::fs::read_to_string(fixture("four-boards-vlp32c/room.toml")).unwrap();
+    let room = std::fs::read_to_string(fixture("four-boards-vlp32c-rejected/room.toml")).unwrap();
     let room = room.replace("count = 4", "count = 7");
     assert!(room.contains("count = 7"), "the fixture room changed: {room}");
     let room_path = dir.join("room.toml");
@@ -92,9 +92,9 @@ fn rejected_run_keeps_exit_code_3_and_says_why_in_one_plain_line() {
         "--room",
         room_path.to_str().unwrap(),
         "--image",
-        fixture("four-boards-vlp32c/image.png").to_str().unwrap(),
+        fixture("four-boards-vlp32c-rejected/image.png").to_str().unwrap(),
         "--cloud",
-        fixture("four-boards-vlp32c/cloud.pcd").to_str().unwrap(),
+        fixture("four-boards-vlp32c-rejected/cloud.pcd").to_str().unwrap(),
         "--out",
         out.to_str().unwrap(),
         "--quiet",
@@ -119,7 +119,7 @@ fn a_run_stopped_before_its_solve_prints_no_placeholder_as_a_result() {
         "--image",
         fixture("six-boards-pandar64/image.png").to_str().unwrap(),
         "--cloud",
-        fixture("four-boards-vlp32c/cloud.pcd").to_str().unwrap(),
+        fixture("four-boards-vlp32c-rejected/cloud.pcd").to_str().unwrap(),
         "--out",
         out.to_str().unwrap(),
     ]);

@@ -48,6 +48,7 @@ fn result(fx: f64, status: Status) -> RigResult {
         quality: Quality { corner_rms_px: 0.25, hole_rms_px: 0.5, boards: 6 },
         boards: vec![],
         camera_in_room: None,
+        projection_uncertainty: None,
     })
 }
 

@@ -44,7 +44,7 @@ fn six_boards_pandar64() {
 #[test]
 fn four_boards_vlp32c() {
     check(
-        "four-boards-vlp32c",
+        "four-boards-vlp32c-rejected",
         "fixtures/rooms/four-boards-vlp32c.toml",
         SimOptions {
             seed: 8,

@@ -64,6 +64,19 @@ fn a_room_is_the_one_pair_rig() {
 }
 
 #[test]
+fn a_cameras_region_is_its_pair_rooms_and_the_rooms_otherwise() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/rig.toml");
+    let rig = roomcal::rig::load(&path).unwrap();
+    let room_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/room.toml");
+    let room = roomcal::room::load(&room_path).unwrap();
+    let (front, wide) = (rig.find("front").unwrap().1, rig.find("wide").unwrap().1);
+    assert_eq!(rig.cameras[wide].region, Some([0.15, 0.15, 0.85, 0.85]));
+    assert_eq!(rig.pair_room(&room, wide, None).quality.region, [0.15, 0.15, 0.85, 0.85]);
+    assert_eq!(rig.cameras[front].region, None);
+    assert_eq!(rig.pair_room(&room, front, None).quality.region, room.quality.region);
+}
+
+#[test]
 fn every_refusal_names_the_file_the_sensor_and_the_key() {
     let cases: &[(&str, &str, &[&str])] = &[
         ("name = \"front\"", "name = \"Front\"", &["rig.toml", "camera 1", "`name`", "Front"]),
@@ -92,6 +105,16 @@ fn every_refusal_names_the_file_the_sensor_and_the_key() {
             &["camera `front`", "`rotation`", "reference"],
         ),
         ("height = 1200", "height = 1200\nlens = 3", &["rig.toml", "lens"]),
+        (
+            "height = 1200",
+            "height = 1200\nregion = [0.6, 0.0, 0.4, 1.0]",
+            &["rig.toml", "camera `front`", "`region`", "empty"],
+        ),
+        (
+            "height = 1200",
+            "height = 1200\nregion = [0.0, -0.1, 1.0, 1.0]",
+            &["camera `front`", "`region[1]` = -0.1"],
+        ),
     ];
     for (from, to, needles) in cases {
         assert!(DESIGN_EXAMPLE.contains(from), "{from}");

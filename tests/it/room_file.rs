@@ -186,6 +186,20 @@ fn every_number_is_range_checked_before_use() {
     }
     let m = error_of(&format!("{GOOD}\n[quality]\nmin_boards = 17\n"));
     assert_mentions(&m, &["`quality.min_boards` = 17"]);
+    for (line, words) in [
+        ("region = [0.5, 0.0, 0.4, 1.0]", &["`quality.region`", "is empty", "u0 < u1"][..]),
+        ("region = [0.0, 0.0, 1.5, 1.0]", &["`quality.region[2]` = 1.5"][..]),
+        ("region = [0.0, 0.0, 1.0]", &["region = [0.0, 0.0, 1.0]", "length 4"][..]),
+        ("max_projection_sigma_px = 0.0", &["`quality.max_projection_sigma_px` = 0"][..]),
+    ] {
+        assert_mentions(&error_of(&format!("{GOOD}\n[quality]\n{line}\n")), words);
+    }
+    let judged = format!(
+        "{GOOD}\n[quality]\nregion = [0.1, 0.0, 0.9, 1.0]\nmax_projection_sigma_px = 2.5\n"
+    );
+    let room = parse(&judged, Path::new("room.toml")).expect("a region and a map limit");
+    assert_eq!(room.quality.region, [0.1, 0.0, 0.9, 1.0]);
+    assert_eq!(room.quality.max_projection_sigma_px, Some(2.5));
     // Nominal intrinsics inside the ranges are accepted.
     let nominal = GOOD.replacen(
         camera,

@@ -40,6 +40,7 @@ fn result(tag: f64, status: Status) -> RigResult {
         quality: Quality { corner_rms_px: 0.2, hole_rms_px: 0.7, boards: 6 },
         boards: vec![],
         camera_in_room: None,
+        projection_uncertainty: None,
     })
 }
 

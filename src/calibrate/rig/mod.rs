@@ -142,6 +142,7 @@ pub fn calibrate_rig(
         entry.camera = Some(run.result.camera.clone());
         entry.uncertainty = Some(run.result.uncertainty.clone());
         entry.camera_in_room = run.result.camera_in_room.clone();
+        entry.projection_uncertainty = run.result.projection_uncertainty.clone();
         if let (true, Some(in_room), Some(_)) =
             (surveyed, &run.result.camera_in_room, rig.lidars.first())
         {
@@ -175,6 +176,7 @@ pub fn calibrate_rig(
                 status: Status::Rejected,
                 reason: Some(SensorRejection::NoBoardSeen.to_string()),
                 solved_with: None,
+                projection_uncertainty: None,
             },
         };
         entry.lidar = true;
@@ -428,6 +430,10 @@ fn judge_camera(
     })?;
     gate::corners_fit(q, joint.report.corner_rms_px[c])?;
     gate::covers(q, gate::coverage(&run.camera, &run.boards))?;
+    if let Some(map) = &entry.projection_uncertainty {
+        let region = rig.cameras[c].region.unwrap_or(q.region);
+        gate::projection_certain(&crate::target::QualitySpec { region, ..q.clone() }, map)?;
+    }
     if let (Some(camera), Some(u)) = (&entry.camera, &entry.uncertainty) {
         gate::intrinsics_certain(q, camera, u)?;
     }
@@ -519,6 +525,7 @@ fn sensor_entry(run: &Calibration, solved_with: Option<String>) -> SensorResult 
         status: run.result.status,
         reason: run.result.reason.clone(),
         solved_with,
+        projection_uncertainty: None,
     }
 }
 
