@@ -39,6 +39,7 @@ mod lidar_roundtrip;
 mod lidar_sweep;
 mod memory_budget;
 mod pcap;
+mod report;
 mod rig_calibrate;
 mod rig_cli;
 mod rig_file;
