@@ -135,7 +135,8 @@ fn text_and_the_colour_bar_stay_off_the_frame_and_refused_planes_get_short_tags(
         .filter(|(_, _, p)| **p == REFUSED)
         .map(|(x, y, _)| ((f64::from(x) - mark.0).powi(2) + (f64::from(y) - mark.1).powi(2)).sqrt())
         .fold(0.0, f64::max);
-    assert!(far > 0.0 && far < 150.0, "refused orange reaches {far:.0} px from its mark");
+    // The ring reaches 18 px; the tags stand beyond it, the sentences are not there.
+    assert!(far > 30.0 && far < 150.0, "refused orange reaches {far:.0} px from its mark");
     let orange_below = footer.iter().filter(|p| ***p == REFUSED).count();
     assert!(
         orange_below > 3 * 300,
@@ -209,5 +210,6 @@ fn an_intrinsics_only_run_draws_no_hole_marks_points_or_bar() {
     }
     assert!(!picture.pixels().any(palette_like), "LiDAR colours without a LiDAR");
     let white = picture.pixels().filter(|p| **p == CORNER).count();
-    assert!(white > 6 * 54 * 17, "corners not marked: {white} px");
+    // 17 px a cross; a far board's crosses overlap.
+    assert!(white > 6 * 54 * 10, "corners not marked: {white} px");
 }
