@@ -402,14 +402,16 @@ fn legend(
         entries.push((Mark::HoleFromLidar, text.into()));
     }
     if points {
-        let (palette, text) = match several {
+        const FAMILIES: &[Palette] =
+            &[Palette::Family(0), Palette::Family(1), Palette::Family(2), Palette::Family(3)];
+        let (palettes, text) = match several {
             true => (
-                Palette::Family(0),
+                &FAMILIES[..input.lidars.len().min(FAMILIES.len())],
                 "LiDAR points by range, one colour family per LiDAR (bars below)",
             ),
-            false => (Palette::Rainbow, "LiDAR points, coloured by range (bar below)"),
+            false => (&[Palette::Rainbow][..], "LiDAR points, coloured by range (bar below)"),
         };
-        entries.push((Mark::Points(palette), text.into()));
+        entries.push((Mark::Points(palettes), text.into()));
     }
     if refused {
         entries.push((
