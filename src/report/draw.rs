@@ -46,22 +46,6 @@ impl Palette {
     }
 }
 
-/// The fully saturated colour of `degrees` at brightness `value` (0–1).
-fn hue(degrees: f64, value: f64) -> Rgb<u8> {
-    let h = degrees.rem_euclid(360.0) / 60.0;
-    let x = 1.0 - (h % 2.0 - 1.0).abs();
-    let (r, g, b) = match h as u32 {
-        0 => (1.0, x, 0.0),
-        1 => (x, 1.0, 0.0),
-        2 => (0.0, 1.0, x),
-        3 => (0.0, x, 1.0),
-        4 => (x, 0.0, 1.0),
-        _ => (1.0, 0.0, x),
-    };
-    let v = |c: f64| (c * value * 255.0) as u8;
-    Rgb([v(r), v(g), v(b)])
-}
-
 /// The camera's grey frame, dimmed, as the picture's background; a frame of another size
 /// than the camera's draws black where it has no pixel.
 pub fn grey_frame(grey: &[u8], camera: &Camera) -> RgbImage {
@@ -102,65 +86,6 @@ pub fn draw_points(
     (Some(max), drawn)
 }
 
-/// The cloud's points in view: pixel and range from the camera.
-fn in_view<'c>(
-    (motion, points, _): Cloud<'c>,
-    view: &'c ViewBounds,
-    camera: &'c Camera,
-) -> impl Iterator<Item = (Vec2, f64)> + 'c {
-    points.iter().filter_map(move |p| {
-        let q = motion.act(&p.position());
-        view.project(camera, &q).map(|px| (px, q.norm()))
-    })
-}
-
-/// The part of the undistorted image plane (x/z, y/z) the image sees, with a margin: a
-/// radial-tangential lens folds points far outside it back into the frame, so points
-/// beyond it are not drawn.
-struct ViewBounds {
-    min: Vec2,
-    max: Vec2,
-}
-
-impl ViewBounds {
-    fn of(camera: &Camera) -> ViewBounds {
-        let (w, h) = (camera.width as f64, camera.height as f64);
-        let mut min = Vec2::new(f64::MAX, f64::MAX);
-        let mut max = Vec2::new(f64::MIN, f64::MIN);
-        for k in 0..=16 {
-            let t = k as f64 / 16.0;
-            for px in [
-                Vec2::new(t * w, 0.0),
-                Vec2::new(t * w, h),
-                Vec2::new(0.0, t * h),
-                Vec2::new(w, t * h),
-            ] {
-                if let Some(ray) = camera.unproject(&px).filter(|r| r.z > 1e-6) {
-                    let n = Vec2::new(ray.x / ray.z, ray.y / ray.z);
-                    min = Vec2::new(min.x.min(n.x), min.y.min(n.y));
-                    max = Vec2::new(max.x.max(n.x), max.y.max(n.y));
-                }
-            }
-        }
-        let margin = (max - min) * 0.1;
-        ViewBounds { min: min - margin, max: max + margin }
-    }
-
-    /// The pixel of a camera-frame point inside the view (fisheyes: any point in front).
-    fn project(&self, camera: &Camera, q: &Vec3) -> Option<Vec2> {
-        if camera.model == crate::geometry::CameraModel::PinholeRadtan {
-            if q.z <= 0.0 {
-                return None;
-            }
-            let n = Vec2::new(q.x / q.z, q.y / q.z);
-            if n.x < self.min.x || n.y < self.min.y || n.x > self.max.x || n.y > self.max.y {
-                return None;
-            }
-        }
-        camera.project(q)
-    }
-}
-
 /// The range (m) the colour scale spans: the 98th percentile of the drawn points' ranges
 /// rounded up to 5 m, so that a few far returns do not wash the scene into one colour.
 pub fn colour_span(ranges: impl Iterator<Item = f64>) -> Option<f64> {
@@ -198,7 +123,7 @@ pub fn put(image: &mut RgbImage, x: i64, y: i64, colour: Rgb<u8>) {
 
 /// Integer pixel of a mark, `None` far outside the image (projections of points behind
 /// a wide lens can land anywhere).
-pub fn anchor(image: &RgbImage, at: &Vec2) -> Option<(i64, i64)> {
+fn anchor(image: &RgbImage, at: &Vec2) -> Option<(i64, i64)> {
     let margin = 64.0;
     let inside = at.x > -margin
         && at.y > -margin
@@ -302,6 +227,81 @@ pub fn label(image: &mut RgbImage, at: &Rect, text: &str, colour: Rgb<u8>, scale
     let s = i64::from(scale);
     panel(image, at);
     font::draw_text(image, at.x + 2 * s, at.y + s, scale, text, colour);
+}
+
+/// The fully saturated colour of `degrees` at brightness `value` (0–1).
+fn hue(degrees: f64, value: f64) -> Rgb<u8> {
+    let h = degrees.rem_euclid(360.0) / 60.0;
+    let x = 1.0 - (h % 2.0 - 1.0).abs();
+    let (r, g, b) = match h as u32 {
+        0 => (1.0, x, 0.0),
+        1 => (x, 1.0, 0.0),
+        2 => (0.0, 1.0, x),
+        3 => (0.0, x, 1.0),
+        4 => (x, 0.0, 1.0),
+        _ => (1.0, 0.0, x),
+    };
+    let v = |c: f64| (c * value * 255.0) as u8;
+    Rgb([v(r), v(g), v(b)])
+}
+
+/// The cloud's points in view: pixel and range from the camera.
+fn in_view<'c>(
+    (motion, points, _): Cloud<'c>,
+    view: &'c ViewBounds,
+    camera: &'c Camera,
+) -> impl Iterator<Item = (Vec2, f64)> + 'c {
+    points.iter().filter_map(move |p| {
+        let q = motion.act(&p.position());
+        view.project(camera, &q).map(|px| (px, q.norm()))
+    })
+}
+
+/// The part of the undistorted image plane (x/z, y/z) the image sees, with a margin: a
+/// radial-tangential lens folds points far outside it back into the frame, so points
+/// beyond it are not drawn.
+struct ViewBounds {
+    min: Vec2,
+    max: Vec2,
+}
+
+impl ViewBounds {
+    fn of(camera: &Camera) -> ViewBounds {
+        let (w, h) = (camera.width as f64, camera.height as f64);
+        let mut min = Vec2::new(f64::MAX, f64::MAX);
+        let mut max = Vec2::new(f64::MIN, f64::MIN);
+        for k in 0..=16 {
+            let t = k as f64 / 16.0;
+            for px in [
+                Vec2::new(t * w, 0.0),
+                Vec2::new(t * w, h),
+                Vec2::new(0.0, t * h),
+                Vec2::new(w, t * h),
+            ] {
+                if let Some(ray) = camera.unproject(&px).filter(|r| r.z > 1e-6) {
+                    let n = Vec2::new(ray.x / ray.z, ray.y / ray.z);
+                    min = Vec2::new(min.x.min(n.x), min.y.min(n.y));
+                    max = Vec2::new(max.x.max(n.x), max.y.max(n.y));
+                }
+            }
+        }
+        let margin = (max - min) * 0.1;
+        ViewBounds { min: min - margin, max: max + margin }
+    }
+
+    /// The pixel of a camera-frame point inside the view (fisheyes: any point in front).
+    fn project(&self, camera: &Camera, q: &Vec3) -> Option<Vec2> {
+        if camera.model == crate::geometry::CameraModel::PinholeRadtan {
+            if q.z <= 0.0 {
+                return None;
+            }
+            let n = Vec2::new(q.x / q.z, q.y / q.z);
+            if n.x < self.min.x || n.y < self.min.y || n.x > self.max.x || n.y > self.max.y {
+                return None;
+            }
+        }
+        camera.project(q)
+    }
 }
 
 /// Darkens a box so that text on it reads over any frame.

@@ -15,8 +15,8 @@ pub enum Mark {
     Corner,
     HoleFromBoard,
     HoleFromLidar,
-    /// One dot per palette (the LiDARs' families; or the rainbow's range).
-    Points(&'static [Palette]),
+    /// The points of this many LiDARs ([`Palette::for_lidar`]).
+    Points(usize),
     Refused,
 }
 
@@ -157,12 +157,12 @@ fn draw_legend(
                 super::draw::cross(image, &at, 2 * s, HOLE_LIDAR);
                 HOLE_LIDAR
             }
-            Mark::Points(palettes) => {
-                // Four dots: the rainbow's spread, or each family's near colour.
+            Mark::Points(lidars) => {
+                // Four dots: the rainbow's spread, or each LiDAR's family's near colour.
                 for i in 0..4 {
-                    let colour = match palettes {
-                        [one] => one.colour(0.05 + 0.3 * i as f64),
-                        many => many[i % many.len()].colour(0.0),
+                    let colour = match *lidars {
+                        0 | 1 => Palette::Rainbow.colour(0.05 + 0.3 * i as f64),
+                        n => Palette::for_lidar(i % n, n).colour(0.0),
                     };
                     let p = Vec2::new(at.x + (i as f64 - 1.5) * 3.0 * s as f64, at.y);
                     dot(image, &p, s / 2, colour);
@@ -203,7 +203,7 @@ mod tests {
     fn the_footer_leaves_the_frame_untouched() {
         let frame = RgbImage::new(300, 50);
         let bar = Bar { title: "LiDAR".into(), palette: Palette::Rainbow };
-        let legend = [(Mark::Points(&[Palette::Rainbow]), "points".to_string())];
+        let legend = [(Mark::Points(1), "points".to_string())];
         let lines = [("ACCEPTED".to_string(), TEXT)];
         let image = with_footer(&frame, &lines, &legend, &[bar], Some(15.0), 1);
         assert!(image.height() > 50 + range_bar_height(1) as u32, "the bar below the frame");

@@ -402,16 +402,11 @@ fn legend(
         entries.push((Mark::HoleFromLidar, text.into()));
     }
     if points {
-        const FAMILIES: &[Palette] =
-            &[Palette::Family(0), Palette::Family(1), Palette::Family(2), Palette::Family(3)];
-        let (palettes, text) = match several {
-            true => (
-                &FAMILIES[..input.lidars.len().min(FAMILIES.len())],
-                "LiDAR points by range, one colour family per LiDAR (bars below)",
-            ),
-            false => (&[Palette::Rainbow][..], "LiDAR points, coloured by range (bar below)"),
+        let text = match several {
+            true => "LiDAR points by range, one colour family per LiDAR (bars below)",
+            false => "LiDAR points, coloured by range (bar below)",
         };
-        entries.push((Mark::Points(palettes), text.into()));
+        entries.push((Mark::Points(input.lidars.len()), text.into()));
     }
     if refused {
         entries.push((
