@@ -264,7 +264,7 @@ fn note_refused(args: &CalibrateArgs, refused: &[Vec<RefusedBoard>], progress: &
     }
 }
 
-/// The report picture of the first frame (see `roomcal::report::calibration_report`).
+/// The report picture of the first frame (see `roomcal::report::ReportInput::calibration`).
 fn write_report(
     path: &Path,
     first: Option<&GreyImage>,
@@ -274,7 +274,8 @@ fn write_report(
 ) -> Result<(), Failure> {
     let Some(first) = first else { return Ok(()) };
     let cloud: Vec<&[Point]> = clouds.first().map(|c| c.as_slice()).into_iter().collect();
-    roomcal::report::calibration_report(&first.data, &cloud, run, refused)
+    let input = roomcal::report::ReportInput::calibration(&first.data, &cloud, run, refused);
+    roomcal::report::report(&input)
         .save(path)
         .with_context(|| format!("writing the report {}", path.display()))
         .map_err(bad_input)
@@ -389,7 +390,7 @@ fn print_rig_summary(result: &RigResult, quiet: bool, out: &Path, written: &[Pat
 /// The rig's report pictures, one per camera ([`roomcal::report::camera_path`]: `report.png`
 /// → `report-front.png`): the camera's frame (its frames averaged) with every LiDAR's sweep
 /// and hole centres drawn through the solved rig, its corners and the verdicts
-/// ([`roomcal::report::rig_camera_report`]). A camera without a solved model is left out.
+/// ([`roomcal::report::ReportInput::rig`]). A camera without a solved model is left out.
 /// Returns the files written.
 fn write_rig_reports(
     report: &Path,
@@ -409,10 +410,8 @@ fn write_rig_reports(
             sweeps: &sweeps,
             lidar_boards: &lidar_boards,
         };
-        let Some(picture) = roomcal::report::rig_camera_report(rig, result, c, &frame.data, &marks)
-        else {
-            continue;
-        };
+        let input = roomcal::report::ReportInput::rig(rig, result, c, &frame.data, &marks);
+        let Some(picture) = input.as_ref().map(roomcal::report::report) else { continue };
         let path = roomcal::report::camera_path(report, &camera.name);
         picture
             .save(&path)

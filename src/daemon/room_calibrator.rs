@@ -80,7 +80,7 @@ impl RoomCalibrator {
     /// Also writes every run's report picture (PNG, as `roomcal calibrate --report` draws
     /// it) to `path`, atomically, e.g. the store's `last-run.png`; a rig's run writes one
     /// per camera, the camera's name before the extension (`last-run-front.png`: its frame
-    /// with every LiDAR drawn through the solved rig, [`crate::report::rig_camera_report`]).
+    /// with every LiDAR drawn through the solved rig, [`crate::report::ReportInput::rig`]).
     pub fn with_report(mut self, path: PathBuf) -> Self {
         self.report = Some(path);
         self
@@ -97,8 +97,8 @@ impl RoomCalibrator {
     ) {
         let Some(path) = &self.report else { return };
         let clouds: Vec<&[Point]> = sweep.map(|s| s.as_slice()).into_iter().collect();
-        let picture = crate::report::calibration_report(&frame.pixels, &clouds, run, refused);
-        write_picture(path, &picture);
+        let input = crate::report::ReportInput::calibration(&frame.pixels, &clouds, run, refused);
+        write_picture(path, &crate::report::report(&input));
     }
 }
 
@@ -228,9 +228,10 @@ impl RoomCalibrator {
                     sweeps: &sweeps,
                     lidar_boards: &lidar_boards,
                 };
-                let picture =
-                    crate::report::rig_camera_report(rig, &run.result, c, &frame.pixels, &marks);
-                if let Some(picture) = picture {
+                let input =
+                    crate::report::ReportInput::rig(rig, &run.result, c, &frame.pixels, &marks);
+                if let Some(input) = input {
+                    let picture = crate::report::report(&input);
                     write_picture(&crate::report::camera_path(path, &camera.name), &picture);
                 }
             }

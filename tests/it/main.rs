@@ -40,6 +40,7 @@ mod lidar_sweep;
 mod memory_budget;
 mod pcap;
 mod projection_gate;
+mod report;
 mod rig_calibrate;
 mod rig_cli;
 mod rig_file;

@@ -255,7 +255,7 @@ fn a_rig_is_calibrated_in_the_room_its_visits_surveyed() {
         assert!(text.contains(&format!("camera_name: {name}\n")), "{text}");
     }
     // --report: one picture per camera, the camera's frame (and a footer below it) with
-    // every LiDAR's points, the camera's corners (green) and the LiDARs' hole centres (red).
+    // every LiDAR's points, the camera's corners (white) and the LiDARs' hole centres (red).
     for name in ["front", "wide"] {
         let path = dir.join(format!("report-{name}.png"));
         let picture = image::open(&path).unwrap_or_else(|e| panic!("{path:?}: {e}")).to_rgb8();
@@ -265,7 +265,7 @@ fn a_rig_is_calibrated_in_the_room_its_visits_surveyed() {
         let count = |rgb: [u8; 3]| frame.pixels().filter(|p| p.0 == rgb).count();
         let coloured = frame.pixels().filter(|p| p[0].abs_diff(p[1]) > 40).count();
         assert!(coloured > 10_000, "{name}: {coloured} coloured pixels: no LiDAR points drawn");
-        assert!(count([0, 230, 0]) > 6 * 35 * 4, "{name}: corners not marked");
+        assert!(count(roomcal::report::CORNER.0) > 6 * 35 * 4, "{name}: corners not marked");
         assert!(count([255, 40, 40]) > 3 * 4 * 10, "{name}: LiDAR hole centres not marked");
     }
     let kit = std::fs::read_to_string(dir.join("exports/sensor_kit_calibration.yaml")).unwrap();
