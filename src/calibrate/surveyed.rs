@@ -3,8 +3,9 @@
 //! which also gives the vehicle's room→camera pose; the LiDAR's boards are paired as in
 //! the free model; the LiDAR's points near every surveyed plane are selected with the
 //! room pose and the extrinsic (registration against the room model, no global search);
-//! then the rig problem with one camera and one LiDAR (`solve::room`) refines intrinsics, extrinsic, ONE room→camera pose (frames are a
-//! standing vehicle) and every seen board and plane within its survey σ.
+//! then the rig problem with one camera and one LiDAR (`solve::room`) refines intrinsics,
+//! extrinsic, ONE room→camera pose (frames are a standing vehicle) and every seen board
+//! and plane within its survey σ.
 //!
 //! A board whose solved pose lies far outside its survey σ (moved, knocked over) is
 //! named, left out, and the room solved again; two such boards reject the run. When the

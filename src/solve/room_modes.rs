@@ -2,11 +2,11 @@
 //!
 //! A survey's errors go together: its planes turn as one against its boards, its boards
 //! share the errors of the visits that saw them. A calibration that holds every board and
-//! plane by its own σ (the rig problem's priors, [`super::rig::BlockPrior`]) cannot know that, and pays for it: over
-//! ten new vehicles in a 16-visit survey the Cramér–Rao analysis puts one frame's
-//! translation at 2.4 mm RMS with per-block priors against 1.8 mm with the joint
-//! covariance, the rotation at 0.029° against 0.020° (`studies/crb_bound.py
-//! --survey-visits`, `per_block_prior_errors`).
+//! plane by its own σ (the rig problem's priors, [`super::rig::BlockPrior`]) cannot know
+//! that, and pays for it: over ten new vehicles in a 16-visit survey the Cramér–Rao
+//! analysis puts one frame's translation at 2.4 mm RMS with per-block priors against
+//! 1.8 mm with the joint covariance, the rotation at 0.029° against 0.020°
+//! (`studies/crb_bound.py --survey-visits`, `per_block_prior_errors`).
 //!
 //! The joint prior couples every block, which the Schur complement over blocks cannot
 //! carry; so the room is moved by **modes** instead. The covariance `C = Σ σᵢ² vᵢ vᵢᵀ`
@@ -137,7 +137,8 @@ impl<C: Projector + Clone, const B: usize> SchurProblem<ModesParams<C, B>, MODES
         &self,
         params: &ModesParams<C, B>,
     ) -> Result<SchurSystem<MODES_SHARED, 0>, SolveError> {
-        let room = self.room.measurement_equations(&params.room, 0)?;
+        let mut room = SchurSystem::new(self.room.priors().len(), 0);
+        self.room.add_measurements(&params.room, &mut room)?;
         self.condense(&room, Some(&params.amplitudes)).finite()
     }
 
