@@ -3,8 +3,9 @@
 //! which also gives the vehicle's room→camera pose; the LiDAR's boards are paired as in
 //! the free model; the LiDAR's points near every surveyed plane are selected with the
 //! room pose and the extrinsic (registration against the room model, no global search);
-//! then `solve::room` refines intrinsics, extrinsic, ONE room→camera pose (frames are a
-//! standing vehicle) and every seen board and plane within its survey σ.
+//! then the rig problem with one camera and one LiDAR (`solve::room`) refines intrinsics,
+//! extrinsic, ONE room→camera pose (frames are a standing vehicle) and every seen board
+//! and plane within its survey σ.
 //!
 //! A board whose solved pose lies far outside its survey σ (moved, knocked over) is
 //! named, left out, and the room solved again; two such boards reject the run. When the
@@ -28,13 +29,12 @@ use crate::detect::planes::{
 use crate::geometry::{Camera, Se3, Vec3};
 use crate::lidar::Point;
 use crate::result::Extrinsic;
-use crate::solve::room::{
-    plane_frame, room_covariance, solve_room, BlockPrior, RoomParams, RoomProblem, RoomReport,
-    SchurProblem, ROOM_SHARED,
-};
+use crate::solve::rig::{plane_frame, rig_covariance, solve_rig, BlockPrior};
+use crate::solve::room::{pair_observation, RoomParams, RoomProblem, RoomReport, ROOM_SHARED};
 use crate::solve::room_modes::{
     modes_covariance, solve_modes, ModeBasis, ModesParams, ModesProblem,
 };
+use crate::solve::schur::SchurProblem;
 use crate::solve::{
     covariance::SharedCovariance, hole_sigma_px, BoardObservation, JointParams, Loss, ParamMask,
     PlanePoints, SolveReport, Termination, SHARED,
@@ -141,7 +141,7 @@ pub(super) fn solve_surveyed(
                 // new vehicles in a 16-visit survey (seed 4), with the survey weighted the same
                 // way: σ/bound 1.18–1.21 → 1.02–1.10, errors alike (`studies/surveyed_study.py`).
                 let mut problem: Problem<'_> =
-                    RoomProblem::new(corner_noise, 2.0, Loss::Huber(3.0));
+                    RoomProblem::new([corner_noise], 2.0, Loss::Huber(3.0));
                 let blocks = add_observations(
                     &mut problem,
                     survey,
@@ -154,21 +154,22 @@ pub(super) fn solve_surveyed(
                     &faces,
                     camera.fx,
                 )?;
-                let mut p = problem.params_at_priors(camera, ext, room_to_camera);
+                let mut p =
+                    problem.params_at_priors([camera], [Se3::identity()], [ext], [room_to_camera]);
                 if let Some(previous) = &params {
                     let previous: &Params = previous;
-                    (p.camera, p.lidar_to_camera, p.room_to_camera) =
-                        (previous.camera, previous.lidar_to_camera, previous.room_to_camera);
+                    (p.cameras, p.lidar_to_first, p.room_to_first) =
+                        (previous.cameras, previous.lidar_to_first, previous.room_to_first);
                 }
-                let report = solve_room(&problem, &mut p, 100)?;
+                let report = solve_rig(&problem, &mut p, 100)?;
                 iterations += report.iterations;
                 if pass == 0 {
                     planes = room_planes(
                         survey,
                         &surveyed,
                         clouds,
-                        &p.room_to_camera,
-                        &p.lidar_to_camera,
+                        &p.room_to_first[0],
+                        &p.lidar_to_first[0],
                         Some(&planes),
                     );
                     faces = unpaired_faces(
@@ -177,8 +178,8 @@ pub(super) fn solve_surveyed(
                         &identified,
                         unpaired,
                         clouds,
-                        &p.room_to_camera,
-                        &p.lidar_to_camera,
+                        &p.room_to_first[0],
+                        &p.lidar_to_first[0],
                     );
                     params = Some(p);
                     continue;
@@ -196,7 +197,7 @@ pub(super) fn solve_surveyed(
                 // free-board solve has one): over ten new vehicles in a 16-visit surveyed
                 // room it moved the overlay at 10 m from 0.44 to 0.64 px RMS and the rotation
                 // from 0.016 to 0.020° (`studies/surveyed_study.py`). The σ are
-                // still each kind's own (`room_covariance`).
+                // still each kind's own (`rig_covariance`).
                 // Held by the survey's joint covariance when it has one. A covariance the solve
                 // cannot use (a hand-edited file, σ far beyond any measurement) leaves the
                 // per-block solution, said in the notes: the run is not lost to it.
@@ -215,7 +216,7 @@ pub(super) fn solve_surveyed(
                         (p, joint, sigma)
                     }
                     None => {
-                        let sigma = room_covariance(&problem, &p)?;
+                        let sigma = rig_covariance(&problem, &p)?.matrix;
                         (p, report, sigma)
                     }
                 };
@@ -233,7 +234,7 @@ pub(super) fn solve_surveyed(
                     &holes_board,
                     iterations,
                     &left_out,
-                );
+                )?;
                 if let (None, Some((j, worst, median))) = (&misplaced, hole_outlier(room, &run)) {
                     let (frame, _, board, _) = &identified[keep[j]];
                     let name = MisplacedHoles {
@@ -594,7 +595,7 @@ fn add_observations<'a>(
             hole_sigma_px: pair.map(|p| hole_sigma_px(fx, p.sigma_m, pose.translation.z)),
             plane: face_of(pairs, faces, i),
         };
-        problem.add_observation(block, observation)?;
+        problem.add_observation(pair_observation(block, observation))?;
     }
     for (index, points) in planes {
         let s = &survey.planes[*index];
@@ -606,7 +607,7 @@ fn add_observations<'a>(
         let block = problem.add_block(prior)?;
         blocks.push(SurveyEntry::Plane(*index));
         let observation = BoardObservation { plane: Some(*points), ..BoardObservation::default() };
-        problem.add_observation(block, observation)?;
+        problem.add_observation(pair_observation(block, observation))?;
     }
     Ok(blocks)
 }
@@ -712,7 +713,12 @@ fn jointly(
 ) -> Result<(Params, RoomReport, nalgebra::SMatrix<f64, ROOM_SHARED, ROOM_SHARED>), SolveFailure> {
     let joint = ModesProblem::new(problem, modes.sigma, basis)?;
     let mut params = ModesParams {
-        room: problem.params_at_priors(start.camera, start.lidar_to_camera, start.room_to_camera),
+        room: problem.params_at_priors(
+            start.cameras,
+            [Se3::identity()],
+            start.lidar_to_first,
+            start.room_to_first,
+        ),
         amplitudes: nalgebra::SVector::zeros(),
     };
     let initial_cost = joint.cost(&params)?;
@@ -749,7 +755,8 @@ fn worst_moved(
         .max_by(|a, b| a.1.total_cmp(&b.1)))
 }
 
-/// The run's outcome from the solved room problem.
+/// The run's outcome from the solved room problem (an error only for `params` that are not
+/// the problem's).
 #[allow(clippy::too_many_arguments)]
 fn calibration(
     room: &Room,
@@ -765,9 +772,13 @@ fn calibration(
     holes_board: &[Vec3],
     iterations: usize,
     left_out: &[usize],
-) -> Calibration {
-    let joint: JointParams<Camera, MAX_OBSERVATIONS> = problem.joint_params(params);
-    let with_lidar = room.lidar.is_some() && problem.sees_lidar();
+) -> Result<Calibration, SolveFailure> {
+    let joint: JointParams<Camera, MAX_OBSERVATIONS> = JointParams {
+        camera: params.cameras[0],
+        lidar_to_camera: params.lidar_to_first[0],
+        board_poses: problem.board_poses(params)?,
+    };
+    let with_lidar = room.lidar.is_some() && problem.sees_lidar(0);
     let boards: Vec<UsedBoard> = keep
         .iter()
         .zip(joint.board_poses.iter())
@@ -785,7 +796,7 @@ fn calibration(
         residual_variance: 1.0,
         dof: report.residuals,
         mask: ParamMask::free(),
-        // `room_covariance` applied each kind's factor; this summary does not carry them.
+        // `rig_covariance` applied each kind's factor; this summary does not carry them.
         kind_variances: crate::solve::lm::KindWeights::ALL,
     };
     let solve_report = SolveReport {
@@ -795,20 +806,20 @@ fn calibration(
         termination: Termination::CostConverged,
         residuals: report.residuals,
         free_parameters: ROOM_SHARED,
-        corner_rms_px: report.corner_rms_px,
-        hole_rms_px: report.hole_rms_px,
+        corner_rms_px: report.corner_rms_px[0],
+        hole_rms_px: report.hole_rms_px[0],
         final_lambda: 0.0,
     };
     let mut result = accepted(&joint, &solve_report, &shared.uncertainty(), &boards, with_lidar);
-    result.camera_in_room = Some(Extrinsic::from_se3(&params.room_to_camera.inverse()));
+    result.camera_in_room = Some(Extrinsic::from_se3(&params.room_to_first[0].inverse()));
     let notes = left_out
         .iter()
         .map(|b| format!("board {b} disagrees with the survey and was left out"))
         .collect();
-    Calibration {
+    Ok(Calibration {
         result,
-        camera: params.camera,
-        lidar_to_camera: with_lidar.then_some(params.lidar_to_camera),
+        camera: params.cameras[0],
+        lidar_to_camera: with_lidar.then_some(params.lidar_to_first[0]),
         boards,
         holes_board: holes_board.to_vec(),
         iterations,
@@ -816,7 +827,7 @@ fn calibration(
         pose_covariance: Some(pose_covariance(sigma)),
         shared_covariance: Some(shared.matrix),
         lidar_planes: if with_lidar { planes } else { 0 },
-    }
+    })
 }
 
 /// LiDAR → camera and room → camera blocks of the room covariance (with their cross

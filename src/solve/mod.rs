@@ -1,14 +1,15 @@
 //! The numeric core of a calibration run (no_std, no heap): closed-form initialisation
 //! (homography, Zhang, board pose, Kabsch), the joint Levenberg–Marquardt problem over
 //! intrinsics, the LiDAR→camera extrinsic and every board pose reduced with the Schur
-//! complement, and the covariance of the shared parameters; the surveyed room as one
-//! rigid target ([`room`]) and a whole rig of cameras and LiDARs in it ([`rig`]).
+//! complement, and the covariance of the shared parameters; a whole rig of cameras and
+//! LiDARs in a surveyed room, the room one rigid target ([`rig`]), of which the calibration
+//! of one camera and one LiDAR there is the rig of one of each ([`room`]).
 //!
 //! One solver: every problem implements [`minimize::Problem`] and is solved by the one
 //! [`minimize::minimize`] (one damping, one termination rule; each problem states its
 //! [`minimize::Settings`]); the problems with pose blocks share the one Schur system
 //! ([`schur`]). Each module imports only modules before it in `linalg`, `minimize`,
-//! `problem`, `schur`, `lm`, `covariance`, `room`, `rig`, `room_modes` (no import
+//! `problem`, `schur`, `lm`, `covariance`, `rig`, `room`, `room_modes` (no import
 //! circle); `init` (closed forms and pose refinement) imports `linalg`, `minimize` and
 //! `problem`, and no module imports it.
 //!

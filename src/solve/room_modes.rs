@@ -2,11 +2,11 @@
 //!
 //! A survey's errors go together: its planes turn as one against its boards, its boards
 //! share the errors of the visits that saw them. A calibration that holds every board and
-//! plane by its own σ ([`super::room`]'s priors) cannot know that, and pays for it: over
-//! ten new vehicles in a 16-visit survey the Cramér–Rao analysis puts one frame's
-//! translation at 2.4 mm RMS with per-block priors against 1.8 mm with the joint
-//! covariance, the rotation at 0.029° against 0.020° (`studies/crb_bound.py
-//! --survey-visits`, `per_block_prior_errors`).
+//! plane by its own σ (the rig problem's priors, [`super::rig::BlockPrior`]) cannot know
+//! that, and pays for it: over ten new vehicles in a 16-visit survey the Cramér–Rao
+//! analysis puts one frame's translation at 2.4 mm RMS with per-block priors against
+//! 1.8 mm with the joint covariance, the rotation at 0.029° against 0.020°
+//! (`studies/crb_bound.py --survey-visits`, `per_block_prior_errors`).
 //!
 //! The joint prior couples every block, which the Schur complement over blocks cannot
 //! carry; so the room is moved by **modes** instead. The covariance `C = Σ σᵢ² vᵢ vᵢᵀ`
@@ -27,7 +27,8 @@ use nalgebra::{SMatrix, SVector};
 
 use super::covariance::{pooled_variance, reduced_inverse, variance_factor};
 use super::problem::ResidualKind;
-use super::room::{self, apply_room_step, RoomParams, RoomProblem, ROOM_SHARED};
+use super::rig::{apply_rig_step, SETTINGS};
+use super::room::{RoomParams, RoomProblem, ROOM_SHARED};
 use super::schur::{self, SchurProblem, SchurSystem};
 use super::{Projector, SolveError};
 
@@ -136,7 +137,8 @@ impl<C: Projector + Clone, const B: usize> SchurProblem<ModesParams<C, B>, MODES
         &self,
         params: &ModesParams<C, B>,
     ) -> Result<SchurSystem<MODES_SHARED, 0>, SolveError> {
-        let room = self.room.measurement_equations(&params.room, 0)?;
+        let mut room = SchurSystem::new(self.room.priors().len(), 0);
+        self.room.add_measurements(&params.room, &mut room)?;
         self.condense(&room, Some(&params.amplitudes)).finite()
     }
 
@@ -162,13 +164,13 @@ impl<C: Projector + Clone, const B: usize> SchurProblem<ModesParams<C, B>, MODES
         }
         let room_step = shared.fixed_rows::<ROOM_SHARED>(0).into_owned();
         ModesParams {
-            room: apply_room_step(&params.room, &room_step, &blocks),
+            room: apply_rig_step(&params.room, &room_step, &blocks),
             amplitudes: params.amplitudes + step,
         }
     }
 
     fn structural_mask(&self, params: &ModesParams<C, B>) -> [bool; MODES_SHARED] {
-        let room = self.room.structural_mask(&params.room.camera);
+        let room = self.room.structural_mask(&params.room);
         core::array::from_fn(|i| match i {
             i if i < ROOM_SHARED => room[i],
             i => self.sigma[i - ROOM_SHARED] <= 0.0,
@@ -183,7 +185,7 @@ pub fn solve_modes<C: Projector + Clone, const B: usize>(
     params: &mut ModesParams<C, B>,
     max_iterations: usize,
 ) -> Result<usize, SolveError> {
-    let settings = room::SETTINGS.with_max_iterations(max_iterations);
+    let settings = SETTINGS.with_max_iterations(max_iterations);
     Ok(schur::solve(problem, params, &settings)?.0.iterations)
 }
 

@@ -3,9 +3,9 @@
 //!
 //! Per block `U_k` (6×6), `W_k` (N×6) and `g_k`; one `V` (N×N) and `g` over the shared
 //! parameters. The reduced system `S = V − Σ W_k U_k⁻¹ W_kᵀ` is factorised (Cholesky) and
-//! each block's update back-substituted. The free-board problem ([`super::lm`]), the room
-//! ([`super::room`]), the rig ([`super::rig`]) and the room modes
-//! ([`super::room_modes`]) accumulate into it; the last three through [`SchurProblem`],
+//! each block's update back-substituted. The free-board problem ([`super::lm`]), the rig
+//! ([`super::rig`], the surveyed room's one pair among them, [`super::room`]) and the room
+//! modes ([`super::room_modes`]) accumulate into it; the last two through [`SchurProblem`],
 //! solved by [`solve`] (the one [`minimize`]). Fixed size: nothing here allocates.
 
 use core::marker::PhantomData;

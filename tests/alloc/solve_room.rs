@@ -1,23 +1,23 @@
-//! The surveyed-room problem (`solve::room`): its analytic Jacobians against central
-//! differences, its solve recovering a perturbed start on exact data, and no heap
-//! allocation inside the solve and the covariance (counting allocator). The same for the
-//! room moved by the survey's modes (`solve::room_modes`): its condensed equations against
-//! the numeric gradient and Hessian of its cost, and its solution equal to the per-block
-//! priors' when every mode moves one axis of one block by that block's σ.
+//! The surveyed room seen by one camera and one LiDAR (`solve::room`: the rig problem with
+//! one of each and one frame): its analytic Jacobians against central differences, its
+//! solve recovering a perturbed start on exact data, no heap allocation inside the solve
+//! and the covariance (counting allocator), and its solution, σ and block costs on a noisy
+//! scene equal to the former one-pair room solver's (`tests/solve_data/room_one_pair.txt`).
+//! The same for the room moved by the survey's modes (`solve::room_modes`): its condensed
+//! equations against the numeric gradient and Hessian of its cost, and its solution equal
+//! to the per-block priors' when every mode moves one axis of one block by that block's σ.
 
 use crate::common::stack::Stacker;
 use crate::counting_alloc::count_allocations;
 use nalgebra::{SMatrix, SVector};
 use roomcal::geometry::se3::so3_exp;
 use roomcal::geometry::{Camera, CameraModel, Se3, Vec2, Vec3};
-use roomcal::solve::room::{
-    apply_room_step, plane_frame, room_covariance, solve_room, BlockPrior, RoomParams, RoomProblem,
-    ROOM_SHARED,
-};
-use roomcal::solve::room::{SchurProblem, SchurSystem};
+use roomcal::solve::rig::{apply_rig_step, plane_frame, rig_covariance, solve_rig, BlockPrior};
+use roomcal::solve::room::{pair_observation, RoomParams, RoomProblem, ROOM_SHARED};
 use roomcal::solve::room_modes::{
     modes_covariance, solve_modes, ModeBasis, ModesParams, ModesProblem, MAX_MODES, MODES_SHARED,
 };
+use roomcal::solve::schur::{SchurProblem, SchurSystem};
 use roomcal::solve::{BoardObservation, Loss, PlanePoints};
 
 const B: usize = 16;
@@ -123,7 +123,7 @@ fn scene() -> Scene {
 }
 
 fn problem(s: &Scene) -> RoomProblem<'_, B> {
-    let mut p = RoomProblem::new(0.1, 1.0, Loss::Huber(3.0));
+    let mut p = RoomProblem::new([0.1], 1.0, Loss::Huber(3.0));
     for (i, b) in s.boards.iter().enumerate() {
         let k = p
             .add_block(BlockPrior { pose: *b, sigma_m: 0.0005, sigma_rad: 0.01f64.to_radians() })
@@ -136,30 +136,58 @@ fn problem(s: &Scene) -> RoomProblem<'_, B> {
             hole_sigma_px: None,
             plane: Some(s.board_planes[i]),
         };
-        p.add_observation(k, obs).unwrap();
+        p.add_observation(pair_observation(k, obs)).unwrap();
     }
     for (frame, pts) in &s.planes {
         let k = p
             .add_block(BlockPrior { pose: *frame, sigma_m: 0.002, sigma_rad: 0.01f64.to_radians() })
             .unwrap();
-        p.add_observation(k, BoardObservation { plane: Some(*pts), ..Default::default() }).unwrap();
+        let obs = BoardObservation { plane: Some(*pts), ..Default::default() };
+        p.add_observation(pair_observation(k, obs)).unwrap();
     }
     p
 }
 
 /// A start away from the truth in every parameter.
 fn perturbed(s: &Scene, p: &RoomProblem<'_, B>) -> RoomParams<Camera, B> {
-    let mut params = p.params_at_priors(s.camera, s.extrinsic, s.room_to_camera);
-    params.camera.fx *= 1.01;
-    params.camera.cx += 4.0;
-    params.lidar_to_camera.translation.y += 0.03;
-    params.lidar_to_camera.rotation =
-        so3_exp(&Vec3::new(0.0, 0.01, 0.0)) * params.lidar_to_camera.rotation;
-    params.room_to_camera.translation.x += 0.04;
-    params.room_to_camera.rotation =
-        so3_exp(&Vec3::new(0.0, 0.0, 0.01)) * params.room_to_camera.rotation;
+    let mut params = at_truth(s, p);
+    params.cameras[0].fx *= 1.01;
+    params.cameras[0].cx += 4.0;
+    let ext = &mut params.lidar_to_first[0];
+    ext.translation.y += 0.03;
+    ext.rotation = so3_exp(&Vec3::new(0.0, 0.01, 0.0)) * ext.rotation;
+    let room = &mut params.room_to_first[0];
+    room.translation.x += 0.04;
+    room.rotation = so3_exp(&Vec3::new(0.0, 0.0, 0.01)) * room.rotation;
     params.blocks[1].translation.z += 0.001;
     params
+}
+
+/// The scene's camera, extrinsic and room pose, every block at its prior.
+fn at_truth(s: &Scene, p: &RoomProblem<'_, B>) -> RoomParams<Camera, B> {
+    p.params_at_priors([s.camera], [Se3::identity()], [s.extrinsic], [s.room_to_camera])
+}
+
+/// The scene with noisy corners, so that the priors matter: a fixed pattern of ±0.3 px.
+fn noisy(s: Scene) -> Scene {
+    let corners = s
+        .corners
+        .iter()
+        .enumerate()
+        .map(|(b, cs)| {
+            cs.iter()
+                .enumerate()
+                .map(|(i, c)| {
+                    c + 0.3
+                        * Vec2::new(
+                            ((b * 31 + i * 7) as f64).sin(),
+                            ((b * 17 + i * 11) as f64).cos(),
+                        )
+                })
+                .collect()
+        })
+        .collect();
+    Scene { corners, ..s }
 }
 
 /// All whitened residuals (measurements then priors) as one vector, and the analytic
@@ -204,7 +232,7 @@ fn analytic_jacobians_match_central_differences() {
             } else {
                 steps[(col - ROOM_SHARED) / 6][(col - ROOM_SHARED) % 6] = sign * h;
             }
-            stacked(&p, &apply_room_step(&params, &shared, &steps), blocks).0
+            stacked(&p, &apply_rig_step(&params, &shared, &steps), blocks).0
         };
         let (plus, minus) = (shifted(1.0), shifted(-1.0));
         for (row, line) in analytic.iter().enumerate() {
@@ -222,8 +250,8 @@ fn solve_recovers_the_truth_without_heap_allocation() {
     let p = problem(&s);
     let mut params = perturbed(&s, &p);
     let ((report, cov), count) = count_allocations(|| {
-        let report = solve_room(&p, &mut params, 50);
-        let cov = room_covariance(&p, &params);
+        let report = solve_rig(&p, &mut params, 50);
+        let cov = rig_covariance(&p, &params);
         (report, cov)
     });
     let report = report.unwrap();
@@ -232,10 +260,11 @@ fn solve_recovers_the_truth_without_heap_allocation() {
         report.iterations > 1 && report.final_cost < 1e-6 * report.initial_cost.max(1.0),
         "{report:?}"
     );
-    assert!((params.camera.fx - s.camera.fx).abs() < 1e-3, "fx {}", params.camera.fx);
-    assert!((params.lidar_to_camera.translation - s.extrinsic.translation).norm() < 1e-5);
-    assert!((params.room_to_camera.translation - s.room_to_camera.translation).norm() < 1e-5);
-    let cov: SMatrix<f64, ROOM_SHARED, ROOM_SHARED> = cov.unwrap();
+    let fx = params.cameras[0].fx;
+    assert!((fx - s.camera.fx).abs() < 1e-3, "fx {fx}");
+    assert!((params.lidar_to_first[0].translation - s.extrinsic.translation).norm() < 1e-5);
+    assert!((params.room_to_first[0].translation - s.room_to_camera.translation).norm() < 1e-5);
+    let cov: SMatrix<f64, ROOM_SHARED, ROOM_SHARED> = cov.unwrap().matrix;
     assert!((0..ROOM_SHARED).all(|i| cov[(i, i)] >= 0.0));
 }
 
@@ -296,15 +325,12 @@ fn condensed_modes_equations_are_the_gradient_and_hessian_of_their_cost() {
     let p = problem(&s);
     let (sigma, basis) = correlated_modes(&p);
     let modes = ModesProblem::new(&p, sigma, &basis).unwrap();
-    let truth = ModesParams {
-        room: p.params_at_priors(s.camera, s.extrinsic, s.room_to_camera),
-        amplitudes: SVector::zeros(),
-    };
+    let truth = ModesParams { room: at_truth(&s, &p), amplitudes: SVector::zeros() };
     let skip = |i: usize| (4 + s.camera.num_params()..9).contains(&i) || i >= ROOM_SHARED + 20;
     // The gradient, away from the truth (residuals and amplitudes not zero).
     let mut away = stepped(&modes, &truth, ROOM_SHARED + 3, 0.5);
-    away.room.camera.cx += 2.0;
-    away.room.lidar_to_camera.translation.y += 0.01;
+    away.room.cameras[0].cx += 2.0;
+    away.room.lidar_to_first[0].translation.y += 0.01;
     let ne: SchurSystem<MODES_SHARED, 0> = modes.normal_equations(&away).unwrap();
     for i in (0..MODES_SHARED).filter(|&i| !skip(i)) {
         let h = step_of(i);
@@ -338,30 +364,11 @@ fn condensed_modes_equations_are_the_gradient_and_hessian_of_their_cost() {
 
 #[test]
 fn independent_modes_solve_as_the_blocks_own_priors_without_heap_allocation() {
-    let s = scene();
-    // Noisy corners, so that the priors matter: a fixed pattern of ±0.3 px.
-    let noisy: Vec<Vec<Vec2>> = s
-        .corners
-        .iter()
-        .enumerate()
-        .map(|(b, cs)| {
-            cs.iter()
-                .enumerate()
-                .map(|(i, c)| {
-                    c + 0.3
-                        * Vec2::new(
-                            ((b * 31 + i * 7) as f64).sin(),
-                            ((b * 17 + i * 11) as f64).cos(),
-                        )
-                })
-                .collect()
-        })
-        .collect();
-    let scene_noisy = Scene { corners: noisy, ..s };
+    let scene_noisy = noisy(scene());
     let p_noisy = problem(&scene_noisy);
     let mut blocks = perturbed(&scene_noisy, &p_noisy);
-    solve_room(&p_noisy, &mut blocks, 50).unwrap();
-    let blocks_cov = room_covariance(&p_noisy, &blocks).unwrap();
+    solve_rig(&p_noisy, &mut blocks, 50).unwrap();
+    let blocks_cov = rig_covariance(&p_noisy, &blocks).unwrap().matrix;
     let (sigma, basis) = independent_modes(&p_noisy);
     let modes = ModesProblem::new(&p_noisy, sigma, &basis).unwrap();
     let mut params =
@@ -377,14 +384,12 @@ fn independent_modes_solve_as_the_blocks_own_priors_without_heap_allocation() {
     assert!(iterations.unwrap() > 1);
     let cov = cov.unwrap();
     let got = &params.room;
-    assert!(
-        (got.camera.fx - blocks.camera.fx).abs() < 1e-6 * blocks.camera.fx,
-        "fx {} vs {}",
-        got.camera.fx,
-        blocks.camera.fx
-    );
-    assert!((got.lidar_to_camera.translation - blocks.lidar_to_camera.translation).norm() < 1e-7);
-    assert!((got.room_to_camera.translation - blocks.room_to_camera.translation).norm() < 1e-7);
+    let (fx, want) = (got.cameras[0].fx, blocks.cameras[0].fx);
+    assert!((fx - want).abs() < 1e-6 * want, "fx {fx} vs {want}");
+    let ext = |p: &RoomParams<Camera, B>| p.lidar_to_first[0].translation;
+    let room = |p: &RoomParams<Camera, B>| p.room_to_first[0].translation;
+    assert!((ext(got) - ext(&blocks)).norm() < 1e-7);
+    assert!((room(got) - room(&blocks)).norm() < 1e-7);
     for (a, b) in got.blocks.iter().zip(&blocks.blocks) {
         assert!((a.translation - b.translation).norm() < 1e-7);
     }
@@ -392,4 +397,87 @@ fn independent_modes_solve_as_the_blocks_own_priors_without_heap_allocation() {
         let (x, y) = (cov[(i, i)], blocks_cov[(i, i)]);
         assert!((x - y).abs() <= 1e-4 * y.max(1e-30), "σ² of parameter {i}: {x:e} vs {y:e}");
     }
+}
+
+/// Every number of a solve as `tests/solve_data/room_one_pair.txt` lists them: label, values.
+fn figures(p: &RoomProblem<'_, B>, start: &RoomParams<Camera, B>) -> Vec<(String, Vec<f64>)> {
+    let pose = |s: &Se3| s.rotation.iter().chain(s.translation.iter()).copied().collect();
+    let mut params = start.clone();
+    let r = solve_rig(p, &mut params, 100).unwrap();
+    let mut out: Vec<(String, Vec<f64>)> = vec![
+        (
+            "REPORT".into(),
+            vec![
+                r.iterations as f64,
+                r.initial_cost,
+                r.final_cost,
+                r.residuals as f64,
+                r.corner_rms_px[0],
+                r.hole_rms_px[0],
+            ],
+        ),
+        ("CAMERA".into(), params.cameras[0].params().to_vec()),
+        ("EXT".into(), pose(&params.lidar_to_first[0])),
+        ("ROOM".into(), pose(&params.room_to_first[0])),
+    ];
+    out.extend(params.blocks.iter().map(|b| ("BLOCK".to_string(), pose(b))));
+    let cov = rig_covariance(p, &params).unwrap().matrix;
+    out.push(("COV".into(), cov.iter().copied().collect()));
+    let costs = p.block_costs(&params).unwrap();
+    out.push(("COSTS".into(), costs.iter().flat_map(|&(m, q)| [m, q]).collect()));
+    let (sigma, basis) = correlated_modes(p);
+    let modes = ModesProblem::new(p, sigma, &basis).unwrap();
+    let room = p.params_at_priors(
+        params.cameras,
+        [Se3::identity()],
+        params.lidar_to_first,
+        params.room_to_first,
+    );
+    let mut joint = ModesParams { room, amplitudes: SVector::zeros() };
+    let iterations = solve_modes(&modes, &mut joint, 100).unwrap();
+    let mcov = modes_covariance(&modes, &joint).unwrap();
+    let mut head = vec![iterations as f64];
+    head.extend(joint.room.cameras[0].params());
+    head.extend(joint.amplitudes.iter());
+    out.push(("MODES".into(), head));
+    out.push(("MEXT".into(), pose(&joint.room.lidar_to_first[0])));
+    out.push(("MROOM".into(), pose(&joint.room.room_to_first[0])));
+    out.push(("MCOV".into(), mcov.iter().copied().collect()));
+    out
+}
+
+/// The rig problem with one camera, one LiDAR and one frame is the former one-pair room
+/// solver: from the same noisy scene and start, every figure it gave (the solve's report,
+/// intrinsics, extrinsic, room pose, blocks, the 21×21 covariance, each block's measurement
+/// and prior cost, and the room modes' solve from that solution with their covariance)
+/// agrees to 1e-12 relative.
+#[test]
+fn the_one_pair_rig_solve_is_the_former_room_solve() {
+    let text = include_str!("../solve_data/room_one_pair.txt");
+    let recorded: Vec<(String, Vec<f64>)> = text
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .map(|l| {
+            let mut words = l.split_whitespace();
+            let label = words.next().unwrap().to_string();
+            (label, words.map(|w| w.parse().unwrap()).collect())
+        })
+        .collect();
+    let s = noisy(scene());
+    let p = problem(&s);
+    let got = figures(&p, &perturbed(&s, &p));
+    assert_eq!(got.len(), recorded.len(), "lines");
+    let mut worst: (f64, String) = (0.0, String::new());
+    for ((label, values), (want_label, want)) in got.iter().zip(&recorded) {
+        assert_eq!(label, want_label);
+        assert_eq!(values.len(), want.len(), "{label}");
+        for (i, (a, b)) in values.iter().zip(want).enumerate() {
+            let difference = (a - b).abs() / a.abs().max(b.abs()).max(1e-300);
+            if difference > worst.0 {
+                worst = (difference, format!("{label}[{i}]: {a:e} vs {b:e}"));
+            }
+        }
+    }
+    println!("largest relative difference {:e} ({})", worst.0, worst.1);
+    assert!(worst.0 <= 1e-12, "largest relative difference {:e} at {}", worst.0, worst.1);
 }

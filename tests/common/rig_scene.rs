@@ -13,8 +13,8 @@
 
 use roomcal::geometry::se3::so3_exp;
 use roomcal::geometry::{Camera, CameraModel, Se3, Vec2, Vec3};
+use roomcal::solve::rig::{plane_frame, BlockPrior};
 use roomcal::solve::rig::{rig_shared, RigObservation, RigParams, RigProblem};
-use roomcal::solve::room::{plane_frame, BlockPrior};
 use roomcal::solve::{hole_sigma_px, BoardObservation, Loss, PlanePoints};
 
 pub const C: usize = 2;

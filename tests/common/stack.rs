@@ -1,5 +1,5 @@
-//! Dense stacking of a problem made of shared unknowns and 6-DoF blocks (`solve::room`,
-//! `solve::rig`): every whitened residual, measurements then priors, as one vector, and
+//! Dense stacking of a problem made of shared unknowns and 6-DoF blocks (`solve::rig`,
+//! the surveyed room's pair among them): every whitened residual, measurements then priors, as one vector, and
 //! its analytic Jacobian over `[shared | block 0 | block 1 | …]`, one dense row per
 //! residual, for checks against central differences.
 

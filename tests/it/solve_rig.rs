@@ -10,8 +10,9 @@ use nalgebra::SVector;
 use rig_scene::*;
 use roomcal::geometry::se3::so3_log;
 use roomcal::geometry::Se3;
-use roomcal::solve::rig::{apply_rig_step, inverse_jacobian, rig_covariance, solve_rig};
-use roomcal::solve::room::BlockPrior;
+use roomcal::solve::rig::{
+    apply_rig_step, inverse_jacobian, rig_covariance, solve_rig, BlockPrior,
+};
 use roomcal::solve::Loss;
 
 /// All whitened residuals (measurements then priors) and the analytic Jacobian over

@@ -14,10 +14,9 @@ use crate::lidar::Point;
 use crate::result::Extrinsic;
 use crate::rig::Rig;
 use crate::solve::rig::{
-    rig_covariance, rig_shared, solve_rig, RigCovariance, RigObservation, RigParams, RigProblem,
-    RigReport,
+    plane_frame, rig_covariance, rig_shared, solve_rig, BlockPrior, RigCovariance, RigObservation,
+    RigParams, RigProblem, RigReport,
 };
-use crate::solve::room::{plane_frame, BlockPrior};
 use crate::solve::{hole_sigma_px, BoardObservation, Loss, PlanePoints};
 use crate::target::{Room, SurveySpec};
 
