@@ -5,7 +5,7 @@
 use image::{Rgb, RgbImage};
 
 use super::draw::{diagonal_cross, dot, lines_height, outlined_cross, put, ring, Palette};
-use super::{CORNER, CORNER_OUTLINE, HOLE_CAMERA, HOLE_LIDAR, REFUSED, TEXT};
+use super::{CONTOUR, CORNER, CORNER_OUTLINE, HOLE_CAMERA, HOLE_LIDAR, REFUSED, TEXT};
 use crate::font;
 use crate::geometry::Vec2;
 
@@ -18,6 +18,8 @@ pub enum Mark {
     /// The points of this many LiDARs ([`Palette::for_lidar`]).
     Points(usize),
     Refused,
+    /// The projection map's contours.
+    Contour,
 }
 
 /// One range colour bar: its title (which LiDAR) and its palette.
@@ -172,6 +174,12 @@ fn draw_legend(
             Mark::Refused => {
                 diagonal_cross(image, &at, 3 * s, REFUSED);
                 REFUSED
+            }
+            Mark::Contour => {
+                for x in (at.x as i64 - 5 * s)..=(at.x as i64 + 5 * s) {
+                    put(image, x, at.y as i64, CONTOUR);
+                }
+                CONTOUR
             }
         };
         font::draw_text(image, x + 16 * s, top, scale, text, colour);

@@ -11,6 +11,7 @@
 //! so that none covers another ([`place_labels`]); text is drawn with the built-in bitmap
 //! font ([`crate::font`]).
 
+mod contour;
 mod draw;
 mod footer;
 mod layout;
@@ -21,7 +22,7 @@ use crate::calibrate::{Calibration, CameraBoard, LidarBoard};
 use crate::detect::holes::RefusedBoard;
 use crate::geometry::{Camera, Se3, Vec2, Vec3};
 use crate::lidar::Point;
-use crate::result::Status;
+use crate::result::{ProjectionMap, Status};
 pub use draw::Palette;
 use draw::{diagonal_cross, label, label_size, line, outlined_cross, ring, Cloud};
 use footer::{Bar, Mark};
@@ -37,6 +38,11 @@ pub const REFUSED: Rgb<u8> = Rgb([255, 160, 0]);
 pub const TEXT: Rgb<u8> = Rgb([225, 225, 225]);
 pub const ACCEPTED_TEXT: Rgb<u8> = Rgb([90, 255, 90]);
 pub const REJECTED_TEXT: Rgb<u8> = Rgb([255, 90, 90]);
+/// The projection map's contours: a pink no range palette takes (each has a channel at 0).
+pub const CONTOUR: Rgb<u8> = Rgb([255, 110, 230]);
+
+/// The projection map's contour levels (px, 1σ): within a pixel, a few, an overlay off.
+pub const CONTOUR_LEVELS_PX: [f64; 3] = [1.0, 3.0, 10.0];
 
 /// Everything one picture shows.
 pub struct ReportInput<'a> {
@@ -49,6 +55,8 @@ pub struct ReportInput<'a> {
     pub lidars: Vec<ReportLidar<'a>>,
     /// The footer's text: the verdicts and figures, each line in its colour.
     pub lines: Vec<(String, Rgb<u8>)>,
+    /// The camera's projection map, drawn as contours at [`CONTOUR_LEVELS_PX`].
+    pub map: Option<&'a ProjectionMap>,
 }
 
 /// One board as the report draws it.
@@ -89,11 +97,18 @@ pub fn report(input: &ReportInput<'_>) -> RgbImage {
         .collect();
     let (range_max, drawn) = draw::draw_points(&mut image, camera, &clouds);
     let marks = draw_marks(&mut image, input, &placed);
+    let contours = input.map.map(|m| contour::draw(&mut image, m, &CONTOUR_LEVELS_PX, CONTOUR));
     let refused = draw_refused(&mut image, input, scale);
-    draw_labels(&mut image, input, &refused, scale);
+    let contour_labels = contours.as_deref().unwrap_or_default();
+    draw_labels(&mut image, input, &refused, contour_labels, scale);
     let mut left = input.lines.clone();
     left.extend(refused.iter().map(|r| (r.sentence.clone(), REFUSED)));
-    let legend = legend(input, marks, drawn.iter().any(|n| *n > 0), !refused.is_empty());
+    let mut legend = legend(input, marks, drawn.iter().any(|n| *n > 0), !refused.is_empty());
+    if let (Some(map), false) = (input.map, contour_labels.is_empty()) {
+        let levels: Vec<String> = CONTOUR_LEVELS_PX.iter().map(|l| l.to_string()).collect();
+        let text = format!("projection 1σ contours: {} px at {} m", levels.join(", "), map.range_m);
+        legend.push((Mark::Contour, text));
+    }
     let bars = bars(input, &clouds, &drawn);
     footer::with_footer(&image, &left, &legend, &bars, range_max, scale)
 }
@@ -130,6 +145,7 @@ impl<'a> ReportInput<'a> {
             boards,
             lidars: if has_lidar { vec![lidar] } else { Vec::new() },
             lines: status_lines(run),
+            map: run.result.projection_uncertainty.as_ref(),
         }
     }
 
@@ -141,7 +157,7 @@ impl<'a> ReportInput<'a> {
     /// camera has no solved model.
     pub fn rig(
         rig: &'a crate::rig::Rig,
-        result: &crate::result::RigResult,
+        result: &'a crate::result::RigResult,
         camera: usize,
         grey: &'a [u8],
         marks: &RigMarks<'a>,
@@ -164,7 +180,8 @@ impl<'a> ReportInput<'a> {
             })
             .collect();
         let lines = rig_status_lines(rig, result, name);
-        Some(ReportInput { grey, camera: solved, boards, lidars, lines })
+        let map = result.sensors.get(name)?.projection_uncertainty.as_ref();
+        Some(ReportInput { grey, camera: solved, boards, lidars, lines, map })
     }
 }
 
@@ -198,6 +215,7 @@ pub fn overlay(
         boards: boards.to_vec(),
         lidars: vec![lidar],
         lines: Vec::new(),
+        map: None,
     };
     report(&input)
 }
@@ -304,7 +322,13 @@ fn draw_refused(image: &mut RgbImage, input: &ReportInput<'_>, scale: u32) -> Ve
 /// The board numbers and the refused planes' tags, each placed where it covers no other
 /// label ([`place_labels`]) and, where there is room, no board's corners or refused mark;
 /// a tag set off from its mark gets a line to it.
-fn draw_labels(image: &mut RgbImage, input: &ReportInput<'_>, refused: &[Refused], scale: u32) {
+fn draw_labels(
+    image: &mut RgbImage,
+    input: &ReportInput<'_>,
+    refused: &[Refused],
+    contours: &[(f64, Vec2)],
+    scale: u32,
+) {
     let s = i64::from(scale);
     let big = scale + 1;
     let boxes: Vec<Option<Rect>> = input.boards.iter().map(|b| corner_box(b, 4 * s)).collect();
@@ -334,6 +358,14 @@ fn draw_labels(image: &mut RgbImage, input: &ReportInput<'_>, refused: &[Refused
             size: label_size(&r.tag, scale),
         });
         texts.push((r.tag.clone(), REFUSED, scale, Some(px)));
+    }
+    for (level, px) in contours {
+        let text = format!("{level} px");
+        requests.push(LabelRequest {
+            anchor: (px.x as i64, px.y as i64),
+            size: label_size(&text, scale),
+        });
+        texts.push((text, CONTOUR, scale, None));
     }
     let size = (i64::from(image.width()), i64::from(image.height()));
     let spots = place_labels(size, &avoid, &requests);
@@ -535,6 +567,7 @@ mod tests {
             boards: vec![board],
             lidars: vec![],
             lines: vec![],
+            map: None,
         };
         let mut image = draw::grey_frame(&grey, &camera());
         let marks = draw_marks(&mut image, &input, &[]);

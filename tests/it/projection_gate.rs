@@ -11,23 +11,36 @@ use roomcal::result::{CalibrationResult, ProjectionMap, Status};
 /// `calibrate` of the surveyed fixture (the README's main job) in `room` (its room file's
 /// text): exit code, first stdout line, result file.
 fn calibrate_surveyed(dir: &Path, room: &str) -> (i32, String, CalibrationResult) {
+    calibrate_surveyed_with(dir, room, &[])
+}
+
+fn calibrate_surveyed_with(
+    dir: &Path,
+    room: &str,
+    extra: &[&str],
+) -> (i32, String, CalibrationResult) {
     let room_path = dir.join("room.toml");
     std::fs::write(&room_path, room).unwrap();
     let out = dir.join("result.json");
     let scene = fixture("surveyed-pandar64");
-    let (code, stdout, stderr) = roomcal(&[
-        "calibrate",
-        "--room",
-        room_path.to_str().unwrap(),
-        "--image",
-        scene.join("image.png").to_str().unwrap(),
-        "--cloud",
-        scene.join("cloud.pcap").to_str().unwrap(),
-        "--lidar-calibration",
-        scene.join("angles.csv").to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let (code, stdout, stderr) = roomcal(
+        &[
+            "calibrate",
+            "--room",
+            room_path.to_str().unwrap(),
+            "--image",
+            scene.join("image.png").to_str().unwrap(),
+            "--cloud",
+            scene.join("cloud.pcap").to_str().unwrap(),
+            "--lidar-calibration",
+            scene.join("angles.csv").to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]
+        .into_iter()
+        .chain(extra.iter().copied())
+        .collect::<Vec<_>>(),
+    );
     assert!(code == 0 || code == 3, "{stdout}{stderr}");
     let result = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
     (code, stdout.lines().next().unwrap_or_default().to_string(), result)
@@ -63,6 +76,29 @@ fn every_solved_run_carries_its_map_and_a_room_without_a_limit_is_not_judged_by_
     let (centre, corner) = (value(&map, 959.5, 599.5), value(&map, 0.0, 0.0));
     assert!(centre > 0.05 && centre < 0.5, "centre {centre}");
     assert!(corner > 10.0 * centre, "corner {corner}, centre {centre}");
+}
+
+#[test]
+fn the_report_draws_the_maps_contours_over_the_frame() {
+    let dir = Scratch::new("map-report");
+    let picture = dir.join("report.png");
+    let room = std::fs::read_to_string(fixture("surveyed-pandar64/room.toml")).unwrap();
+    let (code, line, _) =
+        calibrate_surveyed_with(&dir, &room, &["--report", picture.to_str().unwrap()]);
+    assert_eq!(code, 0, "{line}");
+    let image = image::open(&picture).unwrap().to_rgb8();
+    let contour = roomcal::report::CONTOUR;
+    // The frame is the top 1200 rows; the 1 and 3 px contours run down its outer columns
+    // (the map's corners reach 4.4 px) and none crosses the middle.
+    let on = |x0: u32, x1: u32| (0..1200).flat_map(move |y| (x0..x1).map(move |x| (x, y)));
+    let count = |x0, x1| on(x0, x1).filter(|&(x, y)| *image.get_pixel(x, y) == contour).count();
+    assert!(
+        count(0, 300) > 500 && count(1620, 1920) > 500,
+        "{} {}",
+        count(0, 300),
+        count(1620, 1920)
+    );
+    assert_eq!(count(600, 1320), 0);
 }
 
 #[test]

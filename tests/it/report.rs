@@ -109,6 +109,7 @@ fn text_and_the_colour_bar_stay_off_the_frame_and_refused_planes_get_short_tags(
         boards,
         lidars: vec![lidar],
         lines: vec![("ACCEPTED".into(), Rgb([90, 255, 90]))],
+        map: None,
     };
     let picture = report(&input);
     assert_eq!(picture.width(), WIDTH);
@@ -165,6 +166,7 @@ fn each_lidar_has_its_own_colour_family_and_named_bar() {
         boards: vec![],
         lidars: vec![lidar("top", &left[..]), lidar("bumper", &right[..])],
         lines: vec![],
+        map: None,
     };
     let picture = report(&input);
     let frame = frame_part(&picture);
