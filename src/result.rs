@@ -363,7 +363,8 @@ pub struct SensorResult {
     /// The camera (for a LiDAR) or LiDAR (for a camera) whose pair solve gave this sensor.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub solved_with: Option<String>,
-    /// Cameras: how far off a projection can be over the image (its pair solve's map).
+    /// Cameras: how far off a projection can be over the image (the joint solve's map, with
+    /// the LiDAR of its pair run; the pair run's where the rig was composed from pairs).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub projection_uncertainty: Option<ProjectionMap>,
 }

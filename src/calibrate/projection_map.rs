@@ -16,7 +16,8 @@
 
 use nalgebra::{SMatrix, Vector2};
 
-use crate::geometry::{Camera, Mat3, Se3, Vec2, Vec3};
+use crate::geometry::se3::skew;
+use crate::geometry::{Camera, Se3, Vec2, Vec3};
 pub use crate::result::{ProjectionMap, Worst};
 use crate::solve::{Projector, EXT_ROTATION, EXT_TRANSLATION, INTRINSICS, SHARED};
 
@@ -78,10 +79,6 @@ fn largest_eigenvalue2(a: f64, b: f64, d: f64) -> f64 {
     let mean = 0.5 * (a + d);
     let half_gap = Vector2::new(0.5 * (a - d), b).norm();
     mean + half_gap
-}
-
-fn skew(v: &Vec3) -> Mat3 {
-    Mat3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
 }
 
 #[cfg(test)]

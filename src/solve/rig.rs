@@ -49,7 +49,7 @@ use super::linalg::max_eigenvalue3;
 use super::minimize::Settings;
 use super::problem::{BoardObservation, Loss, Noise, ResidualKind};
 use super::schur::{self, SchurProblem, SchurSystem};
-use super::{Projector, SolveError, EXT_ROTATION, INTRINSICS};
+use super::{Projector, SolveError, EXT_ROTATION, INTRINSICS, SHARED};
 use crate::geometry::se3::{skew, so3_left_jacobian_inv, so3_log};
 use crate::geometry::{Mat3, Se3, Vec2, Vec3};
 
@@ -722,6 +722,35 @@ impl<const N: usize> RigCovariance<N> {
     pub fn lidar_to_first(&self, l: usize) -> SMatrix<f64, 6, 6> {
         let at = self.layout.lidar_pose(l);
         self.matrix.fixed_view::<6, 6>(at, at).into_owned()
+    }
+
+    /// Covariance of camera `c`'s shared parameters as a one-pair run has them: its
+    /// intrinsics, then LiDAR `l` → camera `c` (`[δω δt]`, zero without a LiDAR), with
+    /// their cross terms, for the projection map.
+    pub fn camera_shared(
+        &self,
+        c: usize,
+        lidar: Option<(usize, &Se3, &Se3)>,
+    ) -> SMatrix<f64, SHARED, SHARED> {
+        let k = self.layout.intrinsics(c);
+        let mut out = SMatrix::<f64, SHARED, SHARED>::zeros();
+        let intrinsics = self.matrix.fixed_view::<INTRINSICS, INTRINSICS>(k, k);
+        out.fixed_view_mut::<INTRINSICS, INTRINSICS>(0, 0).copy_from(&intrinsics);
+        let Some((l, first_to_camera, lidar_to_first)) = lidar else { return out };
+        let pose = self.lidar_to_camera(l, c, first_to_camera, lidar_to_first);
+        // The pose's perturbation is `to_a δa + to_e δe` (`δe` alone for the first camera).
+        let e = self.layout.lidar_pose(l);
+        let mut cross = self.matrix.fixed_view::<INTRINSICS, 6>(k, e).into_owned();
+        if c > 0 {
+            let (to_a, to_e) = chain(first_to_camera, lidar_to_first);
+            let a = self.layout.camera_pose(c);
+            cross = self.matrix.fixed_view::<INTRINSICS, 6>(k, a) * to_a.transpose()
+                + cross * to_e.transpose();
+        }
+        out.fixed_view_mut::<6, 6>(INTRINSICS, INTRINSICS).copy_from(&pose);
+        out.fixed_view_mut::<INTRINSICS, 6>(0, INTRINSICS).copy_from(&cross);
+        out.fixed_view_mut::<6, INTRINSICS>(INTRINSICS, 0).copy_from(&cross.transpose());
+        out
     }
 
     /// Covariance of the left perturbation of LiDAR `l` → camera `c` = `A_c ∘ E_l`, from

@@ -258,3 +258,63 @@ fn sigma_study(free: bool) {
         );
     }
 }
+
+/// A camera's shared covariance as the projection map takes it (its intrinsics, then
+/// LiDAR → camera with their cross terms) against the joint covariance carried through a
+/// numeric Jacobian: the second camera's mounting and the LiDAR's perturbed on the left
+/// as the solver does, their composition's perturbation read back by `so3_log`.
+#[test]
+fn a_cameras_shared_covariance_is_the_joint_one_carried_through_its_lidar_pose() {
+    use nalgebra::SMatrix;
+    use roomcal::geometry::se3::so3_exp;
+    use roomcal::geometry::Vec3;
+    use roomcal::solve::rig::{RigCovariance, RigLayout};
+    const N: usize = 36;
+    let layout = RigLayout { cameras: 2, lidars: 1, frames: 1 };
+    assert_eq!(layout.len(), N);
+    // A covariance with every cross term: M Mᵀ of a fixed pseudo-random M.
+    let mut seed = 7u64;
+    let m = SMatrix::<f64, N, N>::from_fn(|_, _| {
+        seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+    });
+    let covariance = RigCovariance { layout, matrix: m * m.transpose() * 1e-4 };
+    let first_to_camera = Se3 {
+        rotation: so3_exp(&Vec3::new(0.02, 0.14, -0.01)),
+        translation: Vec3::new(-0.25, 0.01, 0.02),
+    };
+    let lidar_to_first = Se3 {
+        rotation: so3_exp(&Vec3::new(1.2, -1.1, 1.2)),
+        translation: Vec3::new(0.05, 0.42, -0.28),
+    };
+    let got = covariance.camera_shared(1, Some((0, &first_to_camera, &lidar_to_first)));
+
+    let (a, e, k) = (layout.camera_pose(1), layout.lidar_pose(0), layout.intrinsics(1));
+    let nominal = first_to_camera.compose(&lidar_to_first);
+    let shared = |x: &SVector<f64, N>| -> SVector<f64, 15> {
+        let perturbed = |pose: &Se3, at: usize| Se3 {
+            rotation: so3_exp(&Vec3::new(x[at], x[at + 1], x[at + 2])) * pose.rotation,
+            translation: pose.translation + Vec3::new(x[at + 3], x[at + 4], x[at + 5]),
+        };
+        let pose = perturbed(&first_to_camera, a).compose(&perturbed(&lidar_to_first, e));
+        let w = so3_log(&(pose.rotation * nominal.rotation.transpose()));
+        let t = pose.translation - nominal.translation;
+        SVector::<f64, 15>::from_fn(|i, _| match i {
+            0..=8 => x[k + i],
+            9..=11 => w[i - 9],
+            _ => t[i - 12],
+        })
+    };
+    let mut j = SMatrix::<f64, 15, N>::zeros();
+    for i in 0..N {
+        let mut step = SVector::<f64, N>::zeros();
+        step[i] = 1e-6;
+        j.set_column(i, &((shared(&step) - shared(&-step)) / 2e-6));
+    }
+    let expected = j * covariance.matrix * j.transpose();
+    let scale = expected.amax();
+    assert!((got - expected).amax() < 1e-6 * scale, "{}", (got - expected).amax() / scale);
+    let without = covariance.camera_shared(1, None);
+    assert_eq!(without.fixed_view::<9, 9>(0, 0), got.fixed_view::<9, 9>(0, 0));
+    assert_eq!(without.fixed_view::<6, 15>(9, 0).amax(), 0.0);
+}

@@ -40,6 +40,7 @@ use std::collections::BTreeMap;
 
 use nalgebra::{DMatrix, Matrix3};
 
+use super::projection_map::projection_map;
 use super::{
     calibrate_with_clouds, corner_start, gate, CalibrateOptions, Calibration, CameraBoard,
     FrameDetections, LidarAngles, LidarBoard, MovedPose, Rejection,
@@ -47,7 +48,8 @@ use super::{
 use crate::geometry::{se3::so3_log, Se3, Vec3};
 use crate::lidar::Point;
 use crate::result::{
-    CameraResult, Extrinsic, RigExtrinsic, RigResult, SensorResult, Status, Uncertainty,
+    CameraResult, Extrinsic, ProjectionMap, RigExtrinsic, RigResult, SensorResult, Status,
+    Uncertainty,
 };
 use crate::rig::{Rig, SensorKind};
 use crate::solve::linalg::max_eigenvalue3;
@@ -363,6 +365,8 @@ fn judge_jointly(
     let mut failures = Vec::new();
     for (c, camera) in rig.cameras.iter().enumerate() {
         let Some(entry) = result.sensors.get_mut(camera.name.as_str()) else { continue };
+        let lidar = runs.cameras[c].1;
+        entry.projection_uncertainty = Some(joint_map(joint, c, lidar, q.projection_range_m));
         let verdict = judge_camera(joint, room, rig, c, &runs.runs[&runs.cameras[c]], entry);
         set_verdict(entry, verdict);
         note_failure(&mut failures, "camera", camera.name.as_str(), entry);
@@ -444,6 +448,16 @@ fn judge_camera(
         }
         _ => Ok(()),
     }
+}
+
+/// Camera `c`'s projection map from the joint solve: its intrinsics and, with `lidar`, that
+/// LiDAR's pose to it, under the joint covariance.
+fn joint_map(joint: &Joint, c: usize, lidar: Option<usize>, range_m: f64) -> ProjectionMap {
+    let p = &joint.params;
+    let pose = |l: usize| (l, &p.first_to_camera[c], &p.lidar_to_first[l]);
+    let covariance = joint.covariance.camera_shared(c, lidar.map(pose));
+    let to_camera = lidar.map(|l| p.first_to_camera[c].compose(&p.lidar_to_first[l]));
+    projection_map(&p.cameras[c], &covariance, to_camera.as_ref(), range_m)
 }
 
 /// A sensor the free boards do not tie to the first camera: nothing places it.
