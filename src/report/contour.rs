@@ -16,18 +16,25 @@ pub fn draw(
     colour: Rgb<u8>,
 ) -> Vec<(f64, Vec2)> {
     let (w, h) = (image.width() as usize, image.height() as usize);
-    let band = |x: usize, y: usize| -> Option<usize> {
-        let sigma = interpolate(map, x as f64, y as f64)?;
-        Some(levels.iter().take_while(|&&l| l <= sigma).count())
+    // Two rows of bands at a time: a whole frame of them would be a frame-sized buffer
+    // (tens of MB) at the report, the daemon's peak.
+    let row = |y: usize| -> Vec<Option<usize>> {
+        (0..w)
+            .map(|x| {
+                let sigma = interpolate(map, x as f64, y as f64)?;
+                Some(levels.iter().take_while(|&&l| l <= sigma).count())
+            })
+            .collect()
     };
-    let bands: Vec<Option<usize>> =
-        (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).map(|(x, y)| band(x, y)).collect();
     let mut labels: Vec<(f64, Vec2)> = Vec::new();
+    let mut next = row(0);
     for y in 0..h {
+        let here_row =
+            std::mem::replace(&mut next, if y + 1 < h { row(y + 1) } else { Vec::new() });
         for x in 0..w {
-            let here = bands[y * w + x];
-            let right = (x + 1 < w).then(|| bands[y * w + x + 1]);
-            let below = (y + 1 < h).then(|| bands[(y + 1) * w + x]);
+            let here = here_row[x];
+            let right = here_row.get(x + 1).copied();
+            let below = next.get(x).copied();
             let Some(edge) =
                 [right, below].into_iter().flatten().find_map(|other| match (here, other) {
                     (Some(a), Some(b)) if a != b => Some(a.max(b)),

@@ -316,11 +316,12 @@ fn panel(image: &mut RgbImage, at: &Rect) {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use crate::geometry::{CameraModel, Mat3};
 
-    fn camera() -> Camera {
+    /// A 200 × 100 pinhole without distortion, the report's unit tests' camera.
+    pub(in crate::report) fn camera() -> Camera {
         Camera {
             model: CameraModel::PinholeRadtan,
             width: 200,

@@ -535,21 +535,8 @@ fn rig_status_lines(
 
 #[cfg(test)]
 mod tests {
+    use super::draw::tests::camera;
     use super::*;
-    use crate::geometry::CameraModel;
-
-    fn camera() -> Camera {
-        Camera {
-            model: CameraModel::PinholeRadtan,
-            width: 200,
-            height: 100,
-            fx: 100.0,
-            fy: 100.0,
-            cx: 100.0,
-            cy: 50.0,
-            distortion: [0.0; 5],
-        }
-    }
 
     #[test]
     fn without_a_lidar_only_the_corners_are_drawn_and_explained() {
