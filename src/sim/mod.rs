@@ -15,6 +15,7 @@ pub mod raycast;
 pub mod render;
 pub mod rig;
 pub mod rng;
+pub mod structures;
 pub mod visits;
 pub mod world;
 

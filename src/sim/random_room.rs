@@ -21,6 +21,7 @@ use crate::target::BoardSpec;
 
 use super::raycast;
 use super::rng::Rng;
+use super::structures::{self, Site, Structure};
 use super::world::World;
 use super::SimError;
 
@@ -89,6 +90,26 @@ impl RandomBoard {
 
 /// The randomised room of `seed` swept by `lidar` with Gaussian range noise σ `range_noise_m`.
 pub fn random_room(seed: u64, lidar: Model, range_noise_m: f64) -> Result<RandomRoom, SimError> {
+    room_of(seed, lidar, range_noise_m, false)
+}
+
+/// The randomised room of `seed` ([`random_room`]: the same boards and clutter) with one to
+/// three [`Structure`]s more, 2.5–9 m away, none hiding a board: what is no board but has
+/// a board's flatness and a hole's gaps.
+pub fn random_room_among_structures(
+    seed: u64,
+    lidar: Model,
+    range_noise_m: f64,
+) -> Result<RandomRoom, SimError> {
+    room_of(seed, lidar, range_noise_m, true)
+}
+
+fn room_of(
+    seed: u64,
+    lidar: Model,
+    range_noise_m: f64,
+    structures: bool,
+) -> Result<RandomRoom, SimError> {
     let mut rng = Rng::new(seed ^ 0x5EED_0014);
     let (layout, board) = random_board(&mut rng.fork(1));
     let elevations = raycast::beam_elevations(lidar).ok_or(SimError::NoBeamTable(Some(lidar)))?;
@@ -128,6 +149,9 @@ pub fn random_room(seed: u64, lidar: Model, range_noise_m: f64) -> Result<Random
         room.side_y,
     );
     add_clutter(&mut world, &room, &mut rng.fork(5));
+    if structures {
+        add_structures(&mut world, &board, &room, &placed, &mut rng.fork(7));
+    }
     Ok(sweep_room(
         seed,
         layout,
@@ -402,6 +426,53 @@ fn add_clutter(world: &mut World, room: &Shell, rng: &mut Rng) {
         };
         let z0 = room.floor_z;
         world.add_box(Vec3::new(x - dx, y - dy, z0), Vec3::new(x + dx, y + dy, z0 + h));
+    }
+}
+
+/// One to three structures ([`Structure::ALL`]), each clear of the boards (its footprint
+/// at least half a board's diagonal and 0.3 m from every board's centre, and behind any
+/// board it shares directions with: the study is of what is no board, not of boards
+/// hidden) and inside the room; a structure that finds no such site in 50 draws is left
+/// out.
+fn add_structures(
+    world: &mut World,
+    board: &BoardSpec,
+    room: &Shell,
+    placed: &[Placed],
+    rng: &mut Rng,
+) {
+    let count = 1 + (rng.uniform() * 3.0) as usize;
+    let clearance = 0.5 * board.width.hypot(board.height) + 0.3;
+    for _ in 0..count {
+        let kind = Structure::ALL[(rng.uniform() * Structure::ALL.len() as f64) as usize];
+        let mut sizes = rng.fork(2);
+        for _ in 0..50 {
+            let (range, azimuth) = (rng.range(2.5, 9.0), rng.range(-60.0, 60.0).to_radians());
+            let site =
+                Site { x: range * azimuth.cos(), y: range * azimuth.sin(), floor_z: room.floor_z };
+            // Sizes are drawn once per site tried, in a world that keeps only the one kept.
+            let mut trial = world.clone();
+            let footprint = structures::add(&mut trial, kind, board, site, &mut sizes.fork(1));
+            let clear = placed.iter().all(|p| {
+                let c = p.pose.translation;
+                let dx = (c.x - (site.x + footprint.depth / 2.0)).abs() - footprint.depth / 2.0;
+                let dy = (c.y - site.y).abs() - footprint.half_width;
+                let apart = dx.max(0.0).hypot(dy.max(0.0)) > clearance;
+                // Nothing stands between the sensor and a board: a structure seen in the
+                // board's directions stands behind it.
+                let ends = [site.y - footprint.half_width, site.y + footprint.half_width];
+                let (a0, a1) = (ends[0].atan2(site.x), ends[1].atan2(site.x));
+                let (centre, radius) = (p.azimuth.to_radians(), p.angular_radius(board));
+                let in_view = a0 < centre + radius && a1 > centre - radius;
+                apart && (!in_view || site.x > p.pose.translation.norm() + 0.5)
+            });
+            let inside = site.y.abs() + footprint.half_width < room.side_y - 0.3
+                && site.x + footprint.depth < room.front_x - 0.3;
+            if clear && inside {
+                *world = trial;
+                break;
+            }
+        }
     }
 }
 

@@ -5,23 +5,26 @@
 //! are no false placement, ≥ 98 % of the placeable boards found, mean hole error ≤ 4 mm
 //! (Pandar64, one sweep, 2 cm range noise).
 //!
-//! `cargo test --test it holes_study:: -- --nocapture` runs the reduced study (8 rooms per
-//! model, about 30 s of CPU, most of it ray casting) against today's figures; `cargo test
-//! --test holes_study -- --ignored --nocapture` asserts the issue's targets on 20 rooms and
-//! on the full study (200 rooms per model, about 80 s of CPU in release): met on rooms
-//! 1–200 and on rooms 401–600 (`HOLES_STUDY_FIRST=401`); on rooms 201–400
-//! (`HOLES_STUDY_FIRST=201`) by Pandar64 and VLP-32C, while Pandar40P finds 97.9 % (617 of
-//! 630, one board short; see docs/accuracy.md). `HOLES_STUDY_MODEL=VLP-32C` runs one
-//! model only (the full study in three processes), `HOLES_STUDY_MIN_LINES=3` measures that guard
-//! ([`HoleConfig::min_hole_lines`]). A placement is false when a hole lies more than
-//! [`FALSE_HOLE_M`] from its true centre (a wrong hole order included) or the placed board
-//! is no board at all.
+//! `cargo test --test it holes_study:: -- --nocapture` runs the reduced studies (8 rooms
+//! per model, and 6 among structures) against today's figures; `cargo test --release
+//! --test it holes_study:: -- --ignored --nocapture` asserts the targets on 20 rooms and on
+//! the full study (200 rooms per model, about a minute per model). `HOLES_STUDY_FIRST=201`
+//! starts at another room, `HOLES_STUDY_MODEL=VLP-32C` runs one model only (the full study
+//! in three processes), `HOLES_STUDY_MIN_LINES=3` measures that guard
+//! ([`HoleConfig::min_hole_lines`]), and `HOLES_STUDY_STRUCTURES=1` adds one to three
+//! structures that are no board to every room (`random_room_among_structures`: fences,
+//! railings, shelving, windows, doorways, a post and patches on the hole lattice). A
+//! placement is false when a hole lies more than [`FALSE_HOLE_M`] from its true centre (a
+//! wrong hole order included) or the placed board is no board at all. The figures of each
+//! draw are in docs/accuracy.md.
 
 use std::collections::BTreeMap;
 
 use roomcal::detect::holes::{HoleConfig, HoleDetector, LidarBoard};
 use roomcal::lidar::Model;
-use roomcal::sim::random_room::{issue_room, random_room, RandomBoard, RandomRoom};
+use roomcal::sim::random_room::{
+    issue_room, random_room, random_room_among_structures, RandomBoard, RandomRoom,
+};
 
 /// A placed hole farther than this from the truth makes the placement false (m).
 const FALSE_HOLE_M: f64 = 0.02;
@@ -227,6 +230,16 @@ fn score(room: &RandomRoom, name: &str, f: &mut Figures) {
     }
 }
 
+/// Room `seed` of the study: `HOLES_STUDY_STRUCTURES=1` adds structures that are no
+/// board ([`random_room_among_structures`]).
+fn room_of(seed: u64, model: Model) -> RandomRoom {
+    let room = match std::env::var_os("HOLES_STUDY_STRUCTURES") {
+        Some(_) => random_room_among_structures(seed, model, NOISE_M),
+        None => random_room(seed, model, NOISE_M),
+    };
+    room.expect("the simulator has the model")
+}
+
 /// Runs `rooms` rooms per model; prints and returns the figures.
 fn study(rooms: u64) -> Vec<(&'static str, Figures)> {
     // HOLES_STUDY_MODEL=VLP-32C runs one model only (the full study in parallel processes).
@@ -240,7 +253,7 @@ fn study(rooms: u64) -> Vec<(&'static str, Figures)> {
         .map(|&(name, model)| {
             let mut f = Figures::default();
             for seed in first..first + rooms {
-                let room = random_room(seed, model, NOISE_M).expect("the simulator has the model");
+                let room = room_of(seed, model);
                 score(&room, name, &mut f);
             }
             f.print(name);
@@ -271,6 +284,22 @@ fn reduced_study_figures() {
         assert!(f.found_percent() >= 88.0, "{name}: {:.1} % of placeable found", f.found_percent());
         assert_eq!(f.false_placements, 0, "{name}: false placements");
         assert!(f.mean_error_mm() <= 4.0, "{name}: mean hole error {:.2} mm", f.mean_error_mm());
+    }
+}
+
+/// The reduced study among structures that are no board (fences, railings, shelving,
+/// windows, doorways, a post and patches on the hole lattice): no false placement.
+#[test]
+fn reduced_study_among_structures_places_no_false_board() {
+    for &(name, model) in &MODELS {
+        let mut f = Figures::default();
+        for seed in 1..=6 {
+            let room = random_room_among_structures(seed, model, NOISE_M).expect("the model");
+            score(&room, name, &mut f);
+        }
+        f.print(name);
+        assert_eq!(f.false_placements, 0, "{name}: false placements");
+        assert!(f.found_percent() >= 85.0, "{name}: {:.1} % of placeable found", f.found_percent());
     }
 }
 
@@ -456,7 +485,7 @@ fn one_room() {
     };
     let only = std::env::var("HOLES_STUDY_MODEL").ok();
     for &(name, model) in MODELS.iter().filter(|(n, _)| only.as_deref().is_none_or(|o| o == *n)) {
-        let room = random_room(seed, model, NOISE_M).expect("the simulator has the model");
+        let room = room_of(seed, model);
         for (i, t) in room.boards.iter().enumerate() {
             println!(
                 "{name} room {seed} board {i}: {:?} at {:?}, {:.1} m, lines {:?}, {} points, \

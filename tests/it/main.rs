@@ -28,6 +28,7 @@ mod geometry;
 mod holes_expected;
 mod holes_real;
 mod holes_sim;
+mod holes_structures;
 mod holes_study;
 mod hostile_cli;
 mod lidar_decode_cli;

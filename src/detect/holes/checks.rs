@@ -5,7 +5,11 @@
 //! where the fitted board is solid; no points may lie where the holes should be (a crate
 //! face); the two best-seen holes need [`HoleConfig::min_hole_lines`] lines each; most of
 //! the sensor's lines across the board's height must return from it (a structure smaller
-//! than a board does not).
+//! than a board does not); and the beams of every line that crosses the fitted board, taken
+//! from the whole sweep at the line's own azimuth step, must return from its solid face
+//! and pass through its holes ([`FaceEvidence`]: a post and two patches whose gaps fall on
+//! the hole lattice leave the face empty, a wall whose scan lines the plane's points left
+//! out fills the holes).
 //!
 //! A hole counts a line as crossing it when the line leaves and re-enters the board across
 //! it with nothing in front hiding the gap, or returns from behind the plane inside it next
@@ -18,7 +22,7 @@ use crate::target::{BoardSpec, MAX_HOLES};
 
 use super::plane::BoardPlane;
 use super::projection::{Frame, Projection, HOLE_BAND, OUTLINE_CLUTTER};
-use super::scan_lines::{line_end, median_step, scan_lines};
+use super::scan_lines::{line_end, median_step, scan_lines, BEHIND_M};
 use super::search::{to_board, Fit};
 use super::sweep::{elevation, Sweep, LINE_GAP_RAD};
 use super::Refusal;
@@ -42,6 +46,16 @@ const RUN_ON_M: f64 = 0.1;
 /// board ([`board_ends`]): wider than a line's spacing on any board the room file allows
 /// at 8 m, narrower than a stand's distance from the edge that matters.
 const DETACHED_GAP_M: f64 = 0.04;
+
+/// How far inside the outline and outside the holes a beam must meet the board for the
+/// face check to expect a return from it (m): the pose's error and a beam's footprint.
+const FACE_MARGIN_M: f64 = 0.03;
+/// Least share of the beams meeting a board's solid face that must return from it
+/// ([`FaceEvidence`]).
+const MIN_FACE_RETURNS: f64 = 0.8;
+/// Most beams a scan line may cross a board with before its step is taken as broken
+/// (a line whose returns give no usable step).
+const MAX_FACE_BEAMS: f64 = 20_000.0;
 
 /// The checks' workspace, reused from pose to pose.
 #[derive(Debug, Default)]
@@ -281,6 +295,149 @@ pub(super) fn through_solid(fit: &Fit, through: &[[f64; 2]], spec: &BoardSpec) -
     through.iter().filter(|p| solid(p)).count()
 }
 
+/// What the sensor's beams say of a board at `pose` (board → LiDAR), stepping along each
+/// scan line by its own azimuth step through the whole sweep (not only the plane's points):
+/// a board returns nearly every beam that meets its solid face and none of those that
+/// meet its holes. A post, a rail or two patches whose gaps fall on the hole lattice leave
+/// most of the face empty; a wall whose scan lines were split from the plane fills the
+/// holes. Beams hidden by a return in front of the board say nothing.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub(super) struct FaceEvidence {
+    /// Beams meeting the solid face ([`FACE_MARGIN_M`] inside the outline and outside the
+    /// holes), and of them those that returned from the board (within [`BEHIND_M`] of it
+    /// along the beam).
+    pub(super) solid: usize,
+    pub(super) solid_returned: usize,
+    /// Per hole: beams meeting it ([`FACE_MARGIN_M`] inside its edge), and of them those
+    /// that returned from the board's plane (within the band of its points).
+    pub(super) holes: heapless::Vec<(usize, usize), MAX_HOLES>,
+}
+
+/// Where on a board a beam meets it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum FacePart {
+    Solid,
+    Hole(usize),
+}
+
+/// The [`FaceEvidence`] of a board at `pose` in `sweep`, its plane's points within `band`
+/// of it (m, three of their σ).
+pub(super) fn face_evidence(
+    pose: &Se3,
+    sweep: &Sweep,
+    spec: &BoardSpec,
+    band: f64,
+) -> FaceEvidence {
+    let (hw, hh) = (spec.width / 2.0, spec.height / 2.0);
+    let corners =
+        [(-hw, -hh), (hw, -hh), (-hw, hh), (hw, hh)].map(|(x, y)| pose.act(&Vec3::new(x, y, 0.0)));
+    let centre_az = pose.translation.y.atan2(pose.translation.x);
+    let (mut az_lo, mut az_hi, mut el_lo, mut el_hi) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for c in &corners {
+        let daz = wrap(c.y.atan2(c.x) - centre_az);
+        (az_lo, az_hi) = (az_lo.min(daz), az_hi.max(daz));
+        (el_lo, el_hi) = (el_lo.min(elevation(c)), el_hi.max(elevation(c)));
+    }
+    let (n, to_board) = (pose.rotation.column(2).into_owned(), pose.inverse());
+    let d = n.dot(&pose.translation);
+    let mut evidence = FaceEvidence::default();
+    evidence.holes.extend(spec.holes.iter().map(|_| (0, 0)));
+    for line in sweep.scan_lines().iter().filter(|l| l.elevation > el_lo && l.elevation < el_hi) {
+        let (e, step) = (line.elevation, line.step);
+        if step <= 0.0 || (az_hi - az_lo) / step > MAX_FACE_BEAMS {
+            continue;
+        }
+        let mut daz = az_lo + step / 2.0;
+        while daz < az_hi {
+            let az = wrap(centre_az + daz);
+            daz += step;
+            let u = Vec3::new(e.cos() * az.cos(), e.cos() * az.sin(), e.sin());
+            let along = n.dot(&u);
+            if along.abs() < 1e-3 || d / along <= 0.0 {
+                continue;
+            }
+            let to_plane = d / along;
+            let q = to_board.act(&(u * to_plane));
+            let Some(part) = face_part(spec, q.x, q.y) else { continue };
+            // The face is looked for a step to either side (sweeps laid over each other
+            // at unrelated phases leave some steps without a return), a hole at the
+            // beam's own azimuth only (its edge is a margin away).
+            let reach = if part == FacePart::Solid { step } else { step / 2.0 };
+            let (mut on, mut in_band, mut front) = (false, false, false);
+            for (range, _) in sweep.line_returns(e, (az - reach, az + reach)) {
+                on |= (range - to_plane).abs() <= BEHIND_M;
+                in_band |= (range - to_plane).abs() <= band;
+                front |= range < to_plane - BEHIND_M;
+            }
+            if front && !on {
+                continue;
+            }
+            match part {
+                FacePart::Solid => {
+                    evidence.solid += 1;
+                    evidence.solid_returned += usize::from(on);
+                }
+                // Through a hole the next surface may stand close behind (a stand, a
+                // wall): only a return within the plane's own band fills the hole.
+                FacePart::Hole(k) => {
+                    evidence.holes[k].0 += 1;
+                    evidence.holes[k].1 += usize::from(in_band);
+                }
+            }
+        }
+    }
+    evidence
+}
+
+impl FaceEvidence {
+    /// Whether a board's face shows here: most beams meeting its solid face returned
+    /// ([`MIN_FACE_RETURNS`]), and at most one hole is filled ([`FaceEvidence::filled`]:
+    /// something may touch a board's plane at one hole, a clamp or a box, but a surface
+    /// over two or more is no board's).
+    pub(super) fn shows_a_board(&self) -> bool {
+        let returned = self.solid_returned as f64 / self.solid.max(1) as f64;
+        returned >= MIN_FACE_RETURNS && self.filled() <= 1
+    }
+
+    /// Holes most of whose beams (three or more) returned from the board's plane.
+    pub(super) fn filled(&self) -> usize {
+        self.holes.iter().filter(|&&(beams, filled)| filled >= 3 && 2 * filled > beams).count()
+    }
+}
+
+/// Where board point (`x`, `y`) lies: on the solid face or in a hole, each
+/// [`FACE_MARGIN_M`] from any edge, or near an edge or off the board (`None`).
+fn face_part(spec: &BoardSpec, x: f64, y: f64) -> Option<FacePart> {
+    let (hw, hh) = (spec.width / 2.0 - FACE_MARGIN_M, spec.height / 2.0 - FACE_MARGIN_M);
+    if x.abs() >= hw || y.abs() >= hh {
+        return None;
+    }
+    let distance = |h: &[f64; 2]| (x - h[0]).hypot(y - h[1]);
+    let (nearest, d) = spec
+        .holes
+        .iter()
+        .enumerate()
+        .map(|(k, h)| (k, distance(h)))
+        .min_by(|a, b| a.1.total_cmp(&b.1))?;
+    if d > spec.hole_radius + FACE_MARGIN_M {
+        Some(FacePart::Solid)
+    } else if d < spec.hole_radius - FACE_MARGIN_M {
+        Some(FacePart::Hole(nearest))
+    } else {
+        None
+    }
+}
+
+/// An angle in (−π, π].
+fn wrap(a: f64) -> f64 {
+    let a = a.rem_euclid(2.0 * core::f64::consts::PI);
+    if a > core::f64::consts::PI {
+        a - 2.0 * core::f64::consts::PI
+    } else {
+        a
+    }
+}
+
 /// Scan lines on the plane (elevation clusters in `lines`, sorted) and the sensor's lines
 /// whose elevation lies within the board's height at `pose`.
 pub(super) fn lines_over_outline(
@@ -441,5 +598,89 @@ mod tests {
         assert_eq!(board_ends(&line(&hole_then_stand), 0.5, &mut scratch), (0, n - 2));
         let all_past = line(&[0.6, 0.61, 0.7]);
         assert_eq!(board_ends(&all_past, 0.5, &mut scratch), (0, 2));
+    }
+
+    /// The face evidence at [`facing_at_5_m`], for OpenCalib's board, of what a Pandar64
+    /// sweeps in a room holding `boards` (board → LiDAR) and what `scene` adds: one sweep
+    /// at each of `phases` (0.01°), laid over each other.
+    fn evidence_of(
+        boards: Vec<Se3>,
+        phases: &[u16],
+        scene: fn(&mut crate::sim::world::World, &BoardSpec),
+    ) -> FaceEvidence {
+        use crate::sim::{raycast, rng::Rng, world::World};
+        let mut holes = heapless::Vec::new();
+        for h in [[-0.3, -0.3], [0.3, -0.3], [-0.3, 0.3], [0.3, 0.3]] {
+            holes.push(h).expect("four holes fit");
+        }
+        let spec = BoardSpec {
+            width: 1.2,
+            height: 1.2,
+            inner_corners: [2, 2],
+            square: 0.05,
+            hole_radius: 0.11,
+            holes,
+            count: 1,
+            checker_offset: [0.0, 0.0],
+        };
+        let mut rng = Rng::new(5);
+        let mut world =
+            World::new(&spec, boards, &mut rng.fork(1)).with_shell(-1.6, 1.8, 12.0, 8.0);
+        scene(&mut world, &spec);
+        let cal = raycast::calibration(crate::lidar::Model::Pandar64).expect("a simulated model");
+        let cloud: Vec<_> = phases
+            .iter()
+            .flat_map(|&phase| raycast::sweep(&world, &cal, 0.02, phase, &mut rng.fork(2)).points)
+            .collect();
+        let mut sweep = Sweep::default();
+        sweep.load(&cloud, &super::super::HoleConfig::default());
+        face_evidence(&facing_at_5_m(), &sweep, &spec, 0.06)
+    }
+
+    /// The board → LiDAR pose of a board 5 m ahead facing the sensor: board x to the
+    /// sensor's right, y down, the normal away from the sensor.
+    fn facing_at_5_m() -> Se3 {
+        let rotation = crate::geometry::Mat3::from_columns(&[-Vec3::y(), -Vec3::z(), Vec3::x()]);
+        Se3 { rotation, translation: Vec3::new(5.0, 0.0, 0.0) }
+    }
+
+    /// A board's face returns every beam that meets it, and its holes none: in one sweep,
+    /// and in three laid over each other at unrelated phases, or at nearly one phase.
+    #[test]
+    fn a_boards_face_shows_a_board() {
+        for phases in [&[0][..], &[0, 7, 13], &[0, 1]] {
+            let e = evidence_of(vec![facing_at_5_m()], phases, |_, _| {});
+            assert!(e.solid > 500, "{phases:?}: {e:?}");
+            assert!(e.solid_returned as f64 > 0.98 * e.solid as f64, "{phases:?}: {e:?}");
+            assert!(
+                e.holes.iter().all(|&(beams, filled)| beams > 5 && filled == 0),
+                "{phases:?}: {e:?}"
+            );
+            assert!(e.shows_a_board());
+        }
+    }
+
+    /// A post and two patches whose gaps fall on the holes leave most of the face empty.
+    #[test]
+    fn a_post_and_patches_on_the_hole_lattice_leave_the_face_empty() {
+        let e = evidence_of(Vec::new(), &[0], |world, spec| {
+            let site = crate::sim::structures::Site { x: 5.0, y: 0.0, floor_z: -1.6 };
+            let kind = crate::sim::structures::Structure::PostAndPatches;
+            crate::sim::structures::add(world, kind, spec, site, &mut crate::sim::rng::Rng::new(1));
+        });
+        assert!(e.solid > 500, "{e:?}");
+        assert!((e.solid_returned as f64) < 0.6 * e.solid as f64, "{e:?}");
+        assert!(!e.shows_a_board());
+    }
+
+    /// A wall where the board would be fills its holes.
+    #[test]
+    fn a_wall_fills_the_holes() {
+        let e = evidence_of(Vec::new(), &[0], |world, _| {
+            world.add_box(Vec3::new(5.0, -2.0, -1.6), Vec3::new(5.1, 2.0, 1.5));
+        });
+        assert!(e.solid_returned as f64 > 0.98 * e.solid as f64, "{e:?}");
+        assert_eq!(e.filled(), 4, "{e:?}");
+        assert!(!e.shows_a_board());
     }
 }

@@ -26,8 +26,10 @@
 //!    several distinct optima kept only when it leads every rival by a margin
 //!    ([`Refusal::Ambiguous`] otherwise).
 //! 7. **Checks** (`checks.rs`): the scan lines' ends against the outline, beams through
-//!    solid board, points in holes, lines per hole, lines missing; a board that fails one
-//!    is refused with a [`Refusal`] instead of guessed.
+//!    solid board, points in holes, lines per hole, lines missing, and the face: stepping
+//!    along every scan line that crosses the fitted board through the whole sweep, the
+//!    beams meeting its solid face must return from it and those meeting its holes must
+//!    not. A board that fails one is refused with a [`Refusal`] instead of guessed.
 //! 8. **Placement** (`placement.rs`): every hole — well seen or not — placed through the
 //!    rigid board model, each with its σ. Once placed, the plane is fitted again on the
 //!    returns within the outline; when that turns it by more than 0.3° (clutter beyond the
@@ -196,6 +198,13 @@ pub enum Refusal {
     /// `beams` beams passed through the plane (returned from behind it) where the fitted
     /// board is solid: no board lies there as fitted.
     SeenThrough { beams: usize },
+    /// The sensor's beams do not show a board's face at the fitted pose: of the `solid`
+    /// beams meeting its solid face (and not hidden by something in front) `returned`
+    /// came back from it, and `filled` holes returned most of their beams from its plane.
+    /// A board's face returns nearly every beam and its holes none; a structure with gaps
+    /// on the hole lattice (a post and two patches, a fence) leaves the face empty, a wall
+    /// fills the holes.
+    FaceEmpty { returned: usize, solid: usize, filled: usize },
 }
 
 impl core::fmt::Display for Refusal {
@@ -235,6 +244,11 @@ impl core::fmt::Display for Refusal {
             Refusal::SeenThrough { beams } => write!(
                 f,
                 "{beams} beam(s) passed through the plane where the fitted board would be solid"
+            ),
+            Refusal::FaceEmpty { returned, solid, filled } => write!(
+                f,
+                "{returned} of the {solid} beams that meet the fitted board's solid face returned \
+                 from it and {filled} of its holes are filled: not a board's face"
             ),
         }
     }
@@ -305,6 +319,9 @@ impl Refusal {
             }
             Refusal::Ambiguous { .. } => {
                 "if it is a board, turn or move it so more scan lines cross its holes"
+            }
+            Refusal::FaceEmpty { .. } => {
+                "if it is a board, check the room file's board size and that its face returns the LiDAR's beams (not black or glossy)"
             }
             Refusal::OutlineDisagrees { .. } | Refusal::SeenThrough { .. } => {
                 "if it is a board, check the room file's board size and clear what touches its edges"
@@ -632,6 +649,17 @@ impl HoleDetector {
         if 4 * seen_lines < 3 * expected {
             let reason = Refusal::LinesMissing { seen: seen_lines, expected };
             return Err(Unplaced { reason, lines: heapless::Vec::new(), guess: None });
+        }
+        // Its solid face must return the beams that meet it: scan lines crossing a post and
+        // two patches whose gaps fall on the hole lattice return from little of it.
+        let face = checks::face_evidence(&pose, &self.sweep, spec, self.plane.band);
+        if !face.shows_a_board() {
+            let reason = Refusal::FaceEmpty {
+                returned: face.solid_returned,
+                solid: face.solid,
+                filled: face.filled(),
+            };
+            return Err(Unplaced { reason, lines: heapless::Vec::new(), guess: Some(fit.pose) });
         }
         Ok(lines)
     }

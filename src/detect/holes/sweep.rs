@@ -32,6 +32,22 @@ pub(super) struct Sweep {
     bin_start: Vec<u32>,
     /// The next free slot of each bin while `beams` is filled.
     bin_fill: Vec<u32>,
+    /// The census's scan lines, by elevation.
+    lines: Vec<ScanLine>,
+    /// One line's azimuths while its step is measured.
+    azimuths: Vec<f32>,
+}
+
+/// One of the sensor's scan lines as the sweep shows it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct ScanLine {
+    /// Mean elevation of its returns (rad).
+    pub(super) elevation: f64,
+    /// The azimuth step (rad) between its returns that most are within: its beams' step in
+    /// one sweep (the beams that returned nothing, sky, glass, the far side of a door, do
+    /// not stretch it), about their mean spacing in sweeps laid over each other
+    /// ([`upper_quartile_step`]).
+    pub(super) step: f64,
 }
 
 impl Sweep {
@@ -51,6 +67,7 @@ impl Sweep {
         }
         self.learn_rings();
         self.index_beams();
+        self.learn_lines();
     }
 
     /// The returns within range.
@@ -70,6 +87,7 @@ impl Sweep {
         self.beams = Vec::new();
         self.bin_start = Vec::new();
         self.bin_fill = Vec::new();
+        self.azimuths = Vec::new();
     }
 
     /// Returns of the scan line at elevation `e` between azimuths `lo` and `hi` (open
@@ -100,6 +118,30 @@ impl Sweep {
             }
         }
         front
+    }
+
+    /// The sensor's scan lines as this sweep shows them, by elevation.
+    pub(super) fn scan_lines(&self) -> &[ScanLine] {
+        &self.lines
+    }
+
+    /// Returns of the scan line at elevation `e` between azimuths `lo` and `hi` (rad,
+    /// half-open), as (range, elevation) of each.
+    pub(super) fn line_returns(
+        &self,
+        e: f64,
+        (lo, hi): (f64, f64),
+    ) -> impl Iterator<Item = (f64, f64)> + '_ {
+        let (lo, hi) = (lo as f32, hi as f32);
+        (ring_bin(e - LINE_GAP_RAD)..=ring_bin(e + LINE_GAP_RAD)).flat_map(move |bin| {
+            let beams = &self.beams[self.bin_start[bin] as usize..self.bin_start[bin + 1] as usize];
+            let from = beams.partition_point(|q| q.0 < lo);
+            beams[from..]
+                .iter()
+                .take_while(move |q| q.0 < hi)
+                .map(|&(_, range, el)| (f64::from(range), f64::from(el)))
+                .filter(move |&(_, el)| (el - e).abs() < LINE_GAP_RAD)
+        })
     }
 
     /// The sensor's scan lines with an elevation between `lo` and `hi` (rad): runs of
@@ -155,6 +197,58 @@ impl Sweep {
             self.beams[from..to].sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         }
     }
+}
+
+impl Sweep {
+    /// The census's scan lines ([`ScanLine`]): each run of occupied elevation bins, as in
+    /// [`Sweep::lines_between`], with its mean elevation and azimuth step.
+    #[inline(never)]
+    fn learn_lines(&mut self) {
+        self.lines.clear();
+        let mut b = 0;
+        while b < RING_BINS {
+            if self.rings[b] < 3 {
+                b += 1;
+                continue;
+            }
+            let first = b;
+            while b < RING_BINS && self.rings[b] >= 3 {
+                b += 1;
+            }
+            let beams = &self.beams[self.bin_start[first] as usize..self.bin_start[b] as usize];
+            let elevation = beams.iter().map(|q| f64::from(q.2)).sum::<f64>() / beams.len() as f64;
+            self.azimuths.clear();
+            self.azimuths.extend(beams.iter().map(|q| q.0));
+            self.azimuths.sort_unstable_by(f32::total_cmp);
+            let step = upper_quartile_step(&mut self.azimuths);
+            self.lines.push(ScanLine { elevation, step });
+        }
+    }
+}
+
+/// The third quartile of the positive steps between sorted `azimuths` (rad), computed
+/// in place; zero when there is none. A dual-return sensor's second return at the same
+/// azimuth is no step. One sweep's steps are all the beams' step but where beams returned
+/// nothing (one longer step each, far fewer than a quarter of them in a room); in sweeps
+/// of a standing vehicle laid over each other at unrelated phases the steps are the
+/// sweeps' interleaving, whose third quartile is over their mean.
+fn upper_quartile_step(azimuths: &mut Vec<f32>) -> f64 {
+    // Steps below 0.005° are a second return of one beam, not the next beam.
+    const SAME_BEAM_RAD: f32 = 0.005 * (PI as f32 / 180.0);
+    let mut kept = 0;
+    for k in 1..azimuths.len() {
+        let step = azimuths[k] - azimuths[k - 1];
+        if step > SAME_BEAM_RAD {
+            azimuths[kept] = step;
+            kept += 1;
+        }
+    }
+    azimuths.truncate(kept);
+    if azimuths.is_empty() {
+        return 0.0;
+    }
+    let at = azimuths.len() * 3 / 4;
+    f64::from(*azimuths.select_nth_unstable_by(at, f32::total_cmp).1)
 }
 
 /// A return as the detector keeps it, in the solver's type (the same values as the
