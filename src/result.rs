@@ -48,10 +48,45 @@ pub fn load_rig(path: &Path) -> Result<RigResult, ResultFileError> {
 }
 
 fn parse<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, ResultFileError> {
-    let text = std::fs::read_to_string(path)
+    let text = read_json_text(path)
         .map_err(|source| ResultFileError::Read { path: path.to_owned(), source })?;
     serde_json::from_str(&text)
         .map_err(|e| ResultFileError::Parse { path: path.to_owned(), message: e.to_string() })
+}
+
+/// Most bytes of a result or detections file read back: a run's largest is a few hundred
+/// KiB (32 frames of 16 boards of 35 corners, with the projection map).
+pub const MAX_JSON_BYTES: u64 = 16 << 20;
+
+/// Why a detections file cannot be read; names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum DetectionsFileError {
+    #[error("detections {path}: cannot read: {source}")]
+    Read { path: PathBuf, source: std::io::Error },
+    #[error("detections {path}: not a detections file: {message}")]
+    Parse { path: PathBuf, message: String },
+}
+
+/// Reads a detections file (`roomcal detect`'s form); whether it fits a room is
+/// `calibrate::frames_from_detections`'s to say.
+pub fn load_detections(path: &Path) -> Result<Detections, DetectionsFileError> {
+    let text = read_json_text(path)
+        .map_err(|source| DetectionsFileError::Read { path: path.to_owned(), source })?;
+    serde_json::from_str(&text)
+        .map_err(|e| DetectionsFileError::Parse { path: path.to_owned(), message: e.to_string() })
+}
+
+/// A JSON file's text, refused above [`MAX_JSON_BYTES`] before more is read (a device or
+/// a pipe included).
+fn read_json_text(path: &Path) -> std::io::Result<String> {
+    use std::io::Read;
+    let mut text = String::new();
+    std::fs::File::open(path)?.take(MAX_JSON_BYTES + 1).read_to_string(&mut text)?;
+    if text.len() as u64 > MAX_JSON_BYTES {
+        let message = format!("larger than {} MiB", MAX_JSON_BYTES >> 20);
+        return Err(std::io::Error::new(std::io::ErrorKind::InvalidData, message));
+    }
+    Ok(text)
 }
 
 /// Whether the quality gate accepted the calibration.
@@ -111,6 +146,12 @@ pub struct BoardDetection {
     pub corners_px: Vec<[f64; 2]>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub holes_lidar: Vec<[f64; 3]>,
+    /// A corner's 1σ (px), as the detector judged it (`roomcal detect` writes it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub corner_sigma_px: Option<f64>,
+    /// A hole centre's 1σ (m), as the detector judged it (`roomcal detect` writes it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hole_sigma_m: Option<f64>,
     /// In a surveyed room (`roomcal detect`): which surveyed board (index into
     /// `[[survey.boards]]`) this detection is; absent when unidentified or not surveyed.
     #[serde(default, skip_serializing_if = "Option::is_none")]

@@ -10,7 +10,7 @@ use crate::target::Room;
 
 use super::{
     calibrate_detecting, identify_detections, CalibrateOptions, CameraBoard, Detectors,
-    FrameDetections, FrameIdentities, LidarBoard, SolveFailure,
+    FrameDetections, FrameIdentities, SolveFailure,
 };
 
 /// One frame's detections, the refused planes and the detections' identities.
@@ -98,22 +98,6 @@ impl FrameReport {
             });
         }
         out
-    }
-}
-
-impl CameraBoard {
-    /// The board as the detections file holds it: its corners (px), in the detector's order.
-    pub fn detection(&self) -> BoardDetection {
-        let corners_px = self.corners.iter().map(|c| [c.x, c.y]).collect();
-        BoardDetection { corners_px, ..BoardDetection::default() }
-    }
-}
-
-impl LidarBoard {
-    /// The board as the detections file holds it: its hole centres (LiDAR frame, m).
-    pub fn detection(&self) -> BoardDetection {
-        let holes_lidar = self.holes.iter().map(|h| [h.x, h.y, h.z]).collect();
-        BoardDetection { holes_lidar, ..BoardDetection::default() }
     }
 }
 

@@ -26,6 +26,7 @@
 //! result file's `reason`.
 
 mod association;
+mod detections;
 mod detectors;
 mod faces;
 mod frame_report;
@@ -43,6 +44,9 @@ mod solve_failure;
 pub mod survey;
 mod surveyed;
 
+pub use detections::{
+    frames_from_detections, DetectionsError, DEFAULT_CORNER_SIGMA_PX, DEFAULT_HOLE_SIGMA_M,
+};
 pub use detectors::{expected_in_rig_lidars, Detectors, RigDetectors, RigExpectation};
 pub use faces::plane_points;
 pub use gate::coverage;

@@ -33,8 +33,12 @@ pub struct CalibrateArgs {
     #[arg(long)]
     room: PathBuf,
     /// A camera frame (PNG or JPEG); repeat for several. Image i pairs with cloud i.
-    #[arg(long, required = true)]
+    #[arg(long, required_unless_present = "detections")]
     image: Vec<PathBuf>,
+    /// A detections file (JSON, as `roomcal detect` writes it, or another tool's in that
+    /// form) to solve instead of images and clouds.
+    #[arg(long, value_name = "JSON", conflicts_with_all = ["image", "cloud", "standing", "rig", "report", "lidar_calibration"])]
+    detections: Option<PathBuf>,
     /// A LiDAR cloud (PCD, or a pcap/pcapng capture of the room's model); repeat for several.
     #[arg(long)]
     cloud: Vec<PathBuf>,
@@ -96,11 +100,14 @@ pub fn run(args: CalibrateArgs) -> Result<(), Failure> {
     if let Some(rig_path) = &args.rig {
         return run_rig(&room, rig_path, &args);
     }
-    check_pairs(&args, &room)?;
     let current = match &args.current {
         Some(path) => Some(roomcal::result::load(path).map_err(bad_input)?),
         None => None,
     };
+    if let Some(path) = &args.detections {
+        return run_detections(room, path, current, &args);
+    }
+    check_pairs(&args, &room)?;
     let mut progress = Progress::on_stderr("calibrate", steps(&args), args.quiet);
     let (images, clouds) = load_inputs(&args, &room, &mut progress)?;
     let mut detectors = Detectors::new(&room).map_err(bad_input)?;
@@ -146,6 +153,54 @@ pub fn run(args: CalibrateArgs) -> Result<(), Failure> {
         write_report(report, first.as_ref(), &clouds, &run, first_refused)?;
         written.push(report.display().to_string());
     }
+    let refused_count = refused.iter().map(Vec::len).sum();
+    finish(&args, &room, &frames, &run, refused_count, written, progress)
+}
+
+/// `calibrate --detections`: the boards of a detections file solved and gated as a run's
+/// own detections would be (without the LiDAR's board-face points, which the file does
+/// not hold).
+fn run_detections(
+    room: Room,
+    path: &Path,
+    current: Option<roomcal::result::CalibrationResult>,
+    args: &CalibrateArgs,
+) -> Result<(), Failure> {
+    let mut progress = Progress::on_stderr("calibrate", 3, args.quiet);
+    progress.step(&format!("reading {}", path.display()));
+    let detections = roomcal::result::load_detections(path).map_err(bad_input)?;
+    let frames = roomcal::calibrate::frames_from_detections(&room, &detections)
+        .with_context(|| format!("detections {}", path.display()))
+        .map_err(bad_input)?;
+    let mut room = room;
+    if frames.iter().all(|f| f.lidar.is_empty()) {
+        room.lidar = None;
+    }
+    progress.step("solving");
+    let options = CalibrateOptions {
+        two_stage: args.two_stage,
+        current,
+        without_planes: args.without_planes,
+        free_boards: args.free_boards,
+        ..CalibrateOptions::default()
+    };
+    let run = roomcal::calibrate::calibrate(&room, &frames, &options);
+    progress.step("writing the results");
+    let written = write_result(&args.out, &run.result)?;
+    finish(args, &room, &frames, &run, 0, written, progress)
+}
+
+/// A run's end: its exports when accepted, the summary (or the result file, or the status
+/// line) on stdout, and the exit for its verdict.
+fn finish(
+    args: &CalibrateArgs,
+    room: &Room,
+    frames: &[FrameDetections],
+    run: &roomcal::calibrate::Calibration,
+    refused_count: usize,
+    mut written: Vec<String>,
+    progress: Progress,
+) -> Result<(), Failure> {
     let accepted = run.result.status == Status::Accepted;
     if let Some(dir) = args.export.as_ref().filter(|_| accepted) {
         let files = roomcal::export::write_dir(dir, &roomcal::export::files(&run.result))
@@ -158,8 +213,7 @@ pub fn run(args: CalibrateArgs) -> Result<(), Failure> {
     } else if args.quiet {
         say!("{}", summary::status_line(&run.result));
     } else {
-        let refused_count = refused.iter().map(Vec::len).sum();
-        for line in summary::lines(&room, &frames, &run, refused_count, &written) {
+        for line in summary::lines(room, frames, run, refused_count, &written) {
             say!("{line}");
         }
         if let Some(dir) = args.export.as_ref().filter(|_| !accepted) {

@@ -215,6 +215,11 @@ pub fn issue_room(noise_seed: u64, range_noise_m: f64) -> RandomRoom {
     )
 }
 
+/// OpenCalib's board: 1.2 m square, 0.11 m holes on a 0.6 m square about its centre.
+pub fn opencalib_board() -> BoardSpec {
+    board_with(1.2, 1.2, 0.11, &[[-0.3, -0.3], [0.3, -0.3], [-0.3, 0.3], [0.3, 0.3]])
+}
+
 /// The fixed room's board: 1.4 × 1.1 m, 0.1 m holes at (±0.55, ±0.38).
 pub fn issue_board() -> BoardSpec {
     board_with(1.4, 1.1, 0.1, &[[-0.55, -0.38], [0.55, -0.38], [-0.55, 0.38], [0.55, 0.38]])
@@ -302,10 +307,7 @@ fn random_board(rng: &mut Rng) -> (HoleLayout, BoardSpec) {
             let (x, y) = (w / 2.0 - r - 0.03, h / 2.0 - r - 0.03);
             (HoleLayout::Corners, board_with(w, h, r, &[[-x, -y], [x, -y], [-x, y], [x, y]]))
         }
-        2 => (
-            HoleLayout::OpenCalib,
-            board_with(1.2, 1.2, 0.11, &[[-0.3, -0.3], [0.3, -0.3], [-0.3, 0.3], [0.3, 0.3]]),
-        ),
+        2 => (HoleLayout::OpenCalib, opencalib_board()),
         3 => (HoleLayout::Issue, issue_board()),
         _ => {
             let (w, h) = (rng.range(0.8, 1.6), rng.range(0.6, 1.2));

@@ -11,14 +11,12 @@
 use roomcal::detect::holes::{HoleConfig, HoleDetector, LidarBoard};
 use roomcal::geometry::Se3;
 use roomcal::lidar::Model;
-use roomcal::sim::random_room::issue_board;
+use roomcal::sim::random_room::{issue_board, opencalib_board};
 use roomcal::sim::raycast;
 use roomcal::sim::rng::Rng;
 use roomcal::sim::structures::{self, Site, Structure};
 use roomcal::sim::world::World;
 use roomcal::target::BoardSpec;
-
-use crate::common::opencalib::opencalib_board;
 
 const MODELS: [Model; 3] = [Model::Pandar64, Model::Pandar40p, Model::Vlp32c];
 

@@ -7,6 +7,7 @@
 mod common;
 
 mod calibrate_band;
+mod calibrate_detections;
 mod calibrate_e2e;
 mod calibrate_issue_room;
 mod calibrate_pipeline;

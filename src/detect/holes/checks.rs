@@ -609,20 +609,7 @@ mod tests {
         scene: fn(&mut crate::sim::world::World, &BoardSpec),
     ) -> FaceEvidence {
         use crate::sim::{raycast, rng::Rng, world::World};
-        let mut holes = heapless::Vec::new();
-        for h in [[-0.3, -0.3], [0.3, -0.3], [-0.3, 0.3], [0.3, 0.3]] {
-            holes.push(h).expect("four holes fit");
-        }
-        let spec = BoardSpec {
-            width: 1.2,
-            height: 1.2,
-            inner_corners: [2, 2],
-            square: 0.05,
-            hole_radius: 0.11,
-            holes,
-            count: 1,
-            checker_offset: [0.0, 0.0],
-        };
+        let spec = crate::sim::random_room::opencalib_board();
         let mut rng = Rng::new(5);
         let mut world =
             World::new(&spec, boards, &mut rng.fork(1)).with_shell(-1.6, 1.8, 12.0, 8.0);
