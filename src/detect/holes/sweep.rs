@@ -219,7 +219,10 @@ impl Sweep {
             let elevation = beams.iter().map(|q| f64::from(q.2)).sum::<f64>() / beams.len() as f64;
             self.azimuths.clear();
             self.azimuths.extend(beams.iter().map(|q| q.0));
-            self.azimuths.sort_unstable_by(f32::total_cmp);
+            // A bin is sorted by azimuth already; a line over several bins is merged here.
+            if b - first > 1 {
+                self.azimuths.sort_unstable_by(f32::total_cmp);
+            }
             let step = upper_quartile_step(&mut self.azimuths);
             self.lines.push(ScanLine { elevation, step });
         }
