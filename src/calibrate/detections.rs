@@ -98,12 +98,14 @@ fn check(room: &Room, board: usize, d: &BoardDetection) -> Result<(), Detections
         }
     }
     let corners = d.corners_px.iter().flatten();
-    if !corners.chain(d.holes_lidar.iter().flatten()).all(|v| v.is_finite()) {
-        let field = match d.corners_px.iter().flatten().all(|v| v.is_finite()) {
-            true => "holes_lidar",
-            false => "corners_px",
-        };
-        return Err(DetectionsError::NotFinite { board, field });
+    let holes = d.holes_lidar.iter().flatten();
+    for (field, finite) in [
+        ("corners_px", corners.copied().all(f64::is_finite)),
+        ("holes_lidar", holes.copied().all(f64::is_finite)),
+    ] {
+        if !finite {
+            return Err(DetectionsError::NotFinite { board, field });
+        }
     }
     for (field, sigma) in [("corner_sigma_px", d.corner_sigma_px), ("hole_sigma_m", d.hole_sigma_m)]
     {

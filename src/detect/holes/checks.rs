@@ -24,7 +24,7 @@ use super::plane::BoardPlane;
 use super::projection::{Frame, Projection, HOLE_BAND, OUTLINE_CLUTTER};
 use super::scan_lines::{line_end, median_step, scan_lines, BEHIND_M};
 use super::search::{to_board, Fit};
-use super::sweep::{elevation, Sweep, LINE_GAP_RAD};
+use super::sweep::{elevation, wrap_azimuth, Sweep, LINE_GAP_RAD};
 use super::Refusal;
 
 /// Scan lines that cross each hole, in the room's hole order.
@@ -334,7 +334,7 @@ pub(super) fn face_evidence(
     let centre_az = pose.translation.y.atan2(pose.translation.x);
     let (mut az_lo, mut az_hi, mut el_lo, mut el_hi) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
     for c in &corners {
-        let daz = wrap(c.y.atan2(c.x) - centre_az);
+        let daz = wrap_azimuth(c.y.atan2(c.x) - centre_az);
         (az_lo, az_hi) = (az_lo.min(daz), az_hi.max(daz));
         (el_lo, el_hi) = (el_lo.min(elevation(c)), el_hi.max(elevation(c)));
     }
@@ -349,7 +349,7 @@ pub(super) fn face_evidence(
         }
         let mut daz = az_lo + step / 2.0;
         while daz < az_hi {
-            let az = wrap(centre_az + daz);
+            let az = wrap_azimuth(centre_az + daz);
             daz += step;
             let u = Vec3::new(e.cos() * az.cos(), e.cos() * az.sin(), e.sin());
             let along = n.dot(&u);
@@ -364,7 +364,7 @@ pub(super) fn face_evidence(
             // beam's own azimuth only (its edge is a margin away).
             let reach = if part == FacePart::Solid { step } else { step / 2.0 };
             let (mut on, mut in_band, mut front) = (false, false, false);
-            for (range, _) in sweep.line_returns(e, (az - reach, az + reach)) {
+            for range in sweep.line_returns(e, (az - reach, az + reach)) {
                 on |= (range - to_plane).abs() <= BEHIND_M;
                 in_band |= (range - to_plane).abs() <= band;
                 front |= range < to_plane - BEHIND_M;
@@ -425,16 +425,6 @@ fn face_part(spec: &BoardSpec, x: f64, y: f64) -> Option<FacePart> {
         Some(FacePart::Hole(nearest))
     } else {
         None
-    }
-}
-
-/// An angle in (−π, π].
-fn wrap(a: f64) -> f64 {
-    let a = a.rem_euclid(2.0 * core::f64::consts::PI);
-    if a > core::f64::consts::PI {
-        a - 2.0 * core::f64::consts::PI
-    } else {
-        a
     }
 }
 

@@ -14,7 +14,7 @@ use core::f64::consts::PI;
 use crate::geometry::Vec3;
 use crate::target::BoardSpec;
 
-use super::sweep::{elevation, Sweep, LINE_GAP_RAD};
+use super::sweep::{elevation, wrap_azimuth, Sweep, LINE_GAP_RAD};
 use super::HoleConfig;
 
 /// How far beyond the plane along its beam a return must lie to be a see-through point
@@ -88,15 +88,7 @@ impl ScanLines {
             self.run.clear();
             for &(_, i) in &self.lines[start..end] {
                 let p = &seg[i as usize];
-                let a = p.y.atan2(p.x) - towards;
-                let a = if a > PI {
-                    a - 2.0 * PI
-                } else if a < -PI {
-                    a + 2.0 * PI
-                } else {
-                    a
-                };
-                self.run.push((a, i));
+                self.run.push((wrap_azimuth(p.y.atan2(p.x) - towards), i));
             }
             start = end;
             self.run.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));

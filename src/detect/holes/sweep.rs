@@ -125,13 +125,13 @@ impl Sweep {
         &self.lines
     }
 
-    /// Returns of the scan line at elevation `e` between azimuths `lo` and `hi` (rad,
-    /// half-open), as (range, elevation) of each.
+    /// Ranges of the returns of the scan line at elevation `e` between azimuths `lo` and
+    /// `hi` (rad, half-open).
     pub(super) fn line_returns(
         &self,
         e: f64,
         (lo, hi): (f64, f64),
-    ) -> impl Iterator<Item = (f64, f64)> + '_ {
+    ) -> impl Iterator<Item = f64> + '_ {
         let (lo, hi) = (lo as f32, hi as f32);
         (ring_bin(e - LINE_GAP_RAD)..=ring_bin(e + LINE_GAP_RAD)).flat_map(move |bin| {
             let beams = &self.beams[self.bin_start[bin] as usize..self.bin_start[bin + 1] as usize];
@@ -139,8 +139,8 @@ impl Sweep {
             beams[from..]
                 .iter()
                 .take_while(move |q| q.0 < hi)
-                .map(|&(_, range, el)| (f64::from(range), f64::from(el)))
-                .filter(move |&(_, el)| (el - e).abs() < LINE_GAP_RAD)
+                .filter(move |q| (f64::from(q.2) - e).abs() < LINE_GAP_RAD)
+                .map(|q| f64::from(q.1))
         })
     }
 
@@ -197,9 +197,7 @@ impl Sweep {
             self.beams[from..to].sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
         }
     }
-}
 
-impl Sweep {
     /// The census's scan lines ([`ScanLine`]): each run of occupied elevation bins, as in
     /// [`Sweep::lines_between`], with its mean elevation and azimuth step.
     #[inline(never)]
@@ -258,6 +256,18 @@ fn upper_quartile_step(azimuths: &mut Vec<f32>) -> f64 {
 /// sweep's f32 converted directly).
 pub(super) fn point_of(p: &[f32; 3]) -> Vec3 {
     Vec3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))
+}
+
+/// Azimuth difference `a` (rad, within 2π of the interval) brought into [−π, π]: the way
+/// round that is shorter. Values already in it are returned as they are.
+pub(super) fn wrap_azimuth(a: f64) -> f64 {
+    if a > PI {
+        a - 2.0 * PI
+    } else if a < -PI {
+        a + 2.0 * PI
+    } else {
+        a
+    }
 }
 
 /// Elevation angle of `p` seen from the sensor (rad): what tells its scan line.
